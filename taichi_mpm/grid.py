@@ -1,0 +1,83 @@
+"""Grid storage (sparse or dense) and wall conditions.
+
+Sparse: pointer blocks over dense leaf blocks; P2G's atomic adds activate the blocks the particles
+touch, and `clear()` deactivates them every step, so memory and time follow the particles, not the
+domain. A domain with many blocks gets a second pointer level so the top pointer array stays small.
+"""
+
+import math
+
+import taichi as ti
+
+LEAF = {1: 64, 2: 8, 3: 4}          # nodes per axis of a dense leaf block
+MAX_TOP_POINTERS = 1 << 16          # pointer slots at the top level before a second level is added
+
+
+class Grid:
+    def __init__(self, dim: int, shape: list[int], sparse: bool, vector_fields: list[str]):
+        """`shape`: nodes per axis. Allocates `m` (mass) and one dim-vector field per name."""
+        self.dim, self.shape, self.sparse = dim, list(shape), sparse
+        self.m = ti.field(float)
+        self.vec = {name: ti.Vector.field(dim, float) for name in vector_fields}
+        axes = ti.axes(*range(dim))
+        places = [self.m, *self.vec.values()]
+        self.levels = []
+        if not sparse:
+            ti.root.dense(axes, self.shape).place(*places)
+            return
+        leaf = LEAF[dim]
+        # power-of-two pointer extents: Taichi 1.7 drops writes in some non-power-of-two 3D pointer grids
+        blocks = [_pow2(math.ceil(s / leaf)) for s in self.shape]
+        if math.prod(blocks) <= MAX_TOP_POINTERS:
+            top = ti.root.pointer(axes, blocks)
+            self.levels = [top]
+            top.dense(axes, leaf).place(*places)
+        else:
+            mid_n = 8 if dim == 3 else 16 if dim == 2 else 64
+            tops = [_pow2(math.ceil(b / mid_n)) for b in blocks]
+            top = ti.root.pointer(axes, tops)
+            mid = top.pointer(axes, mid_n)
+            self.levels = [top, mid]
+            mid.dense(axes, leaf).place(*places)
+
+    def clear(self):
+        if self.sparse:
+            for level in reversed(self.levels):
+                level.deactivate_all()
+        else:
+            self.m.fill(0)
+            for f in self.vec.values():
+                f.fill(0)
+
+
+def _pow2(n: int) -> int:
+    return 1 << max(0, (n - 1).bit_length())
+
+
+def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str]], basis):
+    """@ti.func (I, v) -> v with each face's condition applied at nodes on or beyond that wall.
+
+    faces[a] = (kind at the lower wall, kind at the upper wall) of axis a:
+    sticky: v = 0; slip: no flow into the wall (frictionless, may separate); free: nothing.
+    """
+
+    kind = {"free": 0, "sticky": 1, "slip": 2}
+    codes = [(kind[lo], kind[hi]) for lo, hi in faces]
+
+    @ti.func
+    def apply(I, v):
+        for a in ti.static(range(dim)):
+            c = basis.coord(I[a], n_cells[a])
+            if c <= 0.0:
+                if ti.static(codes[a][0] == 1):
+                    v = ti.Vector.zero(float, dim)
+                elif ti.static(codes[a][0] == 2):
+                    v[a] = ti.max(v[a], 0.0)
+            if c >= ti.static(float(n_cells[a])):
+                if ti.static(codes[a][1] == 1):
+                    v = ti.Vector.zero(float, dim)
+                elif ti.static(codes[a][1] == 2):
+                    v[a] = ti.min(v[a], 0.0)
+        return v
+
+    return apply
