@@ -1,0 +1,26 @@
+"""Shared test helpers. Taichi's offline cache stays on, so kernels compiled by one test are reused."""
+import copy
+
+import pytest
+
+
+def make_cfg(dim=2, *, basis="quadratic", transfer="apic", precision="f64", dx=0.1, extent=1.0,
+             model="neo_hookean", E=1.0e4, nu=0.3, density=1000.0, lower=None, upper=None,
+             velocity=None, end_time=0.01, boundaries="slip", **solver):
+    """A small valid config dict: one box body in a cube domain. Override anything afterwards."""
+    lower = lower if lower is not None else [0.3 * extent] * dim
+    upper = upper if upper is not None else [0.6 * extent] * dim
+    body = dict(name="block", shape=dict(type="box", lower=lower, upper=upper), material="m")
+    if velocity is not None:
+        body["velocity"] = velocity
+    mat = dict(model=model, density=density)
+    mat.update(dict(K=E) if model == "fluid" else dict(E=E, nu=nu))
+    return dict(name="test", dim=dim, precision=precision, arch="cpu",
+                domain=dict(lower=[0.0] * dim, upper=[extent] * dim, dx=dx, boundaries=dict(default=boundaries)),
+                solver=dict(basis=basis, transfer=transfer, end_time=end_time, **solver),
+                materials=dict(m=mat), bodies=[body])
+
+
+@pytest.fixture
+def cfg_factory():
+    return lambda *a, **k: copy.deepcopy(make_cfg(*a, **k))
