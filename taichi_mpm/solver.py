@@ -111,18 +111,36 @@ class Simulation:
         floats += 1 if self.half_width is not None else 0
         return floats * size + (1 if self.mat is not None else 0)
 
+    def _block_order(self) -> np.ndarray:
+        """Solver slot -> creation index, sorting particles by grid block then cell, so that particles that
+        share grid nodes are processed together (P2G scatters and G2P gathers hit the same cache lines)."""
+        cell = np.floor((self.scene.x - self.lower) / self.dx).astype(np.int64)
+        block = cell // 4
+        keys = [cell[:, a] for a in reversed(range(self.dim))] + [block[:, a] for a in reversed(range(self.dim))]
+        return np.lexsort(keys)
+
+    def _to_solver(self, a: np.ndarray) -> np.ndarray:
+        """Per-particle array in creation order -> solver order."""
+        return np.ascontiguousarray(np.asarray(a)[self._perm])
+
+    def _to_creation(self, a: np.ndarray) -> np.ndarray:
+        out = np.empty_like(a)
+        out[self._perm] = a
+        return out
+
     def _upload(self):
         s, d = self.scene, self.dim
-        self.x.from_numpy(s.x.astype(np.float64))
-        self.v.from_numpy(s.v.astype(np.float64))
+        self._perm = self._block_order()
+        self.x.from_numpy(self._to_solver(s.x).astype(np.float64))
+        self.v.from_numpy(self._to_solver(s.v).astype(np.float64))
         self.F.from_numpy(np.broadcast_to(np.eye(d), (self.n, d, d)).copy())
-        self.vol0.from_numpy(s.volume.astype(np.float64))
+        self.vol0.from_numpy(self._to_solver(s.volume).astype(np.float64))
         if self.C is not None:
             self.C.fill(0)
         if self.mat is not None:
-            self.mat.from_numpy(s.material.astype(np.uint8))
+            self.mat.from_numpy(self._to_solver(s.material).astype(np.uint8))
         if self.half_width is not None:
-            self.half_width.from_numpy(0.5 * s.spacing / self.dx)
+            self.half_width.from_numpy(self._to_solver(0.5 * s.spacing / self.dx))
 
     # ------------------------------------------------------------------ kernels
     def _build_kernels(self):
@@ -200,11 +218,13 @@ class Simulation:
 
         @ti.func
         def stencil(p):
-            """Stencil origin (storage index), 1D weights W[axis, k], their x-derivatives DW, and u."""
+            """Stencil origin (storage index), per-axis weights W[a, k], x-derivatives DW[a, k] and node offsets
+            R[a, k] = (x_i - x_p)_a, so the node loop only multiplies."""
             u = (x[p] - lower) * inv_dx
             base = ti.Vector.zero(int, dim)
             W = ti.Matrix.zero(float, dim, S)
             DW = ti.Matrix.zero(float, dim, S)
+            R = ti.Matrix.zero(float, dim, S)
             for a in ti.static(range(dim)):
                 lp = 0.0
                 if ti.static(basis.name == "gimp"):
@@ -218,7 +238,8 @@ class Simulation:
                 for k in ti.static(range(S)):
                     W[a, k] = w[k]
                     DW[a, k] = dw[k] * inv_dx
-            return base, W, DW, u
+                    R[a, k] = (basis.coord(b + k, n_cells[a]) - u[a]) * dx
+            return base, W, DW, R
 
         @ti.func
         def node_weight(W, DW, off):
@@ -235,23 +256,30 @@ class Simulation:
             return w, grad
 
         @ti.func
-        def node_offset(I, u):
-            """x_i - x_p for storage index I."""
+        def node_offset(R, off):
+            """x_i - x_p of the node at stencil offset `off`."""
             d = ti.Vector.zero(float, dim)
             for a in ti.static(range(dim)):
-                d[a] = (basis.coord(I[a], n_cells[a]) - u[a]) * dx
+                d[a] = R[a, off[a]]
             return d
 
         @ti.func
-        def inertia_inverse(W, base, u):
-            """D_p^-1 of APIC: D_p = sum_i w_ip (x_i - x_p)(x_i - x_p)^T is diagonal for tensor-product weights."""
-            Dinv = ti.Matrix.zero(float, dim, dim)
+        def inertia(W, R):
+            """APIC's D_p = sum_i w_ip (x_i - x_p)(x_i - x_p)^T: diagonal for tensor-product weights."""
+            D = ti.Matrix.zero(float, dim, dim)
             for a in ti.static(range(dim)):
                 s = 0.0
                 for k in ti.static(range(S)):
-                    r = (basis.coord(base[a] + k, n_cells[a]) - u[a]) * dx
-                    s += W[a, k] * r * r
-                Dinv[a, a] = 1.0 / s
+                    s += W[a, k] * R[a, k] * R[a, k]
+                D[a, a] = s
+            return D
+
+        @ti.func
+        def inertia_inverse(W, R):
+            Dinv = ti.Matrix.zero(float, dim, dim)
+            D = inertia(W, R)
+            for a in ti.static(range(dim)):
+                Dinv[a, a] = 1.0 / D[a, a]
             return Dinv
 
         @ti.func
@@ -264,7 +292,7 @@ class Simulation:
         @ti.kernel
         def p2g(dt: float):
             for p in x:
-                base, W, DW, u = stencil(p)
+                base, W, DW, R = stencil(p)
                 Fp = F[p]
                 mp = density(p) * vol0[p]
                 stress = -vol0[p] * kirchhoff(p, Fp)
@@ -279,7 +307,7 @@ class Simulation:
                     gm[I] += w * mp
                     mom = vp
                     if ti.static(f["apic"]):
-                        mom += Ap @ node_offset(I, u)
+                        mom += Ap @ node_offset(R, off)
                     gv[I] += w * mp * mom + dt * (stress @ gw + w * force_density)
                     if ti.static(f["flip"]):
                         gv_old[I] += w * mp * vp
@@ -300,7 +328,7 @@ class Simulation:
         def p2g_momentum():
             """MUSL: map the updated particle momentum back to the grid (same weights as the first P2G)."""
             for p in x:
-                base, W, DW, u = stencil(p)
+                base, W, DW, R = stencil(p)
                 mp = density(p) * vol0[p]
                 vp = v[p]
                 Ap = affine(p)
@@ -309,7 +337,7 @@ class Simulation:
                     I = base + off
                     mom = vp
                     if ti.static(f["apic"]):
-                        mom += Ap @ node_offset(I, u)
+                        mom += Ap @ node_offset(R, off)
                     gv2[I] += w * mp * mom
 
         @ti.kernel
@@ -327,7 +355,7 @@ class Simulation:
             deform: positions (with this step's grid velocity), F = (I + dt grad v) F, and checks.
             USL does both in one pass; MUSL does them in two passes around the momentum remap."""
             for p in x:
-                base, W, DW, u = stencil(p)
+                base, W, DW, R = stencil(p)
                 v_pic = ti.Vector.zero(float, dim)
                 dv = ti.Vector.zero(float, dim)
                 B = ti.Matrix.zero(float, dim, dim)
@@ -340,7 +368,7 @@ class Simulation:
                     if ti.static(velocity and f["flip"]):
                         dv += w * (vi - gv_old[I])
                     if ti.static(velocity and f["apic"] and not basis.apic_gradient):
-                        B += w * vi.outer_product(node_offset(I, u))
+                        B += w * vi.outer_product(node_offset(R, off))
                     if ti.static(deform or (f["apic"] and basis.apic_gradient)):
                         G += vgrad[I].outer_product(gw)
                 if ti.static(velocity):
@@ -352,7 +380,7 @@ class Simulation:
                         if ti.static(basis.apic_gradient):
                             C[p] = G
                         else:
-                            C[p] = B @ inertia_inverse(W, base, u)
+                            C[p] = B @ inertia_inverse(W, R)
                 if ti.static(deform):
                     xp = x[p] + dt * v_pic
                     Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
@@ -401,17 +429,8 @@ class Simulation:
                         v3[a] = v[p][a]
                     Lp = mp * x3.cross(v3)
                     if ti.static(f["apic"]):
-                        base, W, DW, u = stencil(p)
-                        Dm = ti.Matrix.zero(float, dim, dim)
-                        if ti.static(basis.apic_gradient):
-                            for a in ti.static(range(dim)):
-                                s = 0.0
-                                for k in ti.static(range(S)):
-                                    r = (basis.coord(base[a] + k, n_cells[a]) - u[a]) * dx
-                                    s += W[a, k] * r * r
-                                Dm[a, a] = s
-                        else:
-                            Dm = inertia_inverse(W, base, u).inverse()
+                        base, W, DW, R = stencil(p)
+                        Dm = inertia(W, R)
                         B = C[p] @ Dm   # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
                         B3 = ti.Matrix.zero(float, 3, 3)
                         for a, b in ti.static(ti.ndrange(dim, dim)):
@@ -429,7 +448,7 @@ class Simulation:
 
         self._k = dict(p2g=p2g, grid_update=grid_update, g2p=g2p, p2g_momentum=p2g_momentum, grid_remap=grid_remap, energies=energies, momenta=momenta,
                        cauchy_stress=cauchy_stress)
-        self._stencil, self._node_weight, self._node_offset = stencil, node_weight, node_offset
+        self._stencil, self._node_weight = stencil, node_weight  # for the crack finder and tests
 
     # ------------------------------------------------------------------ stepping
     def _check_live(self):
@@ -448,7 +467,8 @@ class Simulation:
         k = self._k
         dt = float(dt if dt is not None else self.stable_dt())
         if self.body_acc is not None:
-            self.body_acc.from_numpy(np.asarray(self.body_force(self.scene.x, self.time), dtype=np.float64))
+            acc = np.asarray(self.body_force(self.scene.x, self.time), dtype=np.float64)
+            self.body_acc.from_numpy(self._to_solver(acc))
         self.grid.clear()
         k["p2g"](dt)
         k["grid_update"](dt)
@@ -467,8 +487,8 @@ class Simulation:
         code = self.fail[None]
         self._vmax = math.sqrt(max(float(self.vmax2[None]), 0.0))
         if code != _NO_FAIL:
-            p, cause = code // 4, FAIL_CAUSES[code % 4]
-            raise InstabilityError(cause, self.n_steps, self.time, particle=int(p),
+            p, cause = int(self._perm[code // 4]), FAIL_CAUSES[code % 4]
+            raise InstabilityError(cause, self.n_steps, self.time, particle=p,
                                    detail=f"dt={dt:.3g}, max speed={self._vmax:.3g}")
         return dt
 
@@ -502,44 +522,49 @@ class Simulation:
         """Particle state as numpy arrays in creation order."""
         self._check_live()
         s = self.scene
-        F = self._matrix(self.F)
+        out = {name: self._read(name) for name in self._state_fields()}
         stress = np.zeros((self.n, self.dim, self.dim), dtype=np.float64)
         self._k["cauchy_stress"](stress)
-        out = dict(x=self.x.to_numpy(), v=self.v.to_numpy(), F=F, stress=stress,
-                   mass=s.mass.copy(), volume=s.volume * np.linalg.det(F), body=s.body.copy())
-        if self.C is not None:
-            out["C"] = self._matrix(self.C)
+        out.update(stress=self._to_creation(stress), mass=s.mass.copy(),
+                   volume=s.volume * np.linalg.det(out["F"]), body=s.body.copy())
         return out
 
-    def _matrix(self, field) -> np.ndarray:
-        return field.to_numpy().reshape(self.n, self.dim, self.dim)  # 1x1 fields come back as (N, 1)
+    def _state_fields(self) -> dict:
+        fields = {"x": self.x, "v": self.v, "F": self.F}
+        if self.C is not None:
+            fields["C"] = self.C
+        return fields
+
+    def _read(self, name) -> np.ndarray:
+        a = self._state_fields()[name].to_numpy()
+        shape = (self.n, self.dim) if name in ("x", "v") else (self.n, self.dim, self.dim)
+        return self._to_creation(a.reshape(shape))  # 1x1 matrix fields come back as (N, 1)
 
     def set_particles(self, **arrays):
         """Set per-particle state (x, v, F, C) in creation order."""
         self._check_live()
+        fields = self._state_fields()
         for name, value in arrays.items():
-            field = {"x": self.x, "v": self.v, "F": self.F, "C": self.C}.get(name)
-            if field is None:
-                raise ValueError(f"cannot set '{name}' (settable: x, v, F{', C' if self.C is not None else ''})")
+            if name not in fields:
+                raise ValueError(f"cannot set '{name}' (settable: {', '.join(fields)})")
             value = np.asarray(value, dtype=np.float64)
             want = (self.n, self.dim) if name in ("x", "v") else (self.n, self.dim, self.dim)
             if value.shape != want:
                 raise ValueError(f"{name} must have shape {want}, got {value.shape}")
-            field.from_numpy(value.reshape(field.to_numpy().shape) if self.dim == 1 else value)
+            value = self._to_solver(value)
+            fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
         if "v" in arrays:
             self._vmax = float(np.sqrt(np.max(np.sum(np.asarray(arrays["v"]) ** 2, axis=1))))
 
     def get_state(self) -> dict:
-        """Everything needed to continue bit for bit: particle fields, clock and the CFL speed estimate."""
+        """Everything needed to continue bit for bit: particle fields (creation order), clock, CFL speed estimate."""
         self._check_live()
-        state = dict(x=self.x.to_numpy(), v=self.v.to_numpy(), F=self._matrix(self.F), time=self.time,
-                     n_steps=self.n_steps, dt=self.dt, vmax=self._vmax)
-        if self.C is not None:
-            state["C"] = self._matrix(self.C)
+        state = {name: self._read(name) for name in self._state_fields()}
+        state.update(time=self.time, n_steps=self.n_steps, dt=self.dt, vmax=self._vmax)
         return state
 
     def set_state(self, state: dict):
-        self.set_particles(**{k: state[k] for k in ("x", "v", "F", "C") if k in state})
+        self.set_particles(**{k: state[k] for k in self._state_fields() if k in state})
         self.time, self.n_steps = float(state["time"]), int(state["n_steps"])
         self.dt, self._vmax = float(state["dt"]), float(state["vmax"])
 
@@ -559,7 +584,7 @@ class Simulation:
         return {"linear": m[: self.dim], "angular": m[self.dim: self.dim + 3]}
 
     def max_speed(self) -> float:
-        return float(np.sqrt(np.max(np.sum(self.v.to_numpy() ** 2, axis=1))))
+        return float(np.sqrt(np.max(np.sum(self.v.to_numpy().reshape(self.n, -1) ** 2, axis=1))))
 
     def cfl_number(self) -> float:
         return self.dt * (self.wave_speed + self._vmax) / self.dx

@@ -1,0 +1,107 @@
+"""Shared helpers for the benchmark scripts (not tests): timing, memory, the reference mpm3d kernel."""
+import argparse
+import json
+import re
+import resource
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import taichi as ti
+
+
+def parser(description):
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--tiny", action="store_true", help="a seconds-long configuration (used by the test suite)")
+    p.add_argument("--repeats", type=int, default=3, help="timed repetitions; the median is reported")
+    p.add_argument("--steps", type=int, default=None, help="steps per timed repetition")
+    p.add_argument("--arch", default="cpu")
+    p.add_argument("--json", type=Path, default=None, help="also write the results as JSON here")
+    return p
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def time_steps(step, steps: int, repeats: int, sync=ti.sync) -> float:
+    """Median seconds per step over `repeats` runs of `steps` steps (after one warm-up step)."""
+    step()
+    sync()
+    per_step = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        for _ in range(steps):
+            step()
+        sync()
+        per_step.append((time.perf_counter() - t) / steps)
+    return statistics.median(per_step)
+
+
+def report(rows: list[dict], path: Path | None):
+    if not rows:
+        return
+    keys = list(rows[0])
+    widths = [max(len(k), *(len(_fmt(r.get(k))) for r in rows)) for k in keys]
+    print("  ".join(k.ljust(w) for k, w in zip(keys, widths)))
+    for r in rows:
+        print("  ".join(_fmt(r.get(k)).ljust(w) for k, w in zip(keys, widths)))
+    if path:
+        path.write_text(json.dumps(rows, indent=1))
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+def mpm3d_reference(n_grid: int, arch):
+    """Taichi's own examples/simulation/mpm3d.py, run headless with n_grid cells per axis.
+
+    The example's source is read from the installed taichi package and only its size line and ti.init call are
+    changed; nothing of its kernel is. Returns (substep, particle positions, n_particles, dt)."""
+    src_path = Path(ti.__file__).parent / "examples" / "simulation" / "mpm3d.py"
+    src = src_path.read_text()
+    dt = {32: 4e-4, 64: 2e-4, 128: 8e-5}.get(n_grid, 2e-4 * 64 / n_grid)
+    src, n = re.subn(r"^dim, n_grid, steps, dt = .*$", f"dim, n_grid, steps, dt = 3, {n_grid}, 25, {dt}", src, flags=re.M)
+    assert n == 1, "mpm3d.py changed: size line not found"
+    src = src.replace("ti.init(arch=ti.gpu)", f"ti.init(arch=ti.{arch}, random_seed=0)")
+    ns = {"__name__": "mpm3d_reference"}
+    exec(compile(src, str(src_path), "exec"), ns)
+    ns["init"]()
+    return ns["substep"], ns["F_x"].to_numpy(), ns["n_particles"], dt
+
+
+def block_config(dim, n_grid, *, basis="quadratic", transfer="apic", model="fixed_corotated", precision="f32",
+                 sparse=True, arch="cpu", extent=1.0, body=(0.15, 0.55), ppc=2, E=400.0):
+    """A falling elastic (or fluid) block in a box, the benchmark scene."""
+    mat = {"model": model, "density": 1.0}
+    mat.update({"K": E} if model == "fluid" else {"E": E, "nu": 0.2})
+    lo, hi = body
+    return {
+        "name": "bench", "dim": dim, "precision": precision, "arch": arch,
+        "domain": {"lower": [0.0] * dim, "upper": [extent] * dim, "dx": extent / n_grid, "sparse": sparse},
+        "solver": {"basis": basis, "transfer": transfer, "end_time": 1.0, "dt": 1e-4,
+                   "gravity": [0.0, -9.8] + [0.0] * (dim - 2) if dim > 1 else [-9.8]},
+        "materials": {"m": mat},
+        "bodies": [{"shape": {"type": "box", "lower": [lo] * dim, "upper": [hi] * dim}, "material": "m",
+                    "particles_per_cell": ppc}],
+    }
+
+
+def positions_scene(cfg, x: np.ndarray):
+    """A Scene with the given particle positions (one body, one material), e.g. the reference kernel's."""
+    from taichi_mpm.config import load_config
+    from taichi_mpm.scene import Scene
+
+    c = load_config(cfg)
+    n, d = x.shape
+    dx = c.domain.dx
+    vol = np.full(n, (0.5 * dx) ** d)  # mpm3d's p_vol
+    rho = next(iter(c.materials.values())).density
+    z = np.zeros(n)
+    return c, Scene(x=x.astype(np.float64), v=np.zeros((n, d)), volume=vol, mass=vol * rho,
+                    body=z.astype(np.int32), material=z.astype(np.int32), damage=z, interface=z.astype(np.int32),
+                    spacing=np.full(n, 0.5 * dx), materials=[next(iter(c.materials))])
