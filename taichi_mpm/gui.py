@@ -1,0 +1,253 @@
+"""Interactive window on Taichi's GUI (`taichi-mpm gui CONFIG`).
+
+Keys: space pause/resume, s single step (while paused), r reset, c next colour field,
+arrow keys turn a 3D view, h hide/show help, Esc quit. Drag with the left mouse button to push
+particles: those near the cursor are pulled towards the drag velocity.
+
+1D bars are drawn along x, 2D scenes as they are, 3D scenes as an orthographic projection that
+the arrow keys rotate (ti.GUI draws 2D only; painter's order and depth shading give the 3D cue).
+The view logic (`View`) and the push (`push_particles`) are plain numpy, testable without a window.
+"""
+from __future__ import annotations
+
+import time as _time
+
+import numpy as np
+
+from .render import available_fields, field_values
+
+HELP = "space: pause  s: step  r: reset  c: colour  drag: push  arrows: turn (3D)  esc: quit"
+
+
+class View:
+    """Maps world positions to window coordinates in [0, 1]^2 (ti.GUI's convention, y up) and back."""
+
+    def __init__(self, dim, lower, upper, res, yaw=35.0, pitch=25.0):
+        self.dim = dim
+        self.lower = np.asarray(lower, float)
+        self.upper = np.asarray(upper, float)
+        self.res = np.asarray(res, float)
+        self.yaw, self.pitch = yaw, pitch
+        self.center = 0.5 * (self.lower + self.upper)
+        ext = self.upper - self.lower
+        w, h = self.res
+        band = 0.86 * h  # room for the help line and the colour legend
+        if dim == 1:
+            self.scale = 0.92 * w / ext[0]
+        elif dim == 2:
+            self.scale = min(0.92 * w / ext[0], band / ext[1])
+        else:
+            self.scale = 0.95 * min(w, band) / float(np.linalg.norm(ext))
+        self.screen_center = np.array([0.5 * w, 0.5 * h])
+
+    def axes(self):
+        """World directions of the screen's right and up axes and of the viewing depth (3D only)."""
+        a, b = np.radians(self.yaw), np.radians(self.pitch)
+        Ry = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+        Rx = np.array([[1, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
+        R = Rx @ Ry  # world -> camera
+        return R[0], R[1], R[2]
+
+    def project(self, x):
+        """(N, dim) world positions -> (N, 2) window positions in [0, 1] and (N,) depth (larger = nearer)."""
+        x = np.asarray(x, float).reshape(len(x), -1)
+        n = len(x)
+        if self.dim == 1:
+            px = np.c_[(x[:, 0] - self.center[0]) * self.scale, np.zeros(n)]
+            depth = np.zeros(n)
+        elif self.dim == 2:
+            px = (x - self.center) * self.scale
+            depth = np.zeros(n)
+        else:
+            right, up, toward = self.axes()
+            r = x - self.center
+            px = np.c_[r @ right, r @ up] * self.scale
+            depth = r @ toward
+        return (px + self.screen_center) / self.res, depth
+
+    def to_world_delta(self, d_screen):
+        """A displacement in window units ([0, 1]^2) -> world displacement (in the view plane for 3D)."""
+        d_px = np.asarray(d_screen, float) * self.res / self.scale
+        if self.dim == 1:
+            return np.array([d_px[0]])
+        if self.dim == 2:
+            return d_px
+        right, up, _ = self.axes()
+        return d_px[0] * right + d_px[1] * up
+
+    def box_edges(self):
+        """Domain outline as (begin, end) window coordinates."""
+        lo, hi = self.lower, self.upper
+        if self.dim == 1:
+            h = 0.02
+            pts = np.array([[lo[0]], [hi[0]]])
+            p, _ = self.project(pts)
+            a, b = p[0], p[1]
+            return (np.array([a + [0, -h], a + [0, h], a + [0, -h], b + [0, -h]]),
+                    np.array([b + [0, -h], b + [0, h], a + [0, h], b + [0, h]]))
+        corners = np.array(np.meshgrid(*[[l, u] for l, u in zip(lo, hi)], indexing="ij")).reshape(self.dim, -1).T
+        idx = np.arange(len(corners))
+        pairs = [(i, j) for i in idx for j in idx if i < j and np.sum(corners[i] != corners[j]) == 1]
+        p, _ = self.project(corners)
+        return np.array([p[i] for i, _ in pairs]), np.array([p[j] for _, j in pairs])
+
+
+def push_particles(sim, center, velocity, radius, positions=None, view=None):
+    """Pull the velocities of particles near `center` towards `velocity`: v += w (velocity - v),
+    w = exp(-(r / radius)^2) for r < 2 radius. `center` and `radius` are in world units, or, with a
+    `view`, in window units measured on the projected positions (a 3D push acts through the depth).
+    Returns the number of particles touched."""
+    p = sim.particles()
+    x = p["x"] if positions is None else positions
+    if view is not None:
+        xs, _ = view.project(x)
+        r = np.linalg.norm((xs - np.asarray(center, float)) * view.res / view.res.max(), axis=1)
+    else:
+        r = np.linalg.norm(np.asarray(x, float).reshape(len(x), -1) - np.asarray(center, float), axis=1)
+    near = r < 2 * radius
+    if not near.any():
+        return 0
+    w = np.exp(-(r[near] / radius) ** 2)[:, None]
+    v = p["v"].reshape(len(r), -1).copy()
+    v[near] += w * (np.asarray(velocity, float) - v[near])
+    sim.set_particles(v=v)
+    return int(near.sum())
+
+
+def _colour_ints(values, clim, cmap_name):
+    import matplotlib
+
+    cmap = matplotlib.colormaps[cmap_name]
+    lo, hi = clim
+    t = np.clip((values - lo) / (hi - lo if hi > lo else 1.0), 0, 1)
+    rgb = (cmap(t)[:, :3] * 255).astype(np.uint32)
+    return rgb
+
+
+def _pack(rgb):
+    rgb = rgb.astype(np.uint32)
+    return (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
+
+
+class _Limits:
+    """Colour limits that only widen while one field is shown (reset when the field changes)."""
+
+    def __init__(self):
+        self.lim = None
+
+    def update(self, values, name):
+        if name == "body":
+            return [-0.5, max(float(values.max()) + 0.5, 1.5)]
+        finite = values[np.isfinite(values)]
+        lo, hi = (float(finite.min()), float(finite.max())) if len(finite) else (0.0, 1.0)
+        if self.lim is not None:
+            lo, hi = min(lo, self.lim[0]), max(hi, self.lim[1])
+        self.lim = [lo, hi]
+        if hi - lo < 1e-6 * max(1.0, abs(hi)):
+            return [lo - 1.0, hi + 1.0] if hi == 0 else [lo - 0.5 * abs(hi), hi + 0.5 * abs(hi)]
+        return self.lim
+
+
+def run_gui(cfg, max_frames=None, screenshot=None, show=True):
+    """Open the interactive window for a config (path, dict or Config). With `max_frames` the window
+    closes by itself after that many frames; `screenshot` saves the last frame as a PNG."""
+    import taichi as ti
+
+    from .config import load_config
+    from .errors import InstabilityError
+    from .solver import Simulation
+
+    cfg = cfg if hasattr(cfg, "model_dump") else load_config(cfg)
+    sim = Simulation(cfg)
+    initial = sim.get_state()
+    res = tuple(int(s) for s in cfg.output.render.size)
+    view = View(cfg.dim, cfg.domain.lower, cfg.domain.upper, res)
+    p = sim.particles()
+    fields = available_fields(p, cfg.dim)
+    field = cfg.output.render.color_by if cfg.output.render.color_by in fields else fields[0]
+    cmap = cfg.output.render.colormap
+    limits = _Limits()
+    frame_time = cfg.output.every
+    spacing = float(np.median(sim.scene.spacing))
+    radius_px = max(1.0, 0.6 * spacing * view.scale)
+    wave = getattr(sim, "wave_speed", 1.0)
+    speed_cap = 0.25 * wave if wave > 0 else 10.0
+    gui = ti.GUI(f"taichi-mpm: {cfg.name}", res=res, background_color=0xFFFFFF, show_gui=show)
+    paused, message, show_help = False, "", True
+    prev_cursor = None
+    frames = 0
+    try:
+        while gui.running:
+            step_once = False
+            for e in gui.get_events(ti.GUI.PRESS):
+                if e.key in (ti.GUI.ESCAPE, ti.GUI.EXIT):
+                    gui.running = False
+                elif e.key == ti.GUI.SPACE:
+                    paused = not paused
+                elif e.key == "s":
+                    paused, step_once = True, True
+                elif e.key == "r":
+                    sim.set_state(initial)
+                    limits = _Limits()
+                    message = ""
+                elif e.key == "c":
+                    field = fields[(fields.index(field) + 1) % len(fields)]
+                    limits = _Limits()
+                elif e.key == "h":
+                    show_help = not show_help
+                elif e.key == ti.GUI.LEFT:
+                    view.yaw -= 10
+                elif e.key == ti.GUI.RIGHT:
+                    view.yaw += 10
+                elif e.key == ti.GUI.UP:
+                    view.pitch = min(89.0, view.pitch + 10)
+                elif e.key == ti.GUI.DOWN:
+                    view.pitch = max(-89.0, view.pitch - 10)
+            if not gui.running:
+                break
+            cursor = np.asarray(gui.get_cursor_pos(), float)
+            if gui.is_pressed(ti.GUI.LMB) and prev_cursor is not None and np.any(cursor != prev_cursor):
+                u = view.to_world_delta(cursor - prev_cursor) / frame_time
+                speed = np.linalg.norm(u)
+                if speed > speed_cap:
+                    u *= speed_cap / speed
+                push_particles(sim, cursor, u, radius=0.06, view=view)
+            prev_cursor = cursor if gui.is_pressed(ti.GUI.LMB) else None
+            try:
+                if step_once:
+                    sim.step()
+                elif not paused and sim.time < cfg.solver.end_time:
+                    sim.advance(frame_time)
+            except InstabilityError as err:
+                paused, message = True, f"unstable: {err}  (r: reset)"
+            p = sim.particles()
+            values = field_values(p, field, cfg.dim)
+            clim = limits.update(values, field)
+            pos, depth = view.project(p["x"])
+            rgb = _colour_ints(values, clim, "tab10" if field == "body" else cmap)
+            order = np.argsort(depth) if cfg.dim == 3 else slice(None)
+            if cfg.dim == 3:  # depth shading: far particles darker
+                span = np.ptp(depth) or 1.0
+                shade = 0.55 + 0.45 * (depth - depth.min()) / span
+                rgb = (rgb * shade[:, None]).astype(np.uint32)
+            begin, end = view.box_edges()
+            gui.lines(begin, end, radius=1, color=0x999999)
+            gui.circles(pos[order], radius=radius_px, color=_pack(rgb[order]))
+            state = "paused" if paused else ("done" if sim.time >= cfg.solver.end_time else "running")
+            gui.text(f"t = {sim.time:.4g} s   steps {sim.n_steps}   {state}   colour: {field} "
+                     f"[{clim[0]:.3g}, {clim[1]:.3g}]", pos=(0.01, 0.99), font_size=16, color=0x000000)
+            if show_help:
+                gui.text(HELP if res[0] >= 700 else "space s r c drag arrows esc", pos=(0.01, 0.05), font_size=14,
+                         color=0x444444)
+            if message:
+                gui.text(message, pos=(0.01, 0.94), font_size=16, color=0xCC0000)
+            frames += 1
+            last = max_frames is not None and frames >= max_frames
+            gui.show(str(screenshot) if (last and screenshot) else None)
+            if last:
+                break
+            if paused and not step_once:
+                _time.sleep(0.01)
+    finally:
+        gui.close()
+    return sim

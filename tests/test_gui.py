@@ -1,0 +1,106 @@
+"""The interactive window: view maths and the mouse push without a window; a few frames under Xvfb
+with a screenshot (skipped when Xvfb is not installed)."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import taichi_mpm as tm
+from conftest import make_cfg
+from taichi_mpm.gui import View, push_particles
+
+
+def test_view_2d_maps_domain_into_window_and_back():
+    view = View(2, [0, 0], [2, 1], (400, 300))
+    pos, _ = view.project(np.array([[0.0, 0.0], [2.0, 1.0], [1.0, 0.5]]))
+    assert np.all(pos >= 0) and np.all(pos <= 1)
+    np.testing.assert_allclose(pos[2], [0.5, 0.5])
+    # a window displacement maps back to the world displacement that produced it
+    d_world = np.array([0.3, -0.2])
+    p2, _ = view.project(np.array([[1.0, 0.5]]) + d_world)
+    np.testing.assert_allclose(view.to_world_delta(p2[0] - pos[2]), d_world, atol=1e-12)
+
+
+def test_view_3d_projection_is_a_rotation():
+    view = View(3, [0, 0, 0], [1, 1, 1], (500, 500), yaw=30, pitch=20)
+    right, up, toward = view.axes()
+    M = np.array([right, up, toward])
+    np.testing.assert_allclose(M @ M.T, np.eye(3), atol=1e-12)
+    pos, depth = view.project(np.array([[0.5, 0.5, 0.5], [0.5, 0.5, 0.5] + 0.1 * toward]))
+    np.testing.assert_allclose(pos[0], pos[1], atol=1e-12)  # moving along the view axis does not move on screen
+    assert depth[1] > depth[0]
+    d = np.array([0.02, -0.01])
+    w = view.to_world_delta(d)
+    p2, _ = view.project(np.array([[0.5, 0.5, 0.5]]) + w)
+    np.testing.assert_allclose(p2[0] - pos[0], d, atol=1e-12)
+
+
+def test_push_pulls_only_nearby_particles_towards_the_drag_velocity():
+    sim = tm.Simulation(make_cfg(2, dx=0.1, end_time=0.01))
+    x = sim.particles()["x"]
+    center = x[0]
+    n = push_particles(sim, center, [2.0, 0.0], radius=0.05)
+    v = sim.particles()["v"]
+    r = np.linalg.norm(x - center, axis=1)
+    assert n == int(np.sum(r < 0.1)) and 0 < n < len(x)
+    np.testing.assert_allclose(v[0], [2.0, 0.0], atol=1e-12)           # w = 1 at the cursor
+    np.testing.assert_allclose(v[r >= 0.1], 0.0)                        # far particles untouched
+    inner = (r > 0) & (r < 0.1)
+    np.testing.assert_allclose(v[inner, 0], 2.0 * np.exp(-(r[inner] / 0.05) ** 2), rtol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def xvfb():
+    exe = shutil.which("Xvfb")
+    if exe is None:
+        pytest.skip("Xvfb is not installed")
+    for display in range(91, 99):
+        if not Path(f"/tmp/.X11-unix/X{display}").exists() and not Path(f"/tmp/.X{display}-lock").exists():
+            break
+    proc = subprocess.Popen([exe, f":{display}", "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    for _ in range(50):
+        if Path(f"/tmp/.X11-unix/X{display}").exists():
+            break
+        time.sleep(0.1)
+    else:
+        proc.kill()
+        pytest.skip("Xvfb did not start")
+    yield f":{display}"
+    proc.terminate()
+    proc.wait(10)
+
+
+GUI_SCRIPT = """
+import json, sys
+import taichi_mpm as tm
+from taichi_mpm.gui import run_gui
+cfg = tm.load_config(json.loads(sys.argv[1]))
+sim = run_gui(cfg, max_frames=4, screenshot=sys.argv[2])
+print("TIME", sim.time)
+"""
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_gui_runs_under_xvfb_and_saves_a_screenshot(tmp_path, xvfb, dim):
+    import imageio.v2 as imageio
+
+    cfg = make_cfg(dim, precision="f32", velocity=[0.5] + [0.0] * (dim - 1), end_time=1.0)
+    cfg["output"] = {"every": 0.002, "render": {"size": [320, 240], "color_by": "speed"}}
+    shot = tmp_path / "shot.png"
+    env = dict(os.environ, DISPLAY=xvfb)
+    res = subprocess.run([sys.executable, "-c", GUI_SCRIPT, json.dumps(cfg), str(shot)], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    t = float(res.stdout.split("TIME")[-1])
+    assert t == pytest.approx(4 * 0.002, rel=1e-6)  # four frames, one output interval each
+    img = imageio.imread(shot)
+    assert img.shape[:2] == (240, 320)
+    assert img[..., :3].astype(float).var() > 100.0
+    assert len(np.unique(img[..., :3].reshape(-1, 3), axis=0)) > 10
