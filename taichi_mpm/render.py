@@ -174,7 +174,7 @@ class FrameRenderer:
         if self._clim is not None:
             lo, hi = min(lo, self._clim[0]), max(hi, self._clim[1])
         self._clim = [lo, hi]
-        if hi - lo < 1e-12 * max(1.0, abs(hi)):  # a flat field (e.g. a uniform speed at t = 0)
+        if hi - lo < 1e-6 * max(1.0, abs(hi)):  # a flat field (e.g. a uniform speed at t = 0)
             pad = 0.5 * abs(hi) if hi != 0 else 1.0
             nonneg = self.color_by in ("speed", "von_mises", "damage") and lo >= 0
             return [0.0 if nonneg else lo - pad, hi + pad]
