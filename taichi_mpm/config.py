@@ -10,16 +10,30 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator,
+                      model_validator)
 
 from .errors import ConfigError
 
-PositiveFloat = Annotated[float, Field(gt=0)]
-Vec = list[float]
+
+def _no_bool(v):
+    if isinstance(v, bool):  # YAML `true` would otherwise pass as 1.0
+        raise ValueError(f"expected a number, got {str(v).lower()}")
+    return v
+
+
+Real = Annotated[float, BeforeValidator(_no_bool)]
+PositiveFloat = Annotated[float, BeforeValidator(_no_bool), Field(gt=0)]
+Vec = list[Real]
+
+SHAPE_TYPES = ("box", "sphere", "ring", "cylinder", "mesh")
+# particle fields the writers know (output.fields); velocity, stress, von_mises, J, body and damage are always written
+FIELDS = ("velocity", "stress", "von_mises", "J", "body", "damage", "speed", "pressure", "displacement",
+          "F", "C", "mass", "volume", "material", "interface")
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=False)
+    model_config = ConfigDict(extra="forbid", validate_assignment=False, allow_inf_nan=False)
 
 
 # ---------------------------------------------------------------- shapes
@@ -27,7 +41,7 @@ class Box(Strict):
     type: Literal["box"]
     lower: Vec
     upper: Vec
-    rotation: Optional[Union[float, Vec]] = None  # degrees: scalar in 2D, [rx, ry, rz] Euler in 3D
+    rotation: Optional[Union[Real, Vec]] = None  # degrees: scalar in 2D, [rx, ry, rz] Euler in 3D
 
     @model_validator(mode="after")
     def _ordered(self):
@@ -63,13 +77,13 @@ class Cylinder(Strict):
     radius: PositiveFloat
     height: PositiveFloat
     axis: Literal["x", "y", "z"] = "y"
-    rotation: Optional[Union[float, Vec]] = None
+    rotation: Optional[Union[Real, Vec]] = None
 
 
 class Mesh(Strict):
     type: Literal["mesh"]
     file: str
-    scale: Union[float, Vec] = 1.0
+    scale: Union[PositiveFloat, list[PositiveFloat]] = 1.0
     translate: Optional[Vec] = None
 
 
@@ -113,7 +127,7 @@ class Solver(Strict):
 
 
 class Crack(Strict):
-    threshold: float = 0.0
+    threshold: Real = 0.0
     kernel_radius: PositiveFloat = 2.0
     contact_in_compression: bool = True
     damage_threshold: Annotated[float, Field(ge=0, le=1)] = 0.5
@@ -124,7 +138,7 @@ class Material(Strict):
     model: Literal["linear_elastic", "neo_hookean", "fixed_corotated", "fluid"]
     density: PositiveFloat
     E: Optional[PositiveFloat] = None
-    nu: Annotated[float, Field(ge=0, lt=0.5)] = 0.3
+    nu: Annotated[float, BeforeValidator(_no_bool), Field(ge=0, lt=0.5)] = 0.3
     K: Optional[PositiveFloat] = None
     viscosity: Annotated[float, Field(ge=0)] = 0.0
     # damage law (crack growth); unused unless the scene has a crack section
@@ -163,7 +177,7 @@ class Body(Strict):
     particles_per_cell: Annotated[int, Field(gt=0)] = 2
     placement: Literal["regular", "jittered"] = "regular"
     velocity: Optional[Vec] = None
-    angular_velocity: Optional[Union[float, Vec]] = None
+    angular_velocity: Optional[Union[Real, Vec]] = None
     interface: bool = False
     damage_regions: list[DamageRegion] = []
 
@@ -174,14 +188,22 @@ class Render(Strict):
     camera: str = "iso"
     point_size: Optional[PositiveFloat] = None
     colormap: str = "viridis"
-    clim: Optional[list[float]] = None
+    clim: Optional[Vec] = None
+
+    @model_validator(mode="after")
+    def _lengths(self):
+        if len(self.size) != 2:
+            raise _Located("size", f"must be [width, height] in pixels, got {len(self.size)} numbers")
+        if self.clim is not None and (len(self.clim) != 2 or self.clim[0] >= self.clim[1]):
+            raise _Located("clim", "must be [min, max] with min < max")
+        return self
 
 
 class Output(Strict):
     dir: str = "runs/{name}"
     every: PositiveFloat = 0.01
     formats: list[Literal["vtu", "npz", "png", "mp4", "gif"]] = ["vtu", "png"]
-    fields: list[str] = ["velocity", "stress"]
+    fields: list[Literal[FIELDS]] = ["velocity", "stress"]
     render: Render = Render()
 
 
@@ -197,6 +219,8 @@ class Config(Strict):
     bodies: Annotated[list[Body], Field(min_length=1)]
     output: Output = Output()
     _source: Optional[str] = PrivateAttr(None)  # the YAML file it came from, for relative paths
+    _lines: dict = PrivateAttr(default_factory=dict)  # dotted key -> line in _source
+    _overrides: dict = PrivateAttr(default_factory=dict)  # the --set overrides applied
 
     @field_validator("name")
     @classmethod
@@ -212,6 +236,12 @@ class Config(Strict):
         _need_len("domain.upper", self.domain.upper, d)
         if any(u <= l for l, u in zip(self.domain.lower, self.domain.upper)):
             raise _Located("domain.upper", "must exceed domain.lower on every axis")
+        for a, (l, u) in enumerate(zip(self.domain.lower, self.domain.upper)):
+            n = (u - l) / self.domain.dx
+            if abs(n - round(n)) > 1e-6 * max(1.0, n) or round(n) < 1:
+                raise _Located("domain.dx", f"the domain extent {u - l:g} along {'xyz'[a]} is not a whole number of "
+                                            f"cells of dx={self.domain.dx:g} ({n:.4g} cells); "
+                                            f"choose e.g. dx={(u - l) / max(1, round(n)):.6g}")
         if self.solver.gravity is not None:
             _need_len("solver.gravity", self.solver.gravity, d)
         for i, b in enumerate(self.bodies):
@@ -225,6 +255,8 @@ class Config(Strict):
                     raise _Located(f"{key}.angular_velocity", "has no meaning in 1D")
                 if d == 2 and not isinstance(b.angular_velocity, (int, float)):
                     raise _Located(f"{key}.angular_velocity", "must be a scalar in 2D")
+                if d == 3 and isinstance(b.angular_velocity, (int, float)):
+                    raise _Located(f"{key}.angular_velocity", "must be a vector [wx, wy, wz] in 3D")
                 if d == 3:
                     _need_len(f"{key}.angular_velocity", b.angular_velocity, 3)
             _check_shape(f"{key}.shape", b.shape, d)
@@ -252,19 +284,33 @@ class _Located(ValueError):
 
 
 def _need_len(key, v, d):
-    if v is None or len(v) != d:
-        raise _Located(key, f"must have {d} components for dim {d}, got {0 if v is None else len(v)}")
+    if not isinstance(v, (list, tuple)):
+        raise _Located(key, f"must be a list of {d} numbers for dim {d}, got {v!r}")
+    if len(v) != d:
+        raise _Located(key, f"must have {d} components for dim {d}, got {len(v)}")
 
 
 def _check_shape(key, s, d):
     for attr in ("center", "lower", "upper", "translate"):
         v = getattr(s, attr, None)
         if v is not None:
-            _need_len(f"{key}.{attr}", v, d)
+            _need_len(f"{key}.{attr}", v, d if attr != "translate" or d > 1 else 1)
     if isinstance(s, Ring) and d == 1:
         raise _Located(f"{key}.type", "a ring needs dim 2 or 3")
     if isinstance(s, Cylinder) and d != 3:
         raise _Located(f"{key}.type", "a cylinder needs dim 3 (use box or sphere in 1D/2D)")
+    if isinstance(s, Mesh) and d == 1:
+        raise _Located(f"{key}.type", "a mesh needs dim 2 or 3")
+    if isinstance(s, Mesh) and isinstance(s.scale, list) and len(s.scale) not in (d, 3):
+        raise _Located(f"{key}.scale", f"must be a number or {d} numbers, got {len(s.scale)}")
+    rot = getattr(s, "rotation", None)
+    if rot is not None:
+        if d == 1:
+            raise _Located(f"{key}.rotation", "has no meaning in 1D")
+        if d == 2 and not isinstance(rot, (int, float)):
+            raise _Located(f"{key}.rotation", "must be a scalar angle in degrees in 2D")
+        if d == 3 and not isinstance(rot, (int, float)):
+            _need_len(f"{key}.rotation", rot, 3)
 
 
 # ---------------------------------------------------------------- overrides
@@ -274,6 +320,18 @@ def parse_value(text: str) -> Any:
         return yaml.safe_load(text)
     except yaml.YAMLError:
         return text
+
+
+def parse_overrides(pairs) -> dict[str, Any]:
+    """["solver.basis=cubic", "bodies.0.velocity=[0,-2,0]"] -> {"solver.basis": "cubic", ...} (values still text)."""
+    out = {}
+    for pair in pairs or []:
+        key, sep, value = pair.partition("=")
+        key = key.strip()
+        if not sep or not key or any(not part for part in key.split(".")):
+            raise ConfigError(f"--set expects KEY=VALUE with a dotted KEY (e.g. solver.basis=cubic), got {pair!r}")
+        out[key] = value
+    return out
 
 
 def apply_overrides(data: dict, overrides: dict[str, Any] | None) -> dict:
@@ -286,12 +344,14 @@ def apply_overrides(data: dict, overrides: dict[str, Any] | None) -> dict:
         node = data
         for i, part in enumerate(parts):
             last = i == len(parts) - 1
+            here = ".".join(parts[: i + 1])
             if isinstance(node, list):
                 try:
                     idx = int(part)
                     node[idx]
                 except (ValueError, IndexError):
-                    raise ConfigError(f"no list item '{part}' (list has {len(node)} items)", key=".".join(parts[: i + 1]))
+                    raise ConfigError(f"--set {dotted}: no list item '{part}' (the list has {len(node)} items, "
+                                      f"numbered from 0)", key=here) from None
                 if last:
                     node[idx] = value
                 else:
@@ -304,49 +364,63 @@ def apply_overrides(data: dict, overrides: dict[str, Any] | None) -> dict:
                         node[part] = {}
                     node = node[part]
             else:
-                raise ConfigError("cannot set a key inside a scalar value", key=".".join(parts[:i]))
+                raise ConfigError(f"--set {dotted}: cannot set a key inside the value {node!r}",
+                                  key=".".join(parts[:i])) from None
     return data
 
 
 # ---------------------------------------------------------------- loading
-def _line_index(node, path=(), out=None):
-    """Map dotted key paths to 1-based line numbers from a composed YAML node tree."""
+def _line_index(node, path=(), out=None, file=None):
+    """Map dotted key paths to 1-based line numbers from a composed YAML node tree; duplicate keys are errors."""
     out = {} if out is None else out
     if isinstance(node, yaml.MappingNode):
+        seen = set()
         for k, v in node.value:
             p = path + (str(k.value),)
-            out[".".join(p)] = k.start_mark.line + 1
-            _line_index(v, p, out)
+            key = ".".join(p)
+            if key in seen:
+                raise ConfigError("duplicate key", key=key, line=k.start_mark.line + 1, file=file)
+            seen.add(key)
+            out[key] = k.start_mark.line + 1
+            _line_index(v, p, out, file)
     elif isinstance(node, yaml.SequenceNode):
         for i, v in enumerate(node.value):
             p = path + (str(i),)
             out[".".join(p)] = v.start_mark.line + 1
-            _line_index(v, p, out)
+            _line_index(v, p, out, file)
     return out
 
 
 def read_yaml(path) -> tuple[dict, dict]:
     """Return (data, line index) of a YAML file; ConfigError for a missing, empty or non-YAML file."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise ConfigError(f"config file not found: {path}")
-    text = path.read_text()
+    if not path.is_file():
+        raise ConfigError(f"not a file: {path}")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"cannot read the file: {e}", file=path) from None
     try:
         node = yaml.compose(text)
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
-        raise ConfigError(f"not valid YAML: {getattr(e, 'problem', e)}", file=path, line=mark.line + 1 if mark else None)
+        problem = getattr(e, "problem", None) or str(e)
+        raise ConfigError(f"not valid YAML: {problem}", file=path, line=mark.line + 1 if mark else None) from None
     if data is None:
-        raise ConfigError("the file is empty", file=path)
+        raise ConfigError("the file is empty (expected a YAML mapping with name, dim, domain, solver, materials, bodies)",
+                          file=path)
     if not isinstance(data, dict):
-        raise ConfigError("the top level must be a mapping of keys (name, dim, domain, ...)", file=path, line=1)
-    return data, _line_index(node)
+        raise ConfigError(f"the top level must be a mapping of keys (name, dim, domain, ...), got a {type(data).__name__}",
+                          file=path, line=1)
+    return data, _line_index(node, file=path)
 
 
 def _nearest_line(lines: dict, key: str):
-    parts = key.split(".")
-    while parts:
+    parts = (key or "").split(".")
+    while parts and parts[0]:
         k = ".".join(parts)
         if k in lines:
             return lines[k]
@@ -354,50 +428,105 @@ def _nearest_line(lines: dict, key: str):
     return None
 
 
-def _error_key(loc) -> str:
-    # pydantic puts the discriminator tag in the location ("shape.box.lower"): drop it
-    out = []
-    for item in loc:
-        if isinstance(item, str) and item in ("box", "sphere", "ring", "cylinder", "mesh") and out and out[-1] == "shape":
+def _walk(data, loc, missing: bool):
+    """Dotted key of a pydantic error location, without the union/discriminator tags pydantic inserts
+    (they are the location items that are not keys of the data); also returns the value there and
+    whether a tag was skipped."""
+    out, node, skipped = [], data, []
+    for i, item in enumerate(loc):
+        if isinstance(node, dict) and item in node:
+            node = node[item]
+        elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
+            node = node[item]
+        elif missing and i == len(loc) - 1:
+            node = None
+        else:
+            skipped.append(item)
             continue
         out.append(str(item))
-    return ".".join(out)
+    return ".".join(out), node, skipped
 
 
-def validate(data: dict, lines: dict | None = None, file=None) -> Config:
+def _describe(err, data) -> tuple[str, str]:
+    ctx_err = (err.get("ctx") or {}).get("error")
+    key, value, skipped = _walk(data, err["loc"], err["type"] == "missing")
+    if isinstance(ctx_err, _Located):
+        return ".".join(p for p in (key, ctx_err.key) if p), str(ctx_err)
+    kind, msg = err["type"], err["msg"]
+    if kind == "extra_forbidden":
+        return key, "unknown key"
+    if kind == "missing":
+        return key, "required key is missing"
+    if kind == "union_tag_invalid":
+        return key + ".type", (f"unknown shape type {err['ctx'].get('tag')!r} "
+                               f"(expected one of {', '.join(SHAPE_TYPES)})")
+    if kind == "union_tag_not_found":
+        return key, f"a shape needs a 'type' (one of {', '.join(SHAPE_TYPES)})"
+    if any(s not in SHAPE_TYPES for s in skipped):  # a number-or-list union: one message for both branches
+        return key, f"must be a number or a list of numbers (got {value!r})"
+    if kind == "value_error":
+        return key, msg[len("Value error, "):] if msg.startswith("Value error, ") else msg
+    if kind == "too_short":
+        n = (err.get("ctx") or {}).get("min_length", 1)
+        return key, f"needs at least {n} item{'s' if n != 1 else ''}"
+    msg = msg.replace("Input should be", "must be")
+    if "input" in err and not isinstance(err["input"], dict):
+        msg += f" (got {err['input']!r})"
+    return key, msg
+
+
+def _from_override(key: str, overrides: dict | None):
+    for k in overrides or {}:
+        if key == k or key.startswith(k + ".") or k.startswith(key + "."):
+            return k
+    return None
+
+
+def validate(data: dict, lines: dict | None = None, file=None, overrides: dict | None = None) -> Config:
+    """Validate a config dict; on failure raise one ConfigError naming the key path and the file line."""
     lines = lines or {}
     try:
         return Config.model_validate(data)
     except ValidationError as e:
-        err = e.errors()[0]
-        ctx_err = (err.get("ctx") or {}).get("error")
-        if isinstance(ctx_err, _Located):
-            key = ctx_err.key
-            msg = str(ctx_err)
-        else:
-            key = _error_key(err["loc"])
-            msg = err["msg"]
-            if err["type"] == "extra_forbidden":
-                msg = "unknown key"
-            elif err["type"] == "missing":
-                msg = "required key is missing"
-            if "input" in err and err["type"] not in ("missing", "extra_forbidden") and not isinstance(err["input"], dict):
-                msg += f" (got {err['input']!r})"
-        if msg.startswith("Value error, "):
-            msg = msg[len("Value error, "):]
+        key, msg = _describe(e.errors()[0], data)
+        n_more = len({str(err["loc"][:1]) + err["type"] for err in e.errors()[1:]})
+        if n_more and not msg.startswith("must be a number or a list"):
+            msg += f" (and {n_more} more problem{'s' if n_more > 1 else ''})"
+        source = _from_override(key, overrides)
+        if source is not None:
+            raise ConfigError(f"{msg} (from --set {source}={overrides[source]})", key=key or None) from None
         raise ConfigError(msg, key=key or None, line=_nearest_line(lines, key), file=file) from None
+
+
+def locate(err: ConfigError, cfg: Config) -> ConfigError:
+    """Give a ConfigError raised after validation (e.g. by the scene builder: body outside the domain)
+    the file and line of its key in the config the Config came from."""
+    if err.line is not None or err.file is not None or not err.key or not isinstance(cfg, Config):
+        return err
+    prefix = f"key '{err.key}': "
+    message = str(err)[len(prefix):] if str(err).startswith(prefix) else str(err)
+    source = _from_override(err.key, cfg._overrides)
+    if source is not None:
+        return ConfigError(f"{message} (from --set {source}={cfg._overrides[source]})", key=err.key)
+    if cfg._source is None:
+        return err
+    return ConfigError(message, key=err.key, line=_nearest_line(cfg._lines, err.key), file=cfg._source)
 
 
 def load_config(source, overrides: dict[str, Any] | None = None) -> Config:
     """Load and validate a config from a YAML path, a dict or a `Config`; apply dotted overrides first."""
+    file, lines = None, {}
     if isinstance(source, Config):
+        file, lines = source._source, source._lines
         source = source.to_dict()
     if isinstance(source, dict):
-        data, lines, file = source, {}, None
+        data = source
     else:
         data, lines = read_yaml(source)
         file = Path(source)
     data = apply_overrides(data, overrides)
-    cfg = validate(data, lines, file)
+    cfg = validate(data, lines, file, overrides)
     cfg._source = str(file) if file else None
+    cfg._lines = lines
+    cfg._overrides = dict(overrides or {})
     return cfg

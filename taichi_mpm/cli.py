@@ -1,0 +1,330 @@
+"""The `taichi-mpm` command (also `python -m taichi_mpm`).
+
+    taichi-mpm run CONFIG [--set KEY=VALUE]... [--out DIR] [--arch ARCH] [--quiet] [--resume]
+    taichi-mpm validate CONFIG [--set KEY=VALUE]...
+    taichi-mpm demo [NAME] [--list] [run options]
+    taichi-mpm render RUN_DIR [--color-by FIELD] [--size WxH] [--camera CAMERA] [--movie FILE|mp4|gif]
+    taichi-mpm gui CONFIG [--set KEY=VALUE]... [--arch ARCH] [--max-frames N] [--screenshot PNG]
+    taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume]
+
+Exit codes: 0 success; 2 invalid input (one message on stderr, no traceback); 3 numerical
+instability (the last good state is kept as checkpoint.npz); 130 stopped by Ctrl-C (checkpoint kept).
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import sys
+import time
+from io import StringIO
+from pathlib import Path
+
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # keep stdout for results (e.g. `validate`)
+
+from .config import ConfigError, load_config, locate, parse_overrides  # noqa: E402
+from .errors import InstabilityError  # noqa: E402
+
+EXIT_OK, EXIT_FAILURE, EXIT_INPUT, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+
+
+def configs_dir() -> Path:
+    """The bundled scenes: the repository's configs/ directory next to the package."""
+    import taichi_mpm
+
+    return Path(taichi_mpm.__file__).resolve().parents[1] / "configs"
+
+
+def demos() -> dict[str, Path]:
+    d = configs_dir()
+    return {p.stem: p for p in sorted(d.glob("*.yaml"))} if d.is_dir() else {}
+
+
+def _describe_demo(path: Path) -> str:
+    """The first comment line of a demo config, as its one-line description."""
+    try:
+        for line in path.read_text().splitlines():
+            s = line.strip()
+            if s.startswith("#"):
+                return s.lstrip("#").strip()
+            if s:
+                break
+    except OSError:
+        pass
+    return ""
+
+
+# ---------------------------------------------------------------- argument parsing
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # usage errors are invalid input: exit 2 with one message
+        self.print_usage(sys.stderr)
+        raise _InputError(message)
+
+
+class _InputError(Exception):
+    pass
+
+
+def _size(text: str):
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+        if w <= 0 or h <= 0:
+            raise ValueError
+        return [w, h]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, e.g. 960x720, got {text!r}") from None
+
+
+def _positive_int(text: str):
+    try:
+        v = int(text)
+        if v <= 0:
+            raise ValueError
+        return v
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+
+
+def _add_config_options(p, run=True):
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value before validation (dotted key; list items by index), repeatable")
+    if run:
+        p.add_argument("--out", metavar="DIR", help="output directory (default: output.dir of the config)")
+        p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+        p.add_argument("--resume", action="store_true", help="continue from checkpoint.npz in the output directory")
+    p.add_argument("--arch", choices=["auto", "cpu", "cuda", "vulkan", "metal"], help="override the config's arch")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="taichi-mpm", description="Material Point Method sandbox on Taichi.")
+    parser.add_argument("--version", action="version", version="taichi-mpm 0.1.0")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+
+    p = sub.add_parser("run", help="run a scene to its end time, writing outputs")
+    p.add_argument("config", metavar="CONFIG")
+    _add_config_options(p)
+
+    p = sub.add_parser("validate", help="check a config and print it resolved")
+    p.add_argument("config", metavar="CONFIG")
+    _add_config_options(p, run=False)
+
+    p = sub.add_parser("demo", help="run a bundled scene from configs/")
+    p.add_argument("name", nargs="?", metavar="NAME")
+    p.add_argument("--list", action="store_true", help="list the bundled scenes")
+    _add_config_options(p)
+
+    p = sub.add_parser("render", help="render frames / a movie from a run directory")
+    p.add_argument("run_dir", metavar="RUN_DIR")
+    p.add_argument("--color-by", metavar="FIELD", help="field to colour by (e.g. speed, von_mises, J, body, damage)")
+    p.add_argument("--size", type=_size, metavar="WxH", help="image size in pixels, e.g. 960x720")
+    p.add_argument("--camera", metavar="CAMERA", help="camera (e.g. iso, xy, xz, yz)")
+    p.add_argument("--movie", metavar="FILE|mp4|gif", help="also write a movie (file name or format)")
+
+    p = sub.add_parser("gui", help="interactive window")
+    p.add_argument("config", metavar="CONFIG")
+    _add_config_options(p, run=False)
+    p.add_argument("--max-frames", type=_positive_int, metavar="N", help="close after N frames")
+    p.add_argument("--screenshot", metavar="PNG", help="save the last frame to this file")
+
+    p = sub.add_parser("study", help="speed/accuracy sweep")
+    p.add_argument("study", metavar="STUDY.yaml")
+    p.add_argument("--jobs", type=_positive_int, default=1, metavar="N", help="cases run in parallel")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler address")
+    p.add_argument("--out", metavar="DIR", help="output directory (default: studies/NAME)")
+    p.add_argument("--resume", action="store_true", help="skip the cases already in results.csv")
+    return parser
+
+
+# ---------------------------------------------------------------- helpers
+def _load(path, args):
+    overrides = parse_overrides(args.overrides)
+    if getattr(args, "arch", None):
+        overrides["arch"] = args.arch
+    return load_config(path, overrides)
+
+
+def _err(msg: str):
+    print(f"taichi-mpm: error: {msg}", file=sys.stderr)
+
+
+class _ProgressBar:
+    """rich progress on stderr: simulation time, dt, particle-steps per second, time left."""
+
+    def __init__(self, sim, run):
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self.sim, self.end = sim, sim.cfg.solver.end_time
+        self.progress = Progress(
+            TextColumn("[bold]{task.description}"), BarColumn(),
+            TextColumn("t={task.completed:.4g}/{task.total:.4g} s"),
+            TextColumn("dt={task.fields[dt]:.3g}"),
+            TextColumn("{task.fields[rate]:.3g} particle-steps/s"),
+            TextColumn("left"), TimeRemainingColumn(),
+            console=Console(stderr=True), transient=False)
+        self.task = self.progress.add_task(sim.cfg.name, total=self.end, completed=sim.time, dt=0.0, rate=0.0)
+        self._t, self._steps, self._last = time.perf_counter(), sim.n_steps, 0.0
+
+    def __enter__(self):
+        self.progress.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        self.update(force=True)
+        return self.progress.__exit__(*exc)
+
+    def update(self, sim=None, force=False):
+        now = time.perf_counter()
+        if not force and now - self._last < 0.1:
+            return
+        sim = self.sim
+        rate = self.progress.tasks[0].fields["rate"]
+        if sim.n_steps > self._steps and now > self._t:
+            rate = sim.n * (sim.n_steps - self._steps) / (now - self._t)
+            self._t, self._steps = now, sim.n_steps
+        self.progress.update(self.task, completed=min(sim.time, self.end), dt=sim.dt, rate=rate)
+        self._last = now
+
+
+def _run_config(cfg, args) -> int:
+    from .runner import Interrupted, Run, Simulation
+
+    try:
+        # ti.init prints "[Taichi] Starting on arch=..." to stdout: keep stdout clean
+        with contextlib.redirect_stdout(StringIO() if args.quiet else sys.stderr):
+            sim = Simulation(cfg)
+    except ConfigError as e:  # found while building the scene or the grid (e.g. a body outside the domain)
+        raise locate(e, cfg) from None
+    run = Run(sim, args.out, resume=args.resume)
+    if args.resume and run.done:
+        if not args.quiet:
+            print(f"nothing to do: {run.out_dir} is already at t={sim.time:g} = solver.end_time", file=sys.stderr)
+        return EXIT_OK
+    t0 = time.perf_counter()
+    steps0 = sim.n_steps
+    try:
+        if args.quiet:
+            run.execute()
+        else:
+            with _ProgressBar(sim, run) as bar:
+                run.execute(on_step=bar.update)
+    except Interrupted as e:
+        _err(f"interrupted: {e}")
+        return EXIT_INTERRUPTED
+    except InstabilityError as e:
+        where = run.out_dir / "checkpoint.npz"
+        kept = f"the last good state (t={run.last_time:.6g}) is in {where}" if run.last_time is not None else ""
+        _err(f"{e}\n  {kept}; outputs written so far are kept in {run.out_dir}")
+        return EXIT_UNSTABLE
+    if not args.quiet:
+        wall = time.perf_counter() - t0
+        steps = sim.n_steps - steps0
+        print(f"done: {steps} steps to t={sim.time:g} in {wall:.1f} s ({sim.n} particles, "
+              f"{sim.n * steps / max(wall, 1e-9):.3g} particle-steps/s); {run.index} outputs in {run.out_dir}",
+              file=sys.stderr)
+    return EXIT_OK
+
+
+# ---------------------------------------------------------------- commands
+def cmd_run(args) -> int:
+    return _run_config(_load(args.config, args), args)
+
+
+def cmd_validate(args) -> int:
+    import yaml
+
+    from . import io
+    from .scene import build_scene
+
+    cfg = _load(args.config, args)
+    try:
+        scene = build_scene(cfg)
+    except ConfigError as e:
+        raise locate(e, cfg) from None
+    print(yaml.safe_dump(io.config_dict(cfg), sort_keys=False, default_flow_style=None), end="")
+    counts = [round((u - l) / cfg.domain.dx) for l, u in zip(cfg.domain.lower, cfg.domain.upper)]
+    print(f"valid: {scene.n} particles in {len(cfg.bodies)} bod{'y' if len(cfg.bodies) == 1 else 'ies'}, "
+          f"grid {'x'.join(map(str, counts))} cells", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_demo(args) -> int:
+    available = demos()
+    if args.list or not args.name:
+        if not available:
+            _err(f"no demos found in {configs_dir()}")
+            return EXIT_INPUT
+        width = max(len(n) for n in available)
+        for name, path in available.items():
+            desc = _describe_demo(path)
+            print(f"{name:<{width}}  {desc}".rstrip())
+        if not args.list:
+            print("\nrun one with: taichi-mpm demo NAME", file=sys.stderr)
+        return EXIT_OK
+    if args.name not in available:
+        raise _InputError(f"unknown demo {args.name!r} (available: {', '.join(available) or 'none'})")
+    return _run_config(_load(available[args.name], args), args)
+
+
+def cmd_render(args) -> int:
+    run_dir = Path(args.run_dir)
+    if not run_dir.is_dir():
+        raise _InputError(f"run directory not found: {run_dir}")
+    from .render import render_run
+
+    render_run(run_dir, color_by=args.color_by, size=args.size, camera=args.camera, movie=args.movie)
+    return EXIT_OK
+
+
+def cmd_gui(args) -> int:
+    cfg = _load(args.config, args)
+    from .gui import run_gui
+
+    try:
+        run_gui(cfg, max_frames=args.max_frames, screenshot=args.screenshot)
+    except ConfigError as e:
+        raise locate(e, cfg) from None
+    return EXIT_OK
+
+
+def cmd_study(args) -> int:
+    path = Path(args.study)
+    if not path.is_file():
+        raise _InputError(f"study file not found: {path}")
+    from .study import run_study
+
+    run_study(path, out=args.out, jobs=args.jobs, scheduler=args.scheduler, resume=args.resume)
+    return EXIT_OK
+
+
+COMMANDS = {"run": cmd_run, "validate": cmd_validate, "demo": cmd_demo, "render": cmd_render, "gui": cmd_gui,
+            "study": cmd_study}
+
+
+def main(argv=None) -> int:
+    """Entry point; returns the exit code (the console script passes it to sys.exit)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        return COMMANDS[args.command](args)
+    except SystemExit as e:  # --help, --version
+        return e.code if isinstance(e.code, int) else EXIT_OK
+    except (_InputError, ConfigError) as e:
+        _err(str(e))
+        return EXIT_INPUT
+    except InstabilityError as e:  # outside a run's step loop (e.g. gui, study)
+        _err(str(e))
+        return EXIT_UNSTABLE
+    except ModuleNotFoundError as e:
+        if e.name and e.name.startswith("taichi_mpm."):
+            _err(f"this command is not available in this installation ({e.name} is missing)")
+            return EXIT_FAILURE
+        raise
+    except KeyboardInterrupt:
+        _err("interrupted")
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())
