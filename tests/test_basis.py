@@ -1,0 +1,118 @@
+"""Basis functions: partition of unity, zero gradient sum and linear reproduction (node positions at the
+Greville abscissae) in 1D/2D/3D, in the interior and next to the walls, to 1e-12 in f64.
+
+Each basis @ti.func is evaluated through one small kernel over many points at once."""
+import itertools
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_mpm.basis import BASES, make_basis
+
+N_CELLS = 8
+
+
+def evaluate(name, u, lp):
+    """(first node, w, dw) of basis `name` at grid coordinates u (M,), half-widths lp (M,) (GIMP only)."""
+    ti.init(arch=ti.cpu, default_fp=ti.f64, log_level=ti.ERROR, offline_cache=True)
+    basis = make_basis(name)
+    S = basis.stencil
+    M = len(u)
+    first = np.zeros(M, np.int32)
+    w = np.zeros((M, S))
+    dw = np.zeros((M, S))
+
+    @ti.kernel
+    def run(u: ti.types.ndarray(), lp: ti.types.ndarray(), first: ti.types.ndarray(),
+            w: ti.types.ndarray(), dw: ti.types.ndarray()):
+        for i in range(u.shape[0]):
+            b, W, DW = basis.weights_1d(u[i], N_CELLS, lp[i])
+            first[i] = b
+            for k in ti.static(range(S)):
+                w[i, k] = W[k]
+                dw[i, k] = DW[k]
+
+    run(np.asarray(u, np.float64), np.asarray(lp, np.float64), first, w, dw)
+    return basis, first, w, dw
+
+
+def sample_points(rng, m):
+    """Interior points plus points on and next to both walls and on cell boundaries."""
+    walls = [0.0, 1e-13, 1e-3, 0.1, 0.25, 0.49, 0.5, 0.999, 1.0, 1.5, 2.0]
+    near = walls + [N_CELLS - v for v in walls]
+    return np.concatenate([rng.uniform(0, N_CELLS, m), near, np.arange(N_CELLS + 1, dtype=float)])
+
+
+@pytest.mark.parametrize("name", BASES)
+def test_basis_identities_1d_2d_3d(name):
+    rng = np.random.default_rng(0)
+    u = sample_points(rng, 400)
+    lp = np.full(len(u), 0.25) if name == "gimp" else np.zeros(len(u))
+    if name == "gimp":
+        lp[::3] = rng.uniform(0.05, 0.5, len(lp[::3]))   # deformed / per-particle domain sizes too
+    basis, first, w, dw = evaluate(name, u, lp)
+    S = basis.stencil
+    nodes = first[:, None] + np.arange(S)[None, :]
+    assert nodes.min() >= 0 and nodes.max() < basis.nodes(N_CELLS)   # stays in the stored node range
+    xi = np.vectorize(lambda i: basis.coord_py(int(i), N_CELLS))(nodes)
+
+    # 1D
+    assert np.abs(w.sum(1) - 1).max() < 1e-12
+    assert np.abs(dw.sum(1)).max() < 1e-12
+    assert np.abs((w * xi).sum(1) - u).max() < 1e-12
+    assert np.abs((dw * xi).sum(1) - 1).max() < 1e-12   # gradient of x reproduced too
+    assert w.min() > -1e-14                               # non-negative weights
+
+    # 2D and 3D: tensor products of points drawn from the 1D samples (walls and corners included)
+    for dim in (2, 3):
+        idx = rng.integers(0, len(u), (300, dim))
+        idx[:len(u) // 4, :] = np.arange(len(u) // 4)[:, None] % len(u)  # diagonal: corners/edges
+        idx[-20:, 0] = len(u) - 1 - np.arange(20)
+        for row in idx:
+            W = np.ones([S] * dim)
+            G = [np.ones([S] * dim) for _ in range(dim)]
+            for a, p in enumerate(row):
+                shape = [1] * dim
+                shape[a] = S
+                W = W * w[p].reshape(shape)
+                for b in range(dim):
+                    G[b] = G[b] * (dw[p] if a == b else w[p]).reshape(shape)
+            assert abs(W.sum() - 1) < 1e-12
+            for a, p in enumerate(row):
+                shape = [1] * dim
+                shape[a] = S
+                assert abs(G[a].sum()) < 1e-12
+                assert abs((W * xi[p].reshape(shape)).sum() - u[p]) < 1e-12
+
+
+def test_bspline_boundary_nodes_lie_on_walls():
+    """Clamped knots: the first and last control points sit on the walls, interior ones at cell
+    centres (quadratic) or nodes (linear, cubic)."""
+    for name, interior in (("linear", 0.0), ("quadratic", 0.5), ("cubic", 0.0)):
+        b = make_basis(name)
+        n = b.nodes(N_CELLS)
+        coords = [b.coord_py(i, N_CELLS) for i in range(n)]
+        assert coords[0] == 0.0 and coords[-1] == float(N_CELLS)
+        assert all(c2 > c1 for c1, c2 in zip(coords, coords[1:]))
+        assert coords[n // 2] % 1.0 == interior
+
+
+def test_interior_matches_uniform_bsplines():
+    """Away from the walls the clamped B-splines are the uniform ones: w_i = B(u - x_i) with x_i the
+    control point (cell centre for quadratic, node for cubic)."""
+    def b2(r):
+        r = np.abs(r)
+        return np.where(r < 0.5, 0.75 - r**2, np.where(r < 1.5, 0.5 * (1.5 - r) ** 2, 0.0))
+
+    def b3(r):
+        r = np.abs(r)
+        return np.where(r < 1, 0.5 * r**3 - r**2 + 2 / 3, np.where(r < 2, (2 - r) ** 3 / 6, 0.0))
+
+    u = np.linspace(3.0, 5.0, 41)
+    for name, ref in (("quadratic", b2), ("cubic", b3)):
+        basis, first, w, dw = evaluate(name, u, np.zeros_like(u))
+        xi = np.vectorize(lambda i: basis.coord_py(int(i), N_CELLS))(first[:, None] + np.arange(basis.stencil))
+        assert np.abs(w - ref(u[:, None] - xi)).max() < 1e-12
+        h = 1e-6
+        assert np.abs(dw - (ref(u[:, None] + h - xi) - ref(u[:, None] - h - xi)) / (2 * h)).max() < 1e-5  # FD error at the knots
