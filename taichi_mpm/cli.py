@@ -188,14 +188,18 @@ class _ProgressBar:
 
 
 def _run_config(cfg, args) -> int:
+    try:
+        return _run(cfg, args)
+    except ConfigError as e:  # found after validation (a body outside the domain, a bad colour field, ...)
+        raise locate(e, cfg) from None
+
+
+def _run(cfg, args) -> int:
     from .runner import Interrupted, Run, Simulation
 
-    try:
-        # ti.init prints "[Taichi] Starting on arch=..." to stdout: keep stdout clean
-        with contextlib.redirect_stdout(StringIO() if args.quiet else sys.stderr):
-            sim = Simulation(cfg)
-    except ConfigError as e:  # found while building the scene or the grid (e.g. a body outside the domain)
-        raise locate(e, cfg) from None
+    # ti.init prints "[Taichi] Starting on arch=..." to stdout: keep stdout clean
+    with contextlib.redirect_stdout(StringIO() if args.quiet else sys.stderr):
+        sim = Simulation(cfg)
     run = Run(sim, args.out, resume=args.resume)
     if args.resume and run.done:
         if not args.quiet:
@@ -273,7 +277,14 @@ def cmd_render(args) -> int:
         raise _InputError(f"run directory not found: {run_dir}")
     from .render import render_run
 
-    render_run(run_dir, color_by=args.color_by, size=args.size, camera=args.camera, movie=args.movie)
+    try:
+        result = render_run(run_dir, color_by=args.color_by, size=args.size, camera=args.camera, movie=args.movie)
+    except FileNotFoundError as e:  # not a run directory, or no saved states in it
+        raise _InputError(str(e)) from None
+    frames = result.get("frames", []) if isinstance(result, dict) else []
+    movie = result.get("movie") if isinstance(result, dict) else None
+    print(f"rendered {len(frames)} frames into {run_dir / 'frames'}" + (f"; movie {movie}" if movie else ""),
+          file=sys.stderr)
     return EXIT_OK
 
 

@@ -158,12 +158,21 @@ class Run:
                 self._frames = False
                 return
             c = self.cfg
-            self._renderer = FrameRenderer(c.output.render, c.dim, list(c.domain.lower), list(c.domain.upper))
+            try:
+                self._renderer = FrameRenderer(c.output.render, c.dim, list(c.domain.lower), list(c.domain.upper))
+            except ValueError as e:  # an unknown camera
+                raise ConfigError(str(e), key="output.render.camera") from None
             (self.out_dir / "frames").mkdir(exist_ok=True)
-        self._renderer.render(p, time, self.out_dir / "frames" / f"frame_{self.index:06d}.png")
+        try:
+            self._renderer.render(p, time, self.out_dir / "frames" / f"frame_{self.index:06d}.png")
+        except ValueError as e:  # an unknown or absent colour field
+            raise ConfigError(str(e), key="output.render.color_by") from None
 
     def finish(self):
         """After the last output: movies from the frames, when asked."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
         movies = [f for f in ("mp4", "gif") if f in self.formats]
         if not movies or not self._frames:
             return
