@@ -1,0 +1,119 @@
+"""Stability at the extremes: every case either stays stable (finite, bounded energy) or stops with
+InstabilityError and the right cause, never silent garbage. Fast subset here; the full map under -m slow."""
+import csv
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from taichi_mpm.solver import FAIL_CAUSES
+from taichi_mpm.stability import SCENARIOS, largest_stable_cfl, make_scenario
+from taichi_mpm.study import run_study
+
+ROOT = Path(__file__).resolve().parents[1]
+LIMIT = 1.1
+SOLVER_CAUSES = set(FAIL_CAUSES.values())
+
+# (case, expected outcome or None for "either", expected cause or None)
+FAST = [
+    ({"problem.E": 2.0e11, "problem.density": 7800.0}, "ok", None),
+    ({"problem.E": 1.0e3}, "ok", None),
+    ({"problem.nu": 0.499}, "ok", None),
+    ({"problem.mach": 0.5}, "ok", None),
+    ({"solver.cfl": 1.5}, "unstable", None),
+    ({"problem.type": "compression", "problem.J": 0.05}, "ok", None),
+    ({"problem.type": "rotation", "problem.mach": 0.5}, "ok", None),
+    ({"problem.type": "thin", "problem.mach": 0.1}, "ok", None),
+    ({"problem.type": "edge", "problem.boundary": "free"}, "unstable", "particle left the domain"),
+    ({"problem.type": "edge", "problem.boundary": "slip"}, "ok", None),
+]
+
+
+def _rows(out):
+    with open(out / "results.csv") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _check_never_garbage(row):
+    """ok: finite and energy bounded; unstable: a solver cause (InstabilityError), never 'undetected'."""
+    assert row["outcome"] in ("ok", "unstable"), row["message"]
+    if row["outcome"] == "ok":
+        assert float(row["energy_ratio_max"]) <= LIMIT
+        assert math.isfinite(float(row["j_min"])) and float(row["j_min"]) > 0
+        assert math.isfinite(float(row["speed_over_c"]))
+    else:
+        assert row["cause"] in SOLVER_CAUSES, row["cause"]
+        assert int(row["fail_step"]) >= 1
+
+
+@pytest.fixture(scope="module")
+def fast_map(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("stab")
+    study = dict(study="stability_fast", problem={"type": "impact", "mach": 0.1, "cells": 16}, set={"arch": "cpu"},
+                 energy_limit=LIMIT, samples=10, timeout=300, cases=[c for c, _, _ in FAST])
+    path = tmp / "study.yaml"
+    path.write_text(yaml.safe_dump(study, sort_keys=False))
+    return _rows(run_study(path, out=tmp / "out", jobs=2))
+
+
+@pytest.mark.parametrize("i", range(len(FAST)), ids=[str(c) for c, _, _ in FAST])
+def test_fast_stability_case(fast_map, i):
+    case, outcome, cause = FAST[i]
+    row = fast_map[i]
+    _check_never_garbage(row)
+    if outcome:
+        assert row["outcome"] == outcome, (row["cause"], row["message"])
+    if cause:
+        assert row["cause"] == cause
+
+
+def test_fast_map_physics(fast_map):
+    rows = {i: r for i, r in enumerate(fast_map)}
+    # the stiff steel block and the soft one take about the same number of steps (time scales with c)
+    assert abs(int(rows[0]["steps"]) - int(rows[1]["steps"])) <= 0.1 * int(rows[1]["steps"])
+    # the impact at half the wave speed compresses the block far more than at 0.1 c
+    assert float(rows[3]["j_min"]) < float(rows[0]["j_min"]) - 0.1
+    # released from J = 0.05 the block expands back past its stress-free volume
+    assert float(rows[5]["j_max"]) > 0.5
+    # the spinning disk keeps spinning near its rim speed (APIC keeps angular momentum)
+    assert 0.4 < float(rows[6]["speed_over_c"]) < 0.6
+
+
+def test_scenarios_scale_with_wave_speed():
+    soft = make_scenario({"type": "impact", "E": 1e3})
+    stiff = make_scenario({"type": "impact", "E": 1e9})
+    assert soft.end_time / stiff.end_time == pytest.approx(1e3, rel=1e-9)
+    for kind in SCENARIOS:
+        cfg = make_scenario({"type": kind}).config()
+        assert cfg["solver"]["end_time"] > 0 and cfg["bodies"]
+    thin = make_scenario({"type": "thin"}).config()
+    body = thin["bodies"][0]
+    assert body["particles_per_cell"] == 1
+    assert body["shape"]["upper"][1] - body["shape"]["lower"][1] == pytest.approx(thin["domain"]["dx"])
+    with pytest.raises(ValueError):
+        make_scenario({"type": "compression", "J": 0.0})
+
+
+@pytest.mark.slow
+def test_full_stability_map(tmp_path):
+    """The bundled map: 29 scenarios x 3 transfers; nothing errors and nothing ends as silent garbage."""
+    out = run_study(ROOT / "configs/studies/stability_map.yaml", out=tmp_path / "map", jobs=2)
+    rows = _rows(out)
+    assert len(rows) == 87
+    for row in rows:
+        _check_never_garbage(row)
+    by = {(r["solver.transfer"], r.get("problem.type") or "impact", r.get("problem.boundary")): r for r in rows}
+    for transfer in ("pic", "flip", "apic"):
+        assert by[transfer, "edge", "free"]["cause"] == "particle left the domain"
+        assert by[transfer, "edge", "slip"]["outcome"] == "ok"
+
+
+@pytest.mark.slow
+def test_largest_stable_cfl_quadratic_apic():
+    res = largest_stable_cfl("quadratic", "apic", {"type": "impact", "dim": 2, "cells": 16, "mach": 0.1,
+                                                   "transits": 6.0}, energy_limit=LIMIT)
+    assert res["cfl"] is not None and 0.5 <= res["cfl"] < 1.5
+    for c, outcome, cause, _ in res["trials"]:
+        assert outcome in ("ok", "unstable") and (outcome == "ok" or cause in SOLVER_CAUSES or
+                                                 cause.startswith("undetected")), (c, outcome, cause)
