@@ -1,0 +1,232 @@
+"""The taichi-mpm command line: exit codes and messages, validate/demo, the files `run` writes,
+resume (after a finished run and after Ctrl-C) reproducing the uninterrupted run, instability.
+
+The CLI runs in-process (main(argv)) except where the exit code / no-traceback contract is checked."""
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+import yaml
+
+import taichi_mpm as tm
+from conftest import make_cfg
+from taichi_mpm import io
+from taichi_mpm.cli import configs_dir, main
+from taichi_mpm.scene import build_scene
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def scene_cfg(tmp_path, name="scene.yaml", **kw):
+    """A tiny 2D f64 scene: a block moving down onto a slip floor; 3 outputs by default."""
+    cfg = make_cfg(2, velocity=[0.5, -1.0], lower=[0.3, 0.1], upper=[0.6, 0.4], end_time=0.04)
+    cfg["output"] = dict(every=0.02, formats=["vtu"], dir=str(tmp_path / "runs" / "{name}"))
+    for k, v in kw.items():
+        cfg = io_set(cfg, k, v)
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    return path
+
+
+def io_set(cfg, key, value):
+    from taichi_mpm.config import apply_overrides
+
+    return apply_overrides(cfg, {key: value})
+
+
+def cli(*args, cwd):
+    """Run `python -m taichi_mpm ARGS` in a subprocess: (exit code, stdout, stderr)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    r = subprocess.run([sys.executable, "-m", "taichi_mpm", *map(str, args)], cwd=cwd, env=env,
+                       capture_output=True, text=True, timeout=300)
+    return r.returncode, r.stdout, r.stderr
+
+
+# ---------------------------------------------------------------- invalid input: exit 2, one message
+def test_invalid_inputs_exit_2_without_traceback(tmp_path):
+    good = scene_cfg(tmp_path)
+    text = good.read_text()
+    (tmp_path / "unknown.yaml").write_text(text.replace("  dx: 0.1\n", "  dx: 0.1\n  dxx: 2\n"))
+    line_dxx = text.splitlines().index("  dx: 0.1") + 2
+    (tmp_path / "outside.yaml").write_text(text.replace("- 0.4\n", "- 1.4\n", 1))
+    (tmp_path / "empty.yaml").write_text("")
+    (tmp_path / "broken.yaml").write_text("name: x\n  dim: [2\n")
+    cases = [
+        (["run", "unknown.yaml"], ["unknown.yaml:%d" % line_dxx, "domain.dxx", "unknown key"]),
+        (["run", "outside.yaml", "--quiet"], ["outside.yaml:", "bodies.0.shape", "outside the domain"]),
+        (["validate", "empty.yaml"], ["empty.yaml", "empty"]),
+        (["run", "broken.yaml"], ["broken.yaml:2", "not valid YAML"]),
+        (["run", "missing.yaml"], ["missing.yaml", "not found"]),
+        (["run", "scene.yaml", "--set", "bodies.0.material=steel"], ["bodies.0.material", "steel", "--set"]),
+        (["run", "scene.yaml", "--set", "solver.basis"], ["KEY=VALUE"]),
+        (["render", "nowhere"], ["nowhere"]),
+        (["frobnicate"], ["invalid choice"]),
+    ]
+    for args, words in cases:
+        code, out, err = cli(*args, cwd=tmp_path)
+        assert code == 2, (args, err)
+        assert "Traceback" not in err + out, args
+        for w in words:
+            assert w in err, (args, w, err)
+        assert err.count("error:") == 1, err
+
+
+def test_python_m_help_and_module_entry(tmp_path):
+    code, out, err = cli("--help", cwd=tmp_path)
+    assert code == 0 and "run" in out and "validate" in out and "demo" in out
+
+
+# ---------------------------------------------------------------- validate, demo
+def test_validate_prints_resolved_config_with_overrides(tmp_path, capsys):
+    path = scene_cfg(tmp_path)
+    assert main(["validate", str(path), "--set", "solver.basis=cubic", "--set", "bodies.0.velocity=[0,-2]",
+                 "--arch", "cpu"]) == 0
+    out, err = capsys.readouterr()
+    resolved = yaml.safe_load(out)
+    assert resolved["solver"]["basis"] == "cubic"
+    assert resolved["bodies"][0]["velocity"] == [0.0, -2.0]
+    assert resolved["solver"]["transfer"] == "apic" and resolved["solver"]["cfl"] == 0.4  # defaults filled in
+    assert tm.load_config(resolved).solver.basis == "cubic"  # the printed config is itself valid
+    assert "36 particles" in err
+
+
+def test_demo_list_lists_the_configs_present(capsys):
+    names = sorted(p.stem for p in configs_dir().glob("*.yaml"))
+    assert names, "no demo configs in configs/"
+    assert main(["demo", "--list"]) == 0
+    listed = [line.split()[0] for line in capsys.readouterr().out.splitlines() if line.strip()]
+    assert listed == names
+    assert main(["demo", "no_such_demo"]) == 2
+    assert "no_such_demo" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- run: files
+def test_run_writes_vtu_series_diagnostics_checkpoint_config(tmp_path, capsys):
+    path = scene_cfg(tmp_path)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
+    cfg = tm.load_config(path)
+    n = build_scene(cfg).n
+    assert n == 36
+    files = sorted(out.glob("particles_*.vtu"))
+    assert [f.name for f in files] == [f"particles_{k:06d}.vtu" for k in range(3)]
+    for f in files:
+        m = meshio.read(f)
+        assert m.points.shape == (n, 3)
+        assert {"velocity", "stress", "von_mises", "J", "body"} <= set(m.point_data)
+        assert m.point_data["velocity"].shape == (n, 3) and m.point_data["stress"].shape == (n, 9)
+        assert np.all(m.point_data["J"] > 0)
+    assert io.read_pvd(out / "particles.pvd") == [(0.0, files[0].name), (0.02, files[1].name), (0.04, files[2].name)]
+    first = io.read_vtu(files[0], 2)
+    np.testing.assert_allclose(first["velocity"], np.tile([0.5, -1.0], (n, 1)), atol=1e-14)
+    np.testing.assert_allclose(first["x"], build_scene(cfg).x, atol=1e-15)
+    diag = io.read_diagnostics(out / "diagnostics.csv")
+    np.testing.assert_allclose(diag["time"], [0.0, 0.02, 0.04], atol=1e-15)
+    mass = 1000.0 * 0.3 * 0.3
+    np.testing.assert_allclose(diag["kinetic"][0], 0.5 * mass * 1.25, rtol=1e-12)
+    np.testing.assert_allclose(diag["momentum_x"], 0.5 * mass, rtol=1e-10)  # no wall acts along x
+    assert diag["cfl"][1] > 0 and diag["cfl"][1] <= 0.4 + 1e-9
+    assert tm.load_config(out / "config.yaml").to_dict() == cfg.to_dict()
+    state, meta = io.load_checkpoint(out / "checkpoint.npz")
+    assert state["time"] == pytest.approx(0.04) and meta["next_output"] == 3
+    np.testing.assert_array_equal(state["x"], io.read_vtu(files[-1], 2)["x"])
+
+
+def test_python_api_run_writes_outputs(tmp_path):
+    cfg = tm.load_config(scene_cfg(tmp_path))
+    sim = tm.Simulation(cfg).run()
+    assert sim.time == pytest.approx(0.04)
+    run_dir = tmp_path / "runs" / "test"
+    assert len(list(run_dir.glob("particles_*.vtu"))) == 3 and (run_dir / "checkpoint.npz").is_file()
+    seen = []
+    tm.Simulation(cfg).run(on_output=lambda s: seen.append(s.time))  # an observer instead of files
+    assert seen == pytest.approx([0.0, 0.02, 0.04])
+
+
+# ---------------------------------------------------------------- resume
+def positions(run_dir):
+    return [io.read_vtu(f, 2)["x"] for _, f in io.series(run_dir)]
+
+
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory):
+    """The uninterrupted reference: the scene run to t=0.08 (5 outputs)."""
+    tmp = tmp_path_factory.mktemp("full")
+    path = scene_cfg(tmp)
+    assert main(["run", str(path), "--out", str(tmp / "full"), "--quiet", "--set", "solver.end_time=0.08"]) == 0
+    return tmp / "full"
+
+
+def test_resume_reproduces_uninterrupted_run(tmp_path, full_run):
+    path = scene_cfg(tmp_path)
+    full, part = full_run, tmp_path / "part"
+    assert main(["run", str(path), "--out", str(part), "--quiet", "--set", "solver.end_time=0.04"]) == 0
+    assert len(positions(part)) == 3
+    assert main(["run", str(path), "--out", str(part), "--quiet", "--resume", "--set", "solver.end_time=0.08"]) == 0
+    a, b = positions(full), positions(part)
+    assert len(a) == len(b) == 5
+    assert np.max(np.abs(a[-1] - a[0])) > 0.05  # the block moved
+    for xa, xb in zip(a, b):
+        np.testing.assert_allclose(xb, xa, rtol=0, atol=1e-12)
+    da, db = io.read_diagnostics(full / "diagnostics.csv"), io.read_diagnostics(part / "diagnostics.csv")
+    np.testing.assert_allclose(db["strain"], da["strain"], rtol=1e-12)
+    assert da["strain"][-1] > 0  # the floor compressed it
+    assert io.read_pvd(part / "particles.pvd") == io.read_pvd(full / "particles.pvd")
+
+
+def test_resume_refuses_a_different_config(tmp_path, capsys):
+    path = scene_cfg(tmp_path)
+    out = tmp_path / "o"
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--resume"]) == 2
+    assert "no checkpoint" in capsys.readouterr().err
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--set", "solver.end_time=0.02"]) == 0
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--resume", "--set", "solver.transfer=pic"]) == 2
+    assert "solver.transfer" in capsys.readouterr().err
+
+
+def test_ctrl_c_keeps_checkpoint_and_resume_matches(tmp_path, full_run):
+    from taichi_mpm.runner import Interrupted, Run
+
+    path = scene_cfg(tmp_path, **{"solver.end_time": "0.08"})
+    cfg = tm.load_config(path)
+    full = full_run
+
+    sim = tm.Simulation(cfg)
+    run = Run(sim, tmp_path / "cut")
+
+    def ctrl_c_at_step_5(s):
+        if s.n_steps == 5:
+            os.kill(os.getpid(), signal.SIGINT)  # the real signal: the handler lets the step finish
+
+    with pytest.raises(Interrupted):
+        run.execute(on_step=ctrl_c_at_step_5)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
+    state, meta = io.load_checkpoint(tmp_path / "cut" / "checkpoint.npz")
+    assert state["n_steps"] == 5 and 0.02 < state["time"] < 0.08  # between two output times
+    assert main(["run", str(path), "--out", str(tmp_path / "cut"), "--quiet", "--resume"]) == 0
+    a, b = positions(full), positions(tmp_path / "cut")
+    assert len(a) == len(b) == 5
+    for xa, xb in zip(a, b):
+        np.testing.assert_allclose(xb, xa, rtol=0, atol=1e-12)
+
+
+# ---------------------------------------------------------------- instability
+def test_instability_exits_3_and_keeps_last_good_checkpoint(tmp_path):
+    scene_cfg(tmp_path)
+    out = tmp_path / "boom"
+    code, stdout, err = cli("run", "scene.yaml", "--out", out, "--quiet", "--set", "solver.dt=0.2",
+                            "--set", "output.every=0.2", "--set", "solver.end_time=2", cwd=tmp_path)
+    assert code == 3, err
+    assert "Traceback" not in err + stdout
+    assert "numerical instability at step" in err and "particle" in err and "t=" in err
+    assert any(c in err for c in ("J <= 0", "non-finite", "left the domain"))
+    state, meta = io.load_checkpoint(out / "checkpoint.npz")
+    entries = io.read_pvd(out / "particles.pvd")
+    assert state["time"] == entries[-1][0]  # the checkpoint is the last output written
+    assert np.all(np.isfinite(state["x"])) and np.all(np.linalg.det(state["F"]) > 0)
+    assert "checkpoint.npz" in err
