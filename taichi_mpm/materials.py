@@ -107,3 +107,80 @@ class Fluid:
 def wave_speed(mat) -> float:
     """P-wave speed sqrt((lam + 2 mu) / rho) (sqrt(K / rho) for a fluid), for the CFL time step."""
     return float(np.sqrt((mat.lam + 2 * mat.mu) / mat.density))
+
+
+# ---------------------------------------------------------------- damage law (crack growth, crack.py)
+def rankine_params(mat, dx: float):
+    """(E, eps0, eps_f) of the Rankine law with linear softening, or None when the material has no
+    tensile_strength. The softening is regularised by the grid spacing (crack band, Bazant & Oh 1983):
+    eps_f = 2 G_f / (f_t dx), so the energy dissipated per unit crack area is G_f at any dx.
+    Without fracture_energy the material is brittle (damage jumps to 1 at f_t)."""
+    if mat.tensile_strength is None or mat.model == "fluid":
+        return None
+    eps0 = mat.tensile_strength / mat.E
+    eps_f = eps0 if mat.fracture_energy is None else 2.0 * mat.fracture_energy / (mat.tensile_strength * dx)
+    if mat.fracture_energy is not None and eps_f <= eps0:
+        from .errors import ConfigError
+        raise ConfigError(f"fracture_energy {mat.fracture_energy:g} is too small for dx={dx:g}: softening would snap back; "
+                          f"need fracture_energy > tensile_strength^2 dx / (2 E) = {mat.tensile_strength * eps0 * dx / 2:.4g}",
+                          key="materials.fracture_energy")
+    return (float(mat.E), float(eps0), float(eps_f))
+
+
+@ti.func
+def sym_eig(A):
+    """Eigenvalues and eigenvectors (columns) of a symmetric 2x2 or 3x3 matrix by cyclic Jacobi rotations
+    (ti.sym_eig in Taichi 1.7 returns NaN for some diagonal 2x2 matrices)."""
+    n = ti.static(A.n)
+    V = ti.Matrix.identity(float, n)
+    M = A
+    for _ in range(1 if n == 2 else 8):
+        for pq in ti.static([(0, 1), (0, 2), (1, 2)] if n == 3 else [(0, 1)]):
+            i, j = ti.static(pq[0], pq[1])
+            if M[i, j] != 0:
+                theta = (M[j, j] - M[i, i]) / (2.0 * M[i, j])
+                t = 1.0 / (ti.abs(theta) + ti.sqrt(theta * theta + 1.0))
+                if theta < 0:
+                    t = -t
+                c = 1.0 / ti.sqrt(t * t + 1.0)
+                s = t * c
+                J = ti.Matrix.identity(float, n)
+                J[i, i] = c
+                J[j, j] = c
+                J[i, j] = s
+                J[j, i] = -s
+                M = J.transpose() @ M @ J
+                V = V @ J
+    ev = ti.Vector([M[k, k] for k in ti.static(range(n))])
+    return ev, V
+
+
+@ti.func
+def rankine_damage(sigma, kappa, E, eps0, eps_f):
+    """Rankine criterion with linear softening: kappa = max over time of (max principal stress / E);
+    d = eps_f (kappa - eps0) / (kappa (eps_f - eps0)), so the stress (1 - d) E kappa falls linearly from
+    f_t at eps0 to 0 at eps_f. Returns (d, kappa)."""
+    ev, _ = sym_eig(0.5 * (sigma + sigma.transpose()))
+    k = ti.max(kappa, ev.max() / E)
+    d = 0.0
+    if k > eps0:
+        d = 1.0
+        if ti.static(eps_f > eps0):
+            d = ti.min(1.0, eps_f * (k - eps0) / (k * (eps_f - eps0)))
+    return d, k
+
+
+@ti.func
+def degrade_tension(tau, d):
+    """Damaged stress: tensile principal stresses scaled by (1 - d), compressive ones kept, so a damaged
+    particle still carries compression (closed cracks) but not tension."""
+    sym = 0.5 * (tau + tau.transpose())
+    ev, Q = sym_eig(sym)
+    for k in ti.static(range(tau.n)):
+        if ev[k] > 0:
+            ev[k] *= 1.0 - d
+    out = (1.0 - d) * (tau - sym)
+    for k in ti.static(range(tau.n)):
+        q = ti.Vector([Q[a, k] for a in ti.static(range(tau.n))])
+        out += ev[k] * q.outer_product(q)
+    return out

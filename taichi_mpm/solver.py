@@ -20,6 +20,7 @@ import taichi as ti
 
 from .basis import make_basis
 from .config import Config, ConfigError, load_config
+from . import crack as crack_finder
 from .errors import InstabilityError
 from .grid import Grid, make_wall_condition
 from .materials import MODELS, wave_speed
@@ -95,12 +96,16 @@ class Simulation:
         self.body_acc = ti.Vector.field(d, float, n) if f["body_force"] else None
         self.half_width = ti.field(float, n) if f["gimp_per_particle"] else None
         vec = ["v"] + (["v_old"] if f["flip"] else []) + (["v2"] if f["musl"] else [])
+        vec += crack_finder.grid_fields(d) if self.cfg.crack is not None else []  # tensor node mass rows
         shape = [self.basis.nodes(nc) for nc in self.n_cells]
         self.grid = Grid(d, shape, self.cfg.domain.sparse, vec)
+        self.crack = crack_finder.CrackFinder(self) if self.cfg.crack is not None else None
         self.fail = ti.field(ti.i32, ())
         self.vmax2 = ti.field(float, ())
         self.diag = ti.field(ti.f64, 8)  # reduction slots for energies and momenta
         self.bytes_per_particle = self._bytes_per_particle()
+        if self.crack is not None:
+            self.bytes_per_particle += self.crack.bytes_per_particle()
 
     def _bytes_per_particle(self) -> int:
         size = 8 if self.cfg.precision == "f64" else 4
@@ -141,6 +146,8 @@ class Simulation:
             self.mat.from_numpy(self._to_solver(s.material).astype(np.uint8))
         if self.half_width is not None:
             self.half_width.from_numpy(self._to_solver(0.5 * s.spacing / self.dx))
+        if self.crack is not None:
+            self.crack.upload()
 
     # ------------------------------------------------------------------ kernels
     def _build_kernels(self):
@@ -289,6 +296,10 @@ class Simulation:
                 A = C[p]
             return A
 
+        crack = self.crack is not None  # crack finder (crack.py): modified shape functions near discontinuities
+        crk = self.crack.build(stencil, node_weight, node_offset, kirchhoff, wall, gravity, f["gravity"],
+                               gv2 if f["musl"] else gv, basis, mat) if crack else None
+
         @ti.kernel
         def p2g(dt: float):
             for p in x:
@@ -296,11 +307,17 @@ class Simulation:
                 Fp = F[p]
                 mp = density(p) * vol0[p]
                 stress = -vol0[p] * kirchhoff(p, Fp)
+                if ti.static(crack):
+                    stress = -crk.degrade(p, -stress)
                 vp = v[p]
                 Ap = affine(p)
                 force_density = ti.Vector.zero(float, dim)
                 if ti.static(has_body_acc):
                     force_density = mp * body_acc[p]
+                if ti.static(crack):
+                    if crk.modified(p):
+                        crk.p2g(p, base, W, DW, R, mp, stress, vp, Ap, force_density, dt)
+                        continue
                 for off in ti.grouped(ti.ndrange(*span)):
                     w, gw = node_weight(W, DW, off)
                     I = base + off
@@ -332,6 +349,10 @@ class Simulation:
                 mp = density(p) * vol0[p]
                 vp = v[p]
                 Ap = affine(p)
+                if ti.static(crack):
+                    if crk.modified(p):
+                        crk.p2g_momentum(p, base, W, DW, R, mp, vp, Ap)
+                        continue
                 for off in ti.grouped(ti.ndrange(*span)):
                     w, gw = node_weight(W, DW, off)
                     I = base + off
@@ -371,6 +392,9 @@ class Simulation:
                         B += w * vi.outer_product(node_offset(R, off))
                     if ti.static(deform or (f["apic"] and basis.apic_gradient)):
                         G += vgrad[I].outer_product(gw)
+                if ti.static(crack):
+                    if crk.modified(p):
+                        v_pic, dv, B, G = crk.g2p(p, base, W, DW, R, deform)
                 if ti.static(velocity):
                     if ti.static(f["flip"]):
                         v[p] = alpha * (v[p] + dv) + (1.0 - alpha) * v_pic
@@ -443,11 +467,15 @@ class Simulation:
         def cauchy_stress(out: ti.types.ndarray()):
             for p in x:
                 tau = kirchhoff(p, F[p]) / F[p].determinant()
+                if ti.static(crack):
+                    tau = crk.degrade(p, tau)
                 for a, b in ti.static(ti.ndrange(dim, dim)):
                     out[p, a, b] = tau[a, b]
 
         self._k = dict(p2g=p2g, grid_update=grid_update, g2p=g2p, p2g_momentum=p2g_momentum, grid_remap=grid_remap, energies=energies, momenta=momenta,
                        cauchy_stress=cauchy_stress)
+        if crack:
+            self._k.update(crk.grid_kernels())
         self._stencil, self._node_weight = stencil, node_weight  # for the crack finder and tests
 
     # ------------------------------------------------------------------ stepping
@@ -470,6 +498,8 @@ class Simulation:
             acc = np.asarray(self.body_force(self.scene.x, self.time), dtype=np.float64)
             self.body_acc.from_numpy(self._to_solver(acc))
         self.grid.clear()
+        if self.crack is not None:
+            self.crack.update()
         k["p2g"](dt)
         k["grid_update"](dt)
         self.fail[None] = _NO_FAIL
@@ -527,6 +557,8 @@ class Simulation:
         self._k["cauchy_stress"](stress)
         out.update(stress=self._to_creation(stress), mass=s.mass.copy(),
                    volume=s.volume * np.linalg.det(out["F"]), body=s.body.copy())
+        if self.crack is not None:
+            out["damage"] = self.crack.damage()
         return out
 
     def _state_fields(self) -> dict:

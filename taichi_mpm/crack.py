@@ -1,0 +1,592 @@
+"""Crack finder: cracks and body interfaces inside one velocity field (seed talk, Part II).
+
+Per step, before P2G (`CrackFinder.update`):
+  1. damage law (Rankine, materials.py) updates d_p; D_p = max(d_p, I_p) (I_p: interface flag).
+  2. a cell list (cell size = SPH support radius r) bins the particles; counting sort, linear in N.
+  3. particles whose neighbourhood holds varying D get the Shepard-normalised SPH gradient of D;
+     a particle is *near* a discontinuity when D_p >= damage_threshold or |grad D_p| r >= gradient_threshold.
+     Its normal is n_p = grad D_p / |grad D_p|, and it marks the grid nodes of its stencil.
+  4. marked nodes y_g get grad D(y_g) from the same SPH sums.
+  5. per near particle and stencil node: opposite sides when n_p . n_g < -threshold, or when the node
+     lies on the discontinuity itself (|grad D(y_g)| r < gradient_threshold with D(y_g) >= damage_threshold).
+     The tangential functions drop opposite nodes; the normal ones keep them while the particle's
+     effective normal stress n.sigma.n <= 0 (contact_in_compression). Both families are rescaled to a
+     partition of unity; their sums are stored per particle so P2G/G2P modify weights node by node.
+
+Direction-dependent coupling: particle p couples to node i through the tensor
+  W_ip = Nt_ip (I - n n^T) + Nn_ip n n^T        (Nt, Nn: rescaled tangential / normal functions)
+so the node mass becomes a tensor M_i = sum_p m_p W_ip = m_i I + A_i (m_i scalar as usual; A_i from
+particles in contact) and v_i = M_i^+ p_i. Linear momentum is conserved (docs/crack_finder.md).
+
+Only built when the config has a `crack` section: a scene without one allocates and compiles nothing here.
+"""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from .errors import ConfigError
+from .grid import Grid
+from .materials import degrade_tension, rankine_damage, rankine_params, sym_eig
+
+STANDARD, MODIFIED, CONTACT = 0, 1, 2   # particle states: unmodified, cut (tension), cut with normal contact
+S_FLOOR = 1e-3                          # a family whose kept weights sum below this keeps standard functions
+MAX_CELLS = 1 << 26
+
+
+def grid_fields(dim: int) -> list[str]:
+    """Extra grid vector fields (rows of the anisotropic node mass A_i) the crack finder needs."""
+    return [f"A{a}" for a in range(dim)]
+
+
+class CrackFinder:
+    def __init__(self, sim):
+        cfg, cc = sim.cfg, sim.cfg.crack
+        if sim.dim == 1:
+            raise ConfigError("the crack finder needs dim 2 or 3", key="crack")
+        self.sim, self.cc = sim, cc
+        d, n = sim.dim, sim.n
+        self.dim = d
+        self.spacing = float(np.min(sim.scene.spacing))
+        self.radius = cc.kernel_radius * self.spacing
+        extent = sim.upper - sim.lower
+        self.cells = [max(1, int(math.ceil(e / self.radius))) for e in extent]
+        self.n_cell_total = int(np.prod(self.cells))
+        if self.n_cell_total > MAX_CELLS:
+            raise ConfigError(f"the crack finder's cell list would need {self.n_cell_total} cells; "
+                              "raise crack.kernel_radius or shrink the domain", key="crack.kernel_radius")
+        self.laws = [rankine_params(m, sim.dx) for m in sim._materials]
+        self.has_law = any(law is not None for law in self.laws)
+        self.n_nodes = sim.basis.stencil ** d
+        self.apic = sim.feat["apic"]
+        # per particle
+        self.d = ti.field(float, n)                     # damage d_p
+        self.D = ti.field(float, n)                     # D_p = max(d_p, I_p)
+        self.iface = ti.field(ti.f32, n)                # I_p
+        self.kappa = ti.field(float, n) if self.has_law else None
+        self.normal = ti.Vector.field(d, float, n)      # n_p (zero when not near a discontinuity)
+        self.state = ti.field(ti.i32, n)
+        self.mask_t = ti.u64 if self.n_nodes > 32 else ti.u32
+        self.mask = ti.field(self.mask_t, n)            # bit k: stencil node k lies across the discontinuity
+        self.sums = ti.Vector.field(2, float, n)        # S_t = sum_j Nt*_j, S_n = sum_j Nn*_j
+        self.gsum = ti.Matrix.field(2, d, float, n)     # rows: sum_j grad Nt*_j, sum_j grad Nn*_j
+        self.cent = ti.Matrix.field(2, d, float, n) if self.apic else None  # rows: sum_i N~ (x_i - x_p)
+        # cell list
+        nc = self.n_cell_total
+        self.cell_count = ti.field(ti.i32, nc)
+        self.cell_fill = ti.field(ti.i32, nc)
+        self.cell_start = ti.field(ti.i32, nc)
+        self.cell_lo = ti.field(float, nc)              # min / max of D in the cell
+        self.cell_hi = ti.field(float, nc)
+        self.pcell = ti.field(ti.i32, n)
+        self.ids = ti.field(ti.i32, n)
+        # node normals on their own sparse grid (same node indexing as the solver's grid);
+        # m marks the node: 1 in a near particle's stencil, 2 on the discontinuity
+        self.nodes = Grid(d, sim.grid.shape, True, ["n"])
+
+    def bytes_per_particle(self) -> int:
+        size = 8 if self.sim.cfg.precision == "f64" else 4
+        d = self.dim
+        floats = 2 + d + 2 + 2 * d + (2 * d if self.apic else 0) + (1 if self.has_law else 0)
+        return floats * size + 4 + 4 + (8 if self.n_nodes > 32 else 4) + 4 + 4  # iface, state, mask, pcell, ids
+
+    def upload(self):
+        s, sim = self.sim.scene, self.sim
+        self.d.from_numpy(sim._to_solver(s.damage).astype(np.float64))
+        self.iface.from_numpy(sim._to_solver(s.interface).astype(np.float32))
+        if self.kappa is not None:
+            self.kappa.fill(0)
+
+    def damage(self) -> np.ndarray:
+        return self.sim._to_creation(self.d.to_numpy())
+
+    def update(self):
+        """The crack finder's per-step work, before P2G."""
+        self.nodes.clear()
+        self._k["prepare"]()
+        self._k["particle_normals"]()
+        self._k["node_normals"]()
+        self._k["particle_masks"]()
+
+    # ------------------------------------------------------------------ kernels
+    def build(self, stencil, node_weight, node_offset, kirchhoff, wall, gravity, has_gravity, vgrad, basis, mat):
+        """Build the crack finder's funcs and kernels from the solver's stencil and material funcs.
+        Returns self; the solver calls modified(p), degrade(p, tau), p2g(...), p2g_momentum(...), g2p(...)
+        and takes grid_update / grid_remap from `grid_kernels()`."""
+        sim, cc = self.sim, self.cc
+        dim, S = self.dim, sim.basis.stencil
+        span = [S] * dim
+        grid = sim.grid
+        gm, gv = grid.m, grid.vec["v"]
+        gv_old, gv2 = grid.vec.get("v_old"), grid.vec.get("v2")
+        Arows = [grid.vec[name] for name in grid_fields(dim)]
+        flip, apic, musl = sim.feat["flip"], sim.feat["apic"], sim.feat["musl"]
+        x, v, F, vol0 = sim.x, sim.v, sim.F, sim.vol0
+        d_f, D, iface, kappa = self.d, self.D, self.iface, self.kappa
+        normal, state, mask, sums, gsum, cent = self.normal, self.state, self.mask, self.sums, self.gsum, self.cent
+        mask_t = self.mask_t
+        cell_count, cell_fill, cell_start = self.cell_count, self.cell_fill, self.cell_start
+        cell_lo, cell_hi, pcell, ids = self.cell_lo, self.cell_hi, self.pcell, self.ids
+        node_mark, node_n = self.nodes.m, self.nodes.vec["n"]
+        lower = ti.Vector(sim.lower.tolist())
+        dx = sim.dx
+        n_cells_grid = sim.n_cells
+        cells = self.cells
+        cells_v = ti.Vector(cells)
+        n_cell_total = self.n_cell_total
+        radius = self.radius
+        inv_r = 1.0 / radius
+        thr, dthr, gthr = float(cc.threshold), float(cc.damage_threshold), float(cc.gradient_threshold)
+        contact = bool(cc.contact_in_compression)
+        laws = self.laws
+        has_law = self.has_law
+        single_mat = len(laws) == 1
+        imped = [float(np.sqrt(m.density * (m.lam + 2 * m.mu))) for m in sim._materials]  # rho c
+        tol = 1e-12 if sim.cfg.precision == "f64" else 1e-6   # pseudo-inverse cut-off, relative
+        nbr = [(-1, 2)] * dim
+
+        # ---- SPH on a cell list ------------------------------------------------
+        @ti.func
+        def cell_of(xq):
+            c = ti.Vector.zero(int, dim)
+            for a in ti.static(range(dim)):
+                c[a] = ti.min(ti.max(int(ti.floor((xq[a] - lower[a]) * inv_r)), 0), cells[a] - 1)
+            return c
+
+        @ti.func
+        def flat(c):
+            k = 0
+            for a in ti.static(range(dim)):
+                k = k * cells[a] + c[a]
+            return k
+
+        @ti.func
+        def damage_field(xq):
+            """Shepard-normalised SPH value and gradient of D at xq (cubic spline kernel of support r)."""
+            c = cell_of(xq)
+            Sw, SD = 0.0, 0.0
+            gS = ti.Vector.zero(float, dim)
+            gSD = ti.Vector.zero(float, dim)
+            for off in ti.grouped(ti.ndrange(*nbr)):
+                cn = c + off
+                if (cn >= 0).all() and (cn < cells_v).all():
+                    cid = flat(cn)
+                    for j in range(cell_start[cid], cell_start[cid] + cell_count[cid]):
+                        q = ids[j]
+                        rv = xq - x[q]
+                        dist = rv.norm()
+                        if dist < radius:
+                            s = dist * inv_r
+                            wk, dk = 0.0, 0.0
+                            if s < 0.5:
+                                wk = 1.0 - 6.0 * s * s + 6.0 * s * s * s
+                                dk = -12.0 * s + 18.0 * s * s
+                            else:
+                                wk = 2.0 * (1.0 - s) ** 3
+                                dk = -6.0 * (1.0 - s) ** 2
+                            gw = ti.Vector.zero(float, dim)
+                            if dist > 0:
+                                gw = (dk * inv_r / dist) * rv
+                            Vq, Dq = vol0[q], D[q]
+                            Sw += Vq * wk
+                            SD += Vq * Dq * wk
+                            gS += Vq * gw
+                            gSD += Vq * Dq * gw
+            val = 0.0
+            grad = ti.Vector.zero(float, dim)
+            if Sw > 0:
+                val = SD / Sw
+                grad = gSD / Sw - SD * gS / (Sw * Sw)
+            return val, grad
+
+        @ti.func
+        def normal_closing_speed(p, n):
+            """Kernel-weighted mean of (v_q - v_p) . n_p over neighbours q across the discontinuity
+            (n_p . n_q < -threshold): negative when the other side approaches p; and whether any q is in reach."""
+            c = cell_of(x[p])
+            sw, sv = 0.0, 0.0
+            for off in ti.grouped(ti.ndrange(*nbr)):
+                cn = c + off
+                if (cn >= 0).all() and (cn < cells_v).all():
+                    cid = flat(cn)
+                    for j in range(cell_start[cid], cell_start[cid] + cell_count[cid]):
+                        q = ids[j]
+                        dist = (x[p] - x[q]).norm()
+                        if dist < radius and n.dot(normal[q]) < -thr:
+                            s = dist * inv_r
+                            wk = 2.0 * (1.0 - s) ** 3
+                            if s < 0.5:
+                                wk = 1.0 - 6.0 * s * s + 6.0 * s * s * s
+                            sw += wk
+                            sv += wk * (v[q] - v[p]).dot(n)
+            res = 0.0
+            if sw > 0:
+                res = sv / sw
+            return res, sw > 0
+
+        @ti.func
+        def impedance(p):
+            z = ti.cast(imped[0], float)
+            if ti.static(not single_mat):
+                for k in ti.static(range(1, len(imped))):
+                    if mat[p] == k:
+                        z = imped[k]
+            return z
+
+        @ti.func
+        def effective_stress(p):
+            """Undamaged Cauchy stress of the particle (the damage law and the contact test read it)."""
+            Fp = F[p]
+            return kirchhoff(p, Fp) / Fp.determinant()
+
+        @ti.kernel
+        def prepare():
+            for c in cell_count:
+                cell_count[c] = 0
+                cell_fill[c] = 0
+                cell_lo[c] = 1.0
+                cell_hi[c] = 0.0
+            for p in x:
+                if ti.static(has_law):
+                    sig = effective_stress(p)
+                    for k in ti.static(range(len(laws))):
+                        if ti.static(laws[k] is not None):
+                            hit = True
+                            if ti.static(not single_mat):
+                                hit = mat[p] == k
+                            if hit:
+                                dn, kap = rankine_damage(sig, kappa[p], laws[k][0], laws[k][1], laws[k][2])
+                                kappa[p] = kap
+                                d_f[p] = ti.max(d_f[p], dn)
+                Dp = ti.max(d_f[p], ti.cast(iface[p], float))
+                D[p] = Dp
+                c = flat(cell_of(x[p]))
+                pcell[p] = c
+                ti.atomic_add(cell_count[c], 1)
+                ti.atomic_min(cell_lo[c], Dp)
+                ti.atomic_max(cell_hi[c], Dp)
+            ti.loop_config(serialize=True)
+            for c in range(1, n_cell_total):
+                cell_start[c] = cell_start[c - 1] + cell_count[c - 1]
+            for p in x:
+                c = pcell[p]
+                ids[cell_start[c] + ti.atomic_add(cell_fill[c], 1)] = p
+            for c in cell_count:  # insertion sort within each cell: sums in a fixed order, runs reproducible
+                s0 = cell_start[c]
+                for i in range(1, cell_count[c]):
+                    key = ids[s0 + i]
+                    j = i - 1
+                    while j >= 0:
+                        if ids[s0 + j] > key:
+                            ids[s0 + j + 1] = ids[s0 + j]
+                            j -= 1
+                        else:
+                            break
+                    ids[s0 + j + 1] = key
+
+        @ti.kernel
+        def particle_normals():
+            for p in x:
+                st = STANDARD
+                nrm = ti.Vector.zero(float, dim)
+                c = cell_of(x[p])
+                lo, hi = 1.0, 0.0
+                for off in ti.grouped(ti.ndrange(*nbr)):
+                    cn = c + off
+                    if (cn >= 0).all() and (cn < cells_v).all():
+                        cid = flat(cn)
+                        lo = ti.min(lo, cell_lo[cid])
+                        hi = ti.max(hi, cell_hi[cid])
+                if hi > lo:  # D varies within reach: p may sit near a discontinuity
+                    _, g = damage_field(x[p])
+                    gn = g.norm() * radius
+                    if (D[p] >= dthr or gn >= gthr) and gn > 1e-6:
+                        nrm = g / g.norm()
+                        st = MODIFIED
+                normal[p] = nrm
+                state[p] = st
+                if st != STANDARD:
+                    base, W, DW, R = stencil(p)
+                    for off in ti.grouped(ti.ndrange(*span)):
+                        node_mark[base + off] = 1.0
+
+        @ti.kernel
+        def node_normals():
+            for I in ti.grouped(node_mark):
+                if node_mark[I] > 0:
+                    y = ti.Vector.zero(float, dim)
+                    for a in ti.static(range(dim)):
+                        y[a] = lower[a] + basis.coord(I[a], n_cells_grid[a]) * dx
+                    val, g = damage_field(y)
+                    gn = g.norm() * radius
+                    nn = ti.Vector.zero(float, dim)
+                    if gn > 1e-6:
+                        nn = g / g.norm()
+                    node_n[I] = nn
+                    if gn < gthr and val >= dthr:
+                        node_mark[I] = 2.0   # the node lies on the discontinuity: both sides leave it
+
+        @ti.func
+        def stencil_index(off):
+            k = 0
+            for a in ti.static(range(dim)):
+                k = k * S + off[a]
+            return k
+
+        @ti.kernel
+        def particle_masks():
+            for p in x:
+                if state[p] != STANDARD:
+                    n = normal[p]
+                    comp = False
+                    if ti.static(contact):  # material across within reach, and trial normal traction < 0
+                        vc, touching = normal_closing_speed(p, n)
+                        comp = touching and n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0
+                    base, W, DW, R = stencil(p)
+                    m = ti.cast(0, mask_t)
+                    St, Sn = 0.0, 0.0
+                    Gt = ti.Vector.zero(float, dim)
+                    Gn = ti.Vector.zero(float, dim)
+                    ct = ti.Vector.zero(float, dim)
+                    cn = ti.Vector.zero(float, dim)
+                    for off in ti.grouped(ti.ndrange(*span)):
+                        w, gw = node_weight(W, DW, off)
+                        I = base + off
+                        r = node_offset(R, off)
+                        if node_mark[I] > 1.5 or n.dot(node_n[I]) < -thr:
+                            m |= ti.cast(1, mask_t) << ti.cast(stencil_index(off), mask_t)
+                            if comp:
+                                Sn += w
+                                Gn += gw
+                                cn += w * r
+                        else:
+                            St += w
+                            Gt += gw
+                            ct += w * r
+                            Sn += w
+                            Gn += gw
+                            cn += w * r
+                    st = MODIFIED
+                    if comp:
+                        st = CONTACT
+                    if m == 0 or St < S_FLOOR:
+                        st = STANDARD   # nothing across, or it would lose (almost) every node
+                    state[p] = st
+                    mask[p] = m
+                    sums[p] = ti.Vector([St, Sn])
+                    for a in ti.static(range(dim)):
+                        gsum[p][0, a] = Gt[a]
+                        gsum[p][1, a] = Gn[a]
+                        if ti.static(apic):
+                            cent[p][0, a] = ct[a] / St
+                            cent[p][1, a] = cn[a] / Sn
+
+        # ---- funcs used inside the solver's kernels -----------------------------
+        @ti.func
+        def modified(p):
+            return state[p] != STANDARD
+
+        @ti.func
+        def degrade(p, tau):
+            out = tau
+            if d_f[p] > 0:
+                out = degrade_tension(tau, d_f[p])
+            return out
+
+        @ti.func
+        def weights(p, off, w, gw):
+            """Rescaled tangential and normal functions of one node: (Nt, Nn, grad Nt, grad Nn)."""
+            across = (mask[p] >> ti.cast(stencil_index(off), mask_t)) & ti.cast(1, mask_t)
+            wt, wn = w, w
+            gt, gn = gw, gw
+            if across != 0:
+                wt, gt = 0.0, ti.Vector.zero(float, dim)
+                if state[p] != CONTACT:
+                    wn, gn = 0.0, ti.Vector.zero(float, dim)
+            St, Sn = sums[p][0], sums[p][1]
+            Gt = ti.Vector([gsum[p][0, a] for a in ti.static(range(dim))])
+            Gn = ti.Vector([gsum[p][1, a] for a in ti.static(range(dim))])
+            return wt / St, wn / Sn, (St * gt - wt * Gt) / (St * St), (Sn * gn - wn * Gn) / (Sn * Sn)
+
+        @ti.func
+        def frame(p):
+            n = normal[p]
+            Pn = n.outer_product(n)
+            return ti.Matrix.identity(float, dim) - Pn, Pn, n
+
+        @ti.func
+        def centroids(p):
+            ct = ti.Vector.zero(float, dim)
+            cn = ti.Vector.zero(float, dim)
+            if ti.static(apic):
+                ct = ti.Vector([cent[p][0, a] for a in ti.static(range(dim))])
+                cn = ti.Vector([cent[p][1, a] for a in ti.static(range(dim))])
+            return ct, cn
+
+        @ti.func
+        def p2g(p, base, W, DW, R, mp, stress, vp, Ap, force_density, dt):
+            """P2G of a particle near a discontinuity: mass, momentum (APIC about the kept nodes'
+            centroid, so sum_i W_ip mom_i = v_p exactly), stress force and body force."""
+            Pt, Pn, n = frame(p)
+            ct, cn = centroids(p)
+            contact_state = state[p] == CONTACT
+            for off in ti.grouped(ti.ndrange(*span)):
+                w, gw = node_weight(W, DW, off)
+                I = base + off
+                wt, wn, gt, gn = weights(p, off, w, gw)
+                mom_t, mom_n = vp, vp
+                if ti.static(apic):
+                    r = node_offset(R, off)
+                    mom_t = vp + Ap @ (r - ct)
+                    mom_n = vp + Ap @ (r - cn)
+                gm[I] += wt * mp
+                if contact_state:
+                    for a in ti.static(range(dim)):
+                        Arows[a][I] += mp * (wn - wt) * n[a] * n
+                gv[I] += mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n)) + dt * (
+                    Pt @ (stress @ gt + wt * force_density) + Pn @ (stress @ gn + wn * force_density))
+                if ti.static(flip):
+                    gv_old[I] += mp * (wt * (Pt @ vp) + wn * (Pn @ vp))
+
+        @ti.func
+        def p2g_momentum(p, base, W, DW, R, mp, vp, Ap):
+            Pt, Pn, n = frame(p)
+            ct, cn = centroids(p)
+            for off in ti.grouped(ti.ndrange(*span)):
+                w, gw = node_weight(W, DW, off)
+                I = base + off
+                wt, wn, gt, gn = weights(p, off, w, gw)
+                mom_t, mom_n = vp, vp
+                if ti.static(apic):
+                    r = node_offset(R, off)
+                    mom_t = vp + Ap @ (r - ct)
+                    mom_n = vp + Ap @ (r - cn)
+                gv2[I] += mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n))
+
+        @ti.func
+        def g2p(p, base, W, DW, R, deform: ti.template()):
+            """(v_pic, FLIP increment, APIC B, velocity gradient G) with the modified functions.
+            APIC's affine C of such a particle is its velocity gradient: B = G D_p makes the solver's
+            C = B D_p^-1 equal G."""
+            Pt, Pn, n = frame(p)
+            v_pic = ti.Vector.zero(float, dim)
+            dv = ti.Vector.zero(float, dim)
+            G = ti.Matrix.zero(float, dim, dim)
+            for off in ti.grouped(ti.ndrange(*span)):
+                w, gw = node_weight(W, DW, off)
+                I = base + off
+                wt, wn, gt, gn = weights(p, off, w, gw)
+                vi = gv[I]
+                v_pic += wt * (Pt @ vi) + wn * (Pn @ vi)
+                if ti.static(flip):
+                    dvi = vi - gv_old[I]
+                    dv += wt * (Pt @ dvi) + wn * (Pn @ dvi)
+                vg = vi
+                if ti.static(deform):  # MUSL's deform pass reads the remapped velocities
+                    vg = vgrad[I]
+                G += (Pt @ vg).outer_product(gt) + (Pn @ vg).outer_product(gn)
+            Dm = ti.Matrix.zero(float, dim, dim)
+            for a in ti.static(range(dim)):
+                s = 0.0
+                for k in ti.static(range(S)):
+                    s += W[a, k] * R[a, k] * R[a, k]
+                Dm[a, a] = s
+            return v_pic, dv, G @ Dm, G
+
+        # ---- grid update with tensor node mass ----------------------------------
+        @ti.func
+        def node_mass(I):
+            A = ti.Matrix.zero(float, dim, dim)
+            for a in ti.static(range(dim)):
+                for b in ti.static(range(dim)):
+                    A[a, b] = Arows[a][I][b]
+            return gm[I], A
+
+        @ti.func
+        def solve(m, A, vec):
+            """M^+ vec for M = m I + A (symmetric positive semi-definite)."""
+            res = ti.Vector.zero(float, dim)
+            if A.norm_sqr() == 0:
+                if m > 0:
+                    res = vec / m
+            else:
+                M = m * ti.Matrix.identity(float, dim) + A
+                M = 0.5 * (M + M.transpose())
+                ev, Q = sym_eig(M)
+                cut = tol * ev.max()
+                for k in ti.static(range(dim)):
+                    if ev[k] > cut:
+                        q = ti.Vector([Q[a, k] for a in ti.static(range(dim))])
+                        res += q.dot(vec) / ev[k] * q
+            return res
+
+        @ti.kernel
+        def grid_update(dt: float):
+            for I in ti.grouped(gm):
+                m, A = node_mass(I)
+                if m > 0 or A.norm_sqr() > 0:
+                    vel = solve(m, A, gv[I])
+                    if ti.static(has_gravity):
+                        vel += dt * gravity
+                    gv[I] = wall(I, vel)
+                    if ti.static(flip):
+                        gv_old[I] = solve(m, A, gv_old[I])
+
+        @ti.kernel
+        def grid_remap():
+            for I in ti.grouped(gm):
+                m, A = node_mass(I)
+                if m > 0 or A.norm_sqr() > 0:
+                    gv2[I] = wall(I, solve(m, A, gv2[I]))
+
+        # ---- inspection (tests) -------------------------------------------------
+        @ti.kernel
+        def partition_check(out: ti.types.ndarray()):
+            """Per particle: state, sum Nt, sum Nn, |sum grad Nt|_inf, |sum grad Nn|_inf, |sum W_ip - I|_inf."""
+            for p in x:
+                base, W, DW, R = stencil(p)
+                st_ = state[p]
+                swt, swn = 0.0, 0.0
+                sgt = ti.Vector.zero(float, dim)
+                sgn = ti.Vector.zero(float, dim)
+                Wsum = ti.Matrix.zero(float, dim, dim)
+                for off in ti.grouped(ti.ndrange(*span)):
+                    w, gw = node_weight(W, DW, off)
+                    wt, wn, gt, gn = w, w, gw, gw
+                    if st_ != STANDARD:
+                        wt, wn, gt, gn = weights(p, off, w, gw)
+                    swt += wt
+                    swn += wn
+                    sgt += gt
+                    sgn += gn
+                    if st_ != STANDARD:
+                        Pt, Pn, n = frame(p)
+                        Wsum += wt * Pt + wn * Pn
+                    else:
+                        Wsum += w * ti.Matrix.identity(float, dim)
+                out[p, 0] = st_
+                out[p, 1] = swt
+                out[p, 2] = swn
+                out[p, 3] = ti.abs(sgt).max()
+                out[p, 4] = ti.abs(sgn).max()
+                out[p, 5] = ti.abs(Wsum - ti.Matrix.identity(float, dim)).max()
+                out[p, 6] = ti.cast(mask[p] != 0, float)
+
+        self._k = dict(prepare=prepare, particle_normals=particle_normals, node_normals=node_normals,
+                       particle_masks=particle_masks, grid_update=grid_update, grid_remap=grid_remap,
+                       partition_check=partition_check)
+        self.modified, self.degrade = modified, degrade
+        self.p2g, self.p2g_momentum, self.g2p = p2g, p2g_momentum, g2p
+        return self
+
+    def grid_kernels(self) -> dict:
+        return {"grid_update": self._k["grid_update"], "grid_remap": self._k["grid_remap"]}
+
+    def partition_check(self) -> np.ndarray:
+        """(N, 7) per particle in creation order: state, sum Nt, sum Nn, max|sum grad Nt|, max|sum grad Nn|,
+        max|sum_i W_ip - I|, any node across. Runs the crack finder on the current state first."""
+        self.update()
+        out = np.zeros((self.sim.n, 7), dtype=np.float64)
+        self._k["partition_check"](out)
+        return self.sim._to_creation(out)
