@@ -231,3 +231,23 @@ def test_instability_exits_3_and_keeps_last_good_checkpoint(tmp_path):
     assert state["time"] == entries[-1][0]  # the checkpoint is the last output written
     assert np.all(np.isfinite(state["x"])) and np.all(np.linalg.det(state["F"]) > 0)
     assert "checkpoint.npz" in err
+
+
+# ---------------------------------------------------------------- progress bar, render
+def test_run_progress_bar_then_render_run_dir(tmp_path, capsys):
+    imageio = pytest.importorskip("imageio.v2")
+    path = scene_cfg(tmp_path)
+    out = tmp_path / "r"
+    assert main(["run", str(path), "--out", str(out)]) == 0  # not quiet: progress bar and summary on stderr
+    captured = capsys.readouterr()
+    assert "particle-steps/s" in captured.err and "done:" in captured.err and "3 outputs" in captured.err
+    assert captured.out == ""  # stdout stays clean (Taichi's start-up line goes to stderr)
+    assert main(["render", str(out), "--color-by", "von_mises", "--size", "160x120", "--movie", "gif"]) == 0
+    frames = sorted((out / "frames").glob("frame_*.png"))
+    assert [f.name for f in frames] == [f"frame_{k:06d}.png" for k in range(3)]
+    img = imageio.imread(frames[-1])
+    assert img.shape[:2] == (120, 160) and img[..., :3].astype(float).var() > 10
+    assert (out / "movie.gif").is_file()
+    assert main(["render", str(out), "--size", "12"]) == 2
+    assert "WIDTHxHEIGHT" in capsys.readouterr().err
+    assert main(["study", str(tmp_path / "none.yaml")]) == 2

@@ -91,3 +91,13 @@ def test_resume_compatibility():
     assert config_changes(old, {**old, "solver": {"end_time": 2.0, "basis": "linear"}, "output": {"every": 1}}) == []
     assert config_changes(old, {**old, "solver": {"end_time": 1.0, "basis": "cubic"}}) == ["solver.basis"]
     assert config_changes(old, {**old, "dim": 3}) == ["dim"]
+
+
+def test_npz_snapshot(tmp_path):
+    p = state(3)
+    io.write_npz(tmp_path / "particles_000000.npz", p, fields=["speed"])
+    with np.load(tmp_path / "particles_000000.npz") as z:
+        np.testing.assert_array_equal(z["x"], p["x"])
+        np.testing.assert_array_equal(z["stress"], p["stress"])  # unpadded (N, 3, 3)
+        np.testing.assert_allclose(z["speed"], np.linalg.norm(p["v"], axis=1))
+        assert {"v", "F", "J", "von_mises", "body", "damage"} <= set(z.files)
