@@ -309,7 +309,9 @@ def cmd_study(args) -> int:
         raise _InputError(f"study file not found: {path}")
     from .study import run_study
 
-    run_study(path, out=args.out, jobs=args.jobs, scheduler=args.scheduler, resume=args.resume)
+    out = run_study(path, out=args.out, jobs=args.jobs, scheduler=args.scheduler, resume=args.resume)
+    if out is not None:
+        print(f"study done: results.csv, summary.md and plots in {out}", file=sys.stderr)
     return EXIT_OK
 
 

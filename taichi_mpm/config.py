@@ -410,8 +410,7 @@ def read_yaml(path) -> tuple[dict, dict]:
         problem = getattr(e, "problem", None) or str(e)
         raise ConfigError(f"not valid YAML: {problem}", file=path, line=mark.line + 1 if mark else None) from None
     if data is None:
-        raise ConfigError("the file is empty (expected a YAML mapping with name, dim, domain, solver, materials, bodies)",
-                          file=path)
+        raise ConfigError("the file is empty (expected a YAML mapping of keys)", file=path)
     if not isinstance(data, dict):
         raise ConfigError(f"the top level must be a mapping of keys (name, dim, domain, ...), got a {type(data).__name__}",
                           file=path, line=1)

@@ -5,13 +5,15 @@ one output (snapshot, diagnostics row, frame, checkpoint), so it works as `sim.r
 `run.execute()` drives the steps itself, which adds progress callbacks, a clean stop on Ctrl-C and
 bit-for-bit resumption from checkpoint.npz.
 
-Output k is written at time min(k * output.every, end_time). The checkpoint is rewritten at every
+Outputs are written at the start and then at the times k * output.every (and at end_time): the next
+output time is the first such time after the current time. The checkpoint is rewritten at every
 output (and on a stop), so after a numerical failure the last good state is on disk. A resumed run
 takes the same steps as the uninterrupted one: the step loop below depends only on the state the
 checkpoint holds (positions, velocities, F, C, time, step count and the CFL speed estimate).
 """
 from __future__ import annotations
 
+import math
 import signal
 import sys
 import threading
@@ -183,7 +185,10 @@ class Run:
 
     # ------------------------------------------------------------ the loop
     def next_time(self) -> float:
-        return min(self.index * self.every, self.cfg.solver.end_time)
+        """The first output time k * every after the current time (a function of the time alone, so a
+        resumed run aims at the same times as the uninterrupted one), capped at end_time."""
+        k = math.floor(self.sim.time / self.every + 1e-9) + 1
+        return min(k * self.every, self.cfg.solver.end_time)
 
     @property
     def done(self) -> bool:

@@ -146,6 +146,11 @@ def test_python_api_run_writes_outputs(tmp_path):
     seen = []
     tm.Simulation(cfg).run(on_output=lambda s: seen.append(s.time))  # an observer instead of files
     assert seen == pytest.approx([0.0, 0.02, 0.04])
+    sim = tm.Simulation(cfg)
+    sim.advance(0.025)  # a run that starts late writes its start, then the output times after it
+    sim.run(out_dir=tmp_path / "late")
+    assert [t for t, _ in io.read_pvd(tmp_path / "late" / "particles.pvd")] == pytest.approx([0.025, 0.04])
+    assert sim.time == pytest.approx(0.04)
 
 
 # ---------------------------------------------------------------- resume
