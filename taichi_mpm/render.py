@@ -48,12 +48,13 @@ def _tensor(a, n, d):
 
 
 def von_mises(stress: np.ndarray) -> np.ndarray:
-    """Von Mises stress of (N,d,d) Cauchy stresses (plane components only in 2D, axial only in 1D)."""
+    """Von Mises stress sqrt(3/2 s:s) of (N,d,d) Cauchy stresses padded to 3x3 with zeros (as io.py
+    writes it: plane stress in 2D, |sigma_xx| in 1D), so live and re-rendered frames agree."""
     s = np.asarray(stress, float)
-    d = s.shape[1]
-    if d == 1:
-        return np.abs(s[:, 0, 0])
-    dev = s - np.einsum("nii->n", s)[:, None, None] / d * np.eye(d)
+    n, d = s.shape[0], s.shape[1]
+    s3 = np.zeros((n, 3, 3))
+    s3[:, :d, :d] = s
+    dev = s3 - np.einsum("nii->n", s3)[:, None, None] / 3.0 * np.eye(3)
     return np.sqrt(1.5 * np.einsum("nij,nij->n", dev, dev))
 
 
@@ -374,6 +375,7 @@ def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: 
     Returns {"frames": [paths], "movie": path or None}.
     """
     from .config import load_config
+    from .errors import ConfigError
 
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.yaml"
@@ -392,6 +394,11 @@ def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: 
         raise FileNotFoundError(f"{run_dir} holds no particles_*.vtu files")
     dim = cfg.dim
     states = [read_particles(f, dim) for _, f in series]
+    try:  # bad options are input errors (exit code 2 on the command line), found before any frame
+        field_values(states[0], rc["color_by"], dim)
+        FrameRenderer(rc, dim, cfg.domain.lower, cfg.domain.upper)
+    except ValueError as e:
+        raise ConfigError(str(e), key="output.render") from None
     if not rc.get("clim"):
         vals = [field_values(s, rc["color_by"], dim) for s in states]
         lo = min(float(np.nanmin(v)) for v in vals)
