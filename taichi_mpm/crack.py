@@ -49,7 +49,10 @@ class CrackFinder:
         d, n = sim.dim, sim.n
         self.dim = d
         self.spacing = float(np.min(sim.scene.spacing))
-        self.radius = cc.kernel_radius * self.spacing
+        # a particle whose stencil reaches across the discontinuity must see it: the support radius is at
+        # least the stencil reach (S/2 cells) plus one particle spacing
+        self.reach = 0.5 * sim.basis.stencil * sim.dx
+        self.radius = max(cc.kernel_radius * self.spacing, self.reach + self.spacing)
         extent = sim.upper - sim.lower
         self.cells = [max(1, int(math.ceil(e / self.radius))) for e in extent]
         self.n_cell_total = int(np.prod(self.cells))
@@ -106,6 +109,7 @@ class CrackFinder:
         self.nodes.clear()
         self._k["prepare"]()
         self._k["particle_normals"]()
+        self._k["band_normals"]()
         self._k["node_normals"]()
         self._k["particle_masks"]()
 
@@ -310,6 +314,48 @@ class CrackFinder:
                     base, W, DW, R = stencil(p)
                     for off in ti.grouped(ti.ndrange(*span)):
                         node_mark[base + off] = 1.0
+
+        @ti.kernel
+        def band_normals():
+            """A damaged particle without a gradient (the middle of an odd-width damage band) joins one side:
+            its normal is the principal direction of its undamaged neighbours' normals, signed so that its
+            largest component is positive. Otherwise it would couple both faces through its own mass."""
+            for p in x:
+                if state[p] == STANDARD and D[p] >= dthr:
+                    T = ti.Matrix.zero(float, dim, dim)
+                    c = cell_of(x[p])
+                    for off in ti.grouped(ti.ndrange(*nbr)):
+                        cn = c + off
+                        if (cn >= 0).all() and (cn < cells_v).all():
+                            cid = flat(cn)
+                            for j in range(cell_start[cid], cell_start[cid] + cell_count[cid]):
+                                q = ids[j]
+                                dist = (x[p] - x[q]).norm()
+                                if dist < radius and D[q] < dthr and state[q] == MODIFIED:
+                                    s = dist * inv_r
+                                    wk = 2.0 * (1.0 - s) ** 3
+                                    if s < 0.5:
+                                        wk = 1.0 - 6.0 * s * s + 6.0 * s * s * s
+                                    T += wk * normal[q].outer_product(normal[q])
+                    if T.trace() > 0:
+                        ev, Q = sym_eig(T)
+                        e = ti.Vector([Q[a, 0] for a in ti.static(range(dim))])
+                        big = ev[0]
+                        for k in ti.static(range(1, dim)):
+                            if ev[k] > big:
+                                big = ev[k]
+                                e = ti.Vector([Q[a, k] for a in ti.static(range(dim))])
+                        lead = e[0]
+                        for a in ti.static(range(1, dim)):
+                            if ti.abs(e[a]) > ti.abs(lead):
+                                lead = e[a]
+                        if lead < 0:
+                            e = -e
+                        normal[p] = e
+                        state[p] = MODIFIED
+                        base, W, DW, R = stencil(p)
+                        for off in ti.grouped(ti.ndrange(*span)):
+                            node_mark[base + off] = 1.0
 
         @ti.kernel
         def node_normals():
@@ -573,7 +619,7 @@ class CrackFinder:
                 out[p, 5] = ti.abs(Wsum - ti.Matrix.identity(float, dim)).max()
                 out[p, 6] = ti.cast(mask[p] != 0, float)
 
-        self._k = dict(prepare=prepare, particle_normals=particle_normals, node_normals=node_normals,
+        self._k = dict(prepare=prepare, particle_normals=particle_normals, band_normals=band_normals, node_normals=node_normals,
                        particle_masks=particle_masks, grid_update=grid_update, grid_remap=grid_remap,
                        partition_check=partition_check)
         self.modified, self.degrade = modified, degrade
