@@ -155,7 +155,7 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True):
 
     from .config import load_config
     from .errors import InstabilityError
-    from .solver import Simulation
+    from .runner import Simulation  # resolves arch auto without Taichi's crashing OpenGL probe
 
     cfg = cfg if hasattr(cfg, "model_dump") else load_config(cfg)
     sim = Simulation(cfg)

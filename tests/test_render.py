@@ -129,3 +129,13 @@ def test_render_run_rerenders_saved_output(tmp_path):
 def test_render_run_without_config_fails_clearly(tmp_path):
     with pytest.raises(FileNotFoundError, match="config.yaml"):
         render_run(tmp_path)
+
+
+def test_render_run_rejects_unknown_field_before_rendering(tmp_path):
+    from taichi_mpm.errors import ConfigError
+
+    run = tmp_path / "run"
+    write_run(run, n_out=1)
+    with pytest.raises(ConfigError, match="unknown colour field"):
+        render_run(run, color_by="temperature")
+    assert not (run / "frames").exists()
