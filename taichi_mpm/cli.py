@@ -200,7 +200,10 @@ def _run(cfg, args) -> int:
     # ti.init prints "[Taichi] Starting on arch=..." to stdout: keep stdout clean
     with contextlib.redirect_stdout(StringIO() if args.quiet else sys.stderr):
         sim = Simulation(cfg)
-    run = Run(sim, args.out, resume=args.resume)
+    try:
+        run = Run(sim, args.out, resume=args.resume)
+    except OSError as e:  # an output directory that cannot be created or written
+        raise _InputError(f"cannot write the outputs: {e}") from None
     if args.resume and run.done:
         if not args.quiet:
             print(f"nothing to do: {run.out_dir} is already at t={sim.time:g} = solver.end_time", file=sys.stderr)

@@ -174,17 +174,21 @@ def diagnostics_columns(dim: int) -> list[str]:
 
 
 def diagnostics_row(sim) -> dict:
+    """One diagnostics row. dt is the step size in force at this time (the CFL rule or the fixed dt), not
+    the last step, which is shortened to land on the output time; cfl = dt (wave speed + max speed) / dx."""
     e = sim.energy()
     m = sim.momentum()
-    row = {"time": sim.time, "step": sim.n_steps, "dt": sim.dt, "kinetic": e["kinetic"], "strain": e["strain"],
+    dt = sim.stable_dt()
+    vmax = sim.max_speed()
+    row = {"time": sim.time, "step": sim.n_steps, "dt": dt, "kinetic": e["kinetic"], "strain": e["strain"],
            "gravity": e["gravity"], "total": e["kinetic"] + e["strain"] + e["gravity"]}
     for a, c in enumerate("xyz"[: sim.dim]):
         row[f"momentum_{c}"] = float(m["linear"][a])
     if sim.dim > 1:
         for a, c in enumerate("xyz"):
             row[f"angular_momentum_{c}"] = float(m["angular"][a])
-    row["max_speed"] = sim.max_speed()
-    row["cfl"] = sim.cfl_number()
+    row["max_speed"] = vmax
+    row["cfl"] = dt * (sim.wave_speed + vmax) / sim.dx
     return row
 
 

@@ -33,6 +33,12 @@ def scene_cfg(tmp_path, name="scene.yaml", **kw):
     return path
 
 
+def sim_wave_speed(cfg):
+    """(lambda + 2 mu) / rho of the single material: the squared P-wave speed."""
+    m = cfg.materials["m"]
+    return (m.lam + 2 * m.mu) / m.density
+
+
 def io_set(cfg, key, value):
     from taichi_mpm.config import apply_overrides
 
@@ -130,7 +136,9 @@ def test_run_writes_vtu_series_diagnostics_checkpoint_config(tmp_path, capsys):
     mass = 1000.0 * 0.3 * 0.3
     np.testing.assert_allclose(diag["kinetic"][0], 0.5 * mass * 1.25, rtol=1e-12)
     np.testing.assert_allclose(diag["momentum_x"], 0.5 * mass, rtol=1e-10)  # no wall acts along x
-    assert diag["cfl"][1] > 0 and diag["cfl"][1] <= 0.4 + 1e-9
+    np.testing.assert_allclose(diag["cfl"], 0.4, rtol=1e-6)  # adaptive dt: the CFL number of the config
+    c = np.sqrt(sim_wave_speed(cfg))
+    np.testing.assert_allclose(diag["dt"], 0.4 * 0.1 / (c + diag["max_speed"]), rtol=1e-9)
     assert tm.load_config(out / "config.yaml").to_dict() == cfg.to_dict()
     state, meta = io.load_checkpoint(out / "checkpoint.npz")
     assert state["time"] == pytest.approx(0.04) and meta["next_output"] == 3
