@@ -148,106 +148,142 @@ class _Limits:
         return self.lim
 
 
+class Session:
+    """The window's state machine without the window: keys, mouse drags, stepping and what to draw."""
+
+    def __init__(self, sim, res):
+        self.sim, self.cfg = sim, sim.cfg
+        c = self.cfg
+        self.initial = sim.get_state()
+        self.view = View(c.dim, c.domain.lower, c.domain.upper, res)
+        self.fields = available_fields(sim.particles(), c.dim)
+        self.field = c.output.render.color_by if c.output.render.color_by in self.fields else self.fields[0]
+        self.cmap = c.output.render.colormap
+        self.limits = _Limits()
+        self.frame_time = c.output.every
+        self.radius_px = max(1.0, 0.6 * float(np.median(sim.scene.spacing)) * self.view.scale)
+        wave = float(getattr(sim, "wave_speed", 0.0) or 0.0)
+        self.speed_cap = 0.25 * wave if wave > 0 else 10.0
+        self.paused, self.message, self.show_help = False, "", True
+        self._step_once = False
+
+    def press(self, key) -> bool:
+        """Handle one key (ti.GUI key names); False means quit."""
+        import taichi as ti
+
+        if key in (ti.GUI.ESCAPE, ti.GUI.EXIT):
+            return False
+        if key == ti.GUI.SPACE:
+            self.paused = not self.paused
+        elif key == "s":
+            self.paused, self._step_once = True, True
+        elif key == "r":
+            self.sim.set_state(self.initial)
+            self.limits, self.message = _Limits(), ""
+        elif key == "c":
+            self.field = self.fields[(self.fields.index(self.field) + 1) % len(self.fields)]
+            self.limits = _Limits()
+        elif key == "h":
+            self.show_help = not self.show_help
+        elif key == ti.GUI.LEFT:
+            self.view.yaw -= 10
+        elif key == ti.GUI.RIGHT:
+            self.view.yaw += 10
+        elif key == ti.GUI.UP:
+            self.view.pitch = min(89.0, self.view.pitch + 10)
+        elif key == ti.GUI.DOWN:
+            self.view.pitch = max(-89.0, self.view.pitch - 10)
+        return True
+
+    def drag(self, prev, cursor, radius=0.06) -> int:
+        """A mouse drag from prev to cursor (window units): push the particles under the cursor."""
+        u = self.view.to_world_delta(np.asarray(cursor, float) - np.asarray(prev, float)) / self.frame_time
+        speed = float(np.linalg.norm(u))
+        if speed == 0:
+            return 0
+        if speed > self.speed_cap:
+            u *= self.speed_cap / speed
+        return push_particles(self.sim, cursor, u, radius=radius, view=self.view)
+
+    def advance(self):
+        """One frame: a single step when asked, else one output interval unless paused or done."""
+        from .errors import InstabilityError
+
+        try:
+            if self._step_once:
+                self.sim.step()
+            elif not self.paused and not self.done:
+                self.sim.advance(min(self.frame_time, self.cfg.solver.end_time - self.sim.time))
+        except InstabilityError as err:
+            self.paused, self.message = True, f"unstable: {err}  (r: reset)"
+        stepped, self._step_once = self._step_once, False
+        return stepped
+
+    @property
+    def done(self) -> bool:
+        end = self.cfg.solver.end_time
+        return self.sim.time >= end - 1e-12 * max(1.0, end)
+
+    def picture(self):
+        """(positions, packed colours) in drawing order, and the status line."""
+        p = self.sim.particles()
+        values = field_values(p, self.field, self.cfg.dim)
+        clim = self.limits.update(values, self.field)
+        pos, depth = self.view.project(p["x"])
+        rgb = _colour_ints(values, clim, "tab10" if self.field == "body" else self.cmap)
+        if self.cfg.dim == 3:  # painter's order and depth shading: far particles first and darker
+            order = np.argsort(depth)
+            span = float(np.ptp(depth)) or 1.0
+            shade = 0.55 + 0.45 * (depth - depth.min()) / span
+            rgb = (rgb * shade[:, None]).astype(np.uint32)
+            pos, rgb = pos[order], rgb[order]
+        state = "paused" if self.paused else ("done" if self.done else "running")
+        status = (f"t = {self.sim.time:.4g} s   steps {self.sim.n_steps}   {state}   colour: {self.field} "
+                  f"[{clim[0]:.3g}, {clim[1]:.3g}]")
+        return pos, _pack(rgb), status
+
+
 def run_gui(cfg, max_frames=None, screenshot=None, show=True):
     """Open the interactive window for a config (path, dict or Config). With `max_frames` the window
     closes by itself after that many frames; `screenshot` saves the last frame as a PNG."""
     import taichi as ti
 
     from .config import load_config
-    from .errors import InstabilityError
     from .runner import Simulation  # resolves arch auto without Taichi's crashing OpenGL probe
 
     cfg = cfg if hasattr(cfg, "model_dump") else load_config(cfg)
-    sim = Simulation(cfg)
-    initial = sim.get_state()
     res = tuple(int(s) for s in cfg.output.render.size)
-    view = View(cfg.dim, cfg.domain.lower, cfg.domain.upper, res)
-    p = sim.particles()
-    fields = available_fields(p, cfg.dim)
-    field = cfg.output.render.color_by if cfg.output.render.color_by in fields else fields[0]
-    cmap = cfg.output.render.colormap
-    limits = _Limits()
-    frame_time = cfg.output.every
-    spacing = float(np.median(sim.scene.spacing))
-    radius_px = max(1.0, 0.6 * spacing * view.scale)
-    wave = getattr(sim, "wave_speed", 1.0)
-    speed_cap = 0.25 * wave if wave > 0 else 10.0
+    session = Session(Simulation(cfg), res)
     gui = ti.GUI(f"taichi-mpm: {cfg.name}", res=res, background_color=0xFFFFFF, show_gui=show)
-    paused, message, show_help = False, "", True
     prev_cursor = None
     frames = 0
     try:
         while gui.running:
-            step_once = False
-            for e in gui.get_events(ti.GUI.PRESS):
-                if e.key in (ti.GUI.ESCAPE, ti.GUI.EXIT):
-                    gui.running = False
-                elif e.key == ti.GUI.SPACE:
-                    paused = not paused
-                elif e.key == "s":
-                    paused, step_once = True, True
-                elif e.key == "r":
-                    sim.set_state(initial)
-                    limits = _Limits()
-                    message = ""
-                elif e.key == "c":
-                    field = fields[(fields.index(field) + 1) % len(fields)]
-                    limits = _Limits()
-                elif e.key == "h":
-                    show_help = not show_help
-                elif e.key == ti.GUI.LEFT:
-                    view.yaw -= 10
-                elif e.key == ti.GUI.RIGHT:
-                    view.yaw += 10
-                elif e.key == ti.GUI.UP:
-                    view.pitch = min(89.0, view.pitch + 10)
-                elif e.key == ti.GUI.DOWN:
-                    view.pitch = max(-89.0, view.pitch - 10)
-            if not gui.running:
+            if not all([session.press(e.key) for e in gui.get_events(ti.GUI.PRESS)]):
                 break
             cursor = np.asarray(gui.get_cursor_pos(), float)
-            if gui.is_pressed(ti.GUI.LMB) and prev_cursor is not None and np.any(cursor != prev_cursor):
-                u = view.to_world_delta(cursor - prev_cursor) / frame_time
-                speed = np.linalg.norm(u)
-                if speed > speed_cap:
-                    u *= speed_cap / speed
-                push_particles(sim, cursor, u, radius=0.06, view=view)
-            prev_cursor = cursor if gui.is_pressed(ti.GUI.LMB) else None
-            try:
-                if step_once:
-                    sim.step()
-                elif not paused and sim.time < cfg.solver.end_time:
-                    sim.advance(frame_time)
-            except InstabilityError as err:
-                paused, message = True, f"unstable: {err}  (r: reset)"
-            p = sim.particles()
-            values = field_values(p, field, cfg.dim)
-            clim = limits.update(values, field)
-            pos, depth = view.project(p["x"])
-            rgb = _colour_ints(values, clim, "tab10" if field == "body" else cmap)
-            order = np.argsort(depth) if cfg.dim == 3 else slice(None)
-            if cfg.dim == 3:  # depth shading: far particles darker
-                span = np.ptp(depth) or 1.0
-                shade = 0.55 + 0.45 * (depth - depth.min()) / span
-                rgb = (rgb * shade[:, None]).astype(np.uint32)
-            begin, end = view.box_edges()
+            held = gui.is_pressed(ti.GUI.LMB)
+            if held and prev_cursor is not None:
+                session.drag(prev_cursor, cursor)
+            prev_cursor = cursor if held else None
+            stepped = session.advance()
+            pos, colours, status = session.picture()
+            begin, end = session.view.box_edges()
             gui.lines(begin, end, radius=1, color=0x999999)
-            gui.circles(pos[order], radius=radius_px, color=_pack(rgb[order]))
-            state = "paused" if paused else ("done" if sim.time >= cfg.solver.end_time else "running")
-            gui.text(f"t = {sim.time:.4g} s   steps {sim.n_steps}   {state}   colour: {field} "
-                     f"[{clim[0]:.3g}, {clim[1]:.3g}]", pos=(0.01, 0.99), font_size=16, color=0x000000)
-            if show_help:
+            gui.circles(pos, radius=session.radius_px, color=colours)
+            gui.text(status, pos=(0.01, 0.99), font_size=16, color=0x000000)
+            if session.show_help:
                 gui.text(HELP if res[0] >= 700 else "space s r c drag arrows esc", pos=(0.01, 0.05), font_size=14,
                          color=0x444444)
-            if message:
-                gui.text(message, pos=(0.01, 0.94), font_size=16, color=0xCC0000)
+            if session.message:
+                gui.text(session.message, pos=(0.01, 0.94), font_size=16, color=0xCC0000)
             frames += 1
             last = max_frames is not None and frames >= max_frames
             gui.show(str(screenshot) if (last and screenshot) else None)
             if last:
                 break
-            if paused and not step_once:
+            if (session.paused or session.done) and not stepped:
                 _time.sleep(0.01)
     finally:
         gui.close()
-    return sim
+    return session.sim

@@ -13,7 +13,7 @@ import pytest
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm.gui import View, push_particles
+from taichi_mpm.gui import Session, View, push_particles
 
 
 def test_view_2d_maps_domain_into_window_and_back():
@@ -53,6 +53,44 @@ def test_push_pulls_only_nearby_particles_towards_the_drag_velocity():
     np.testing.assert_allclose(v[r >= 0.1], 0.0)                        # far particles untouched
     inner = (r > 0) & (r < 0.1)
     np.testing.assert_allclose(v[inner, 0], 2.0 * np.exp(-(r[inner] / 0.05) ** 2), rtol=1e-9)
+
+
+def test_session_keys_pause_step_reset_and_colour():
+    import taichi as ti
+
+    cfg = make_cfg(2, dx=0.1, velocity=[0.5, 0.0], end_time=1.0)
+    cfg["output"] = {"every": 0.01}
+    sim = tm.Simulation(cfg)
+    s = Session(sim, (300, 300))
+    x0 = sim.particles()["x"].copy()
+    s.advance()                                   # running: one output interval per frame
+    assert sim.time == pytest.approx(0.01)
+    assert s.press(ti.GUI.SPACE) and s.paused
+    t = sim.time
+    s.advance()
+    assert sim.time == t                          # paused: nothing moves
+    n = sim.n_steps
+    s.press("s")
+    s.advance()
+    assert sim.n_steps == n + 1 and sim.time > t  # a single step
+    s.advance()
+    assert sim.n_steps == n + 1                   # and only one
+    first = s.field
+    s.press("c")
+    assert s.field != first and s.field in s.fields
+    pos, colours, status = s.picture()
+    assert pos.shape == (sim.n, 2) and colours.shape == (sim.n,) and s.field in status
+    s.press("r")
+    assert sim.time == 0.0 and sim.n_steps == 0
+    np.testing.assert_array_equal(sim.particles()["x"], x0)
+    # a drag to the right pushes the particles under the cursor to +x, capped at a quarter wave speed
+    s.press(ti.GUI.SPACE)
+    assert not s.paused
+    xs, _ = s.view.project(x0)
+    touched = s.drag(xs[0], xs[0] + [0.05, 0.0])
+    v = sim.particles()["v"]
+    assert touched > 0 and v[0, 0] > 0.5 and v[0, 0] <= s.speed_cap + 1e-9
+    assert not s.press(ti.GUI.ESCAPE)
 
 
 @pytest.fixture(scope="module")
