@@ -132,10 +132,13 @@ def _pack(rgb):
 class _Limits:
     """Colour limits that only widen while one field is shown (reset when the field changes)."""
 
-    def __init__(self):
+    def __init__(self, fixed=None):
         self.lim = None
+        self.fixed = list(fixed) if fixed else None
 
     def update(self, values, name):
+        if self.fixed:
+            return self.fixed
         if name == "body":
             return [-0.5, max(float(values.max()) + 0.5, 1.5)]
         finite = values[np.isfinite(values)]
@@ -159,13 +162,17 @@ class Session:
         self.fields = available_fields(sim.particles(), c.dim)
         self.field = c.output.render.color_by if c.output.render.color_by in self.fields else self.fields[0]
         self.cmap = c.output.render.colormap
-        self.limits = _Limits()
+        self.limits = self._limits()
         self.frame_time = c.output.every
         self.radius_px = max(1.0, 0.6 * float(np.median(sim.scene.spacing)) * self.view.scale)
         wave = float(getattr(sim, "wave_speed", 0.0) or 0.0)
         self.speed_cap = 0.25 * wave if wave > 0 else 10.0
         self.paused, self.message, self.show_help = False, "", True
         self._step_once = False
+
+    def _limits(self):
+        r = self.cfg.output.render
+        return _Limits(r.clim if self.field == r.color_by else None)  # the config's limits belong to its field
 
     def press(self, key) -> bool:
         """Handle one key (ti.GUI key names); False means quit."""
@@ -179,10 +186,10 @@ class Session:
             self.paused, self._step_once = True, True
         elif key == "r":
             self.sim.set_state(self.initial)
-            self.limits, self.message = _Limits(), ""
+            self.limits, self.message = self._limits(), ""
         elif key == "c":
             self.field = self.fields[(self.fields.index(self.field) + 1) % len(self.fields)]
-            self.limits = _Limits()
+            self.limits = self._limits()
         elif key == "h":
             self.show_help = not self.show_help
         elif key == ti.GUI.LEFT:
