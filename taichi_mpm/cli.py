@@ -294,10 +294,6 @@ def cmd_render(args) -> int:
 def cmd_gui(args) -> int:
     cfg = _load(args.config, args)
     from .gui import run_gui
-    from .runner import resolve_arch
-
-    if cfg.arch == "auto":  # never let Taichi probe OpenGL (crashes headless machines)
-        cfg = cfg.model_copy(update={"arch": resolve_arch(cfg.arch)})
 
     try:
         run_gui(cfg, max_frames=args.max_frames, screenshot=args.screenshot)

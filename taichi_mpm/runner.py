@@ -241,33 +241,8 @@ class Run:
         return self
 
 
-def resolve_arch(arch: str) -> str:
-    """`auto` -> the first of cuda, vulkan, metal that Taichi finds, else cpu.
-
-    Taichi's own `ti.gpu` list also probes OpenGL/GLES, which crashes the process (segmentation
-    fault) on headless machines without a GL driver, so those are never probed here."""
-    if arch != "auto":
-        return arch
-    import taichi as ti
-    from taichi.lang.misc import is_arch_supported
-
-    ti.set_logging_level(ti.ERROR)  # no "libcuda.so not found" warning on machines without CUDA
-    for name in ("cuda", "vulkan", "metal"):
-        if is_arch_supported(getattr(ti, name)):
-            return name
-    return "cpu"
-
-
 class Simulation(_Simulation):
     """taichi_mpm.Simulation: the solver, whose run() writes outputs when given no observer."""
-
-    def __init__(self, cfg, body_force: Optional[Callable] = None, scene=None):
-        from .config import load_config
-
-        cfg = cfg if isinstance(cfg, Config) else load_config(cfg)
-        if cfg.arch == "auto":
-            cfg = cfg.model_copy(update={"arch": resolve_arch(cfg.arch)})
-        super().__init__(cfg, body_force=body_force, scene=scene)
 
     def run(self, on_output: Optional[Callable] = None, every: Optional[float] = None, *, out_dir=None,
             formats=None, resume: bool = False, on_step: Optional[Callable] = None):

@@ -34,11 +34,26 @@ _NO_FAIL = 2**31 - 1
 _live = {"id": 0, "key": None}
 
 
+def resolve_arch(arch: str) -> str:
+    """`auto` -> the first of cuda, vulkan, metal that Taichi finds, else cpu.
+
+    Taichi's own `ti.gpu` list also probes OpenGL/GLES, which crashes the process (segmentation
+    fault) on headless machines without a GL driver, so those are never probed here."""
+    if arch != "auto":
+        return arch
+    from taichi.lang.misc import is_arch_supported
+
+    ti.set_logging_level(ti.ERROR)  # no "libcuda.so not found" warning on machines without CUDA
+    for name in ("cuda", "vulkan", "metal"):
+        if is_arch_supported(getattr(ti, name)):
+            return name
+    return "cpu"
+
+
 def init_taichi(arch: str, precision: str):
     """(Re)start Taichi for a new simulation; only the newest Simulation stays live."""
-    archs = {"auto": ti.gpu, "cpu": ti.cpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "metal": ti.metal}
     fp = ti.f64 if precision == "f64" else ti.f32
-    ti.init(arch=archs[arch], default_fp=fp, default_ip=ti.i32, offline_cache=True,
+    ti.init(arch=getattr(ti, resolve_arch(arch)), default_fp=fp, default_ip=ti.i32, offline_cache=True,
             log_level=ti.ERROR, random_seed=0)
     _live["id"] += 1
     return _live["id"]
