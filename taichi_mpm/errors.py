@@ -5,7 +5,7 @@ class ConfigError(ValueError):
     """Invalid input: names the key path and, when known, the file and line."""
 
     def __init__(self, message, key=None, line=None, file=None):
-        self.key, self.line, self.file = key, line, file
+        self.message, self.key, self.line, self.file = message, key, line, file
         where = []
         if file:
             where.append(str(file) + (f":{line}" if line else ""))

@@ -155,45 +155,55 @@ def _surface_flags(pts, h):
     return flags
 
 
-def build_scene(cfg: Config, seed: int = 0) -> Scene:
+def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
+    """Particle arrays of one body."""
     d, dx = cfg.dim, cfg.domain.dx
     origin = np.asarray(cfg.domain.lower, float)
     dlo, dhi = origin, np.asarray(cfg.domain.upper, float)
+    key = f"bodies.{bi}"
+    h = dx / body.particles_per_cell
+    lo, hi = shape_bounds(body.shape, d, base_dir)
+    if np.any(lo < dlo - 1e-9) or np.any(hi > dhi + 1e-9):
+        raise ConfigError(f"body lies outside the domain (body bounds {lo.tolist()}..{hi.tolist()}, "
+                          f"domain {dlo.tolist()}..{dhi.tolist()})", key=f"{key}.shape")
+    pts = _lattice(lo, hi, origin, h, 0.0, rng)
+    pts = pts[inside(body.shape, pts, base_dir)]
+    if len(pts) == 0:
+        raise ConfigError("shape holds no particle at this resolution (make it larger or refine domain.dx / particles_per_cell)",
+                          key=f"{key}.shape")
+    iface = _surface_flags(pts, h) if body.interface else np.zeros(len(pts), np.int32)
+    if body.placement == "jittered":
+        pts = pts + rng.uniform(-0.25 * h, 0.25 * h, pts.shape)
+        pts = np.clip(pts, dlo + 1e-9, dhi - 1e-9)
+    mat = cfg.materials[body.material]
+    vol = np.full(len(pts), h**d)
+    v = np.zeros_like(pts)
+    if body.velocity is not None:
+        v += np.asarray(body.velocity, float)
+    if body.angular_velocity is not None:
+        r = pts - shape_center(body.shape, d)
+        w = body.angular_velocity
+        v += np.stack([-w * r[:, 1], w * r[:, 0]], axis=1) if d == 2 else np.cross(np.asarray(w, float), r)
+    dmg = np.zeros(len(pts))
+    for region in body.damage_regions:
+        m = inside(region.shape, pts, base_dir)
+        dmg[m] = np.maximum(dmg[m], region.value)
+    return dict(x=pts, v=v, volume=vol, mass=vol * mat.density, body=np.full(len(pts), bi, np.int32),
+                material=np.full(len(pts), mat_names.index(body.material), np.int32),
+                damage=dmg, interface=iface, spacing=np.full(len(pts), h))
+
+
+def build_scene(cfg: Config, seed: int = 0) -> Scene:
     base_dir = Path(cfg._source).parent if getattr(cfg, "_source", None) else None
     rng = np.random.default_rng(seed)
     mat_names = list(dict.fromkeys(b.material for b in cfg.bodies))
     parts = []
     for bi, body in enumerate(cfg.bodies):
-        key = f"bodies.{bi}"
-        h = dx / body.particles_per_cell
-        lo, hi = shape_bounds(body.shape, d, base_dir)
-        if np.any(lo < dlo - 1e-9) or np.any(hi > dhi + 1e-9):
-            raise ConfigError(f"body lies outside the domain (body bounds {lo.tolist()}..{hi.tolist()}, "
-                              f"domain {dlo.tolist()}..{dhi.tolist()})", key=f"{key}.shape")
-        pts = _lattice(lo, hi, origin, h, 0.0, rng)
-        pts = pts[inside(body.shape, pts, base_dir)]
-        if len(pts) == 0:
-            raise ConfigError("shape holds no particle at this resolution (make it larger or refine domain.dx / particles_per_cell)",
-                              key=f"{key}.shape")
-        iface = _surface_flags(pts, h) if body.interface else np.zeros(len(pts), np.int32)
-        if body.placement == "jittered":
-            pts = pts + rng.uniform(-0.25 * h, 0.25 * h, pts.shape)
-            pts = np.clip(pts, dlo + 1e-9, dhi - 1e-9)
-        mat = cfg.materials[body.material]
-        vol = np.full(len(pts), h**d)
-        v = np.zeros_like(pts)
-        if body.velocity is not None:
-            v += np.asarray(body.velocity, float)
-        if body.angular_velocity is not None:
-            r = pts - shape_center(body.shape, d)
-            w = body.angular_velocity
-            v += np.stack([-w * r[:, 1], w * r[:, 0]], axis=1) if d == 2 else np.cross(np.asarray(w, float), r)
-        dmg = np.zeros(len(pts))
-        for region in body.damage_regions:
-            m = inside(region.shape, pts, base_dir)
-            dmg[m] = np.maximum(dmg[m], region.value)
-        parts.append(dict(x=pts, v=v, volume=vol, mass=vol * mat.density, body=np.full(len(pts), bi, np.int32),
-                          material=np.full(len(pts), mat_names.index(body.material), np.int32),
-                          damage=dmg, interface=iface, spacing=np.full(len(pts), h)))
+        try:
+            parts.append(_body_particles(cfg, bi, body, mat_names, base_dir, rng))
+        except ConfigError as e:
+            if e.key is None or not e.key.startswith("shape"):
+                raise
+            raise ConfigError(e.message, key=f"bodies.{bi}.{e.key}") from None  # mesh errors: name the body
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     return Scene(materials=mat_names, **cat)
