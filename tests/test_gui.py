@@ -2,6 +2,7 @@
 with a screenshot (skipped when Xvfb is not installed)."""
 import json
 import os
+import select
 import shutil
 import subprocess
 import sys
@@ -95,22 +96,28 @@ def test_session_keys_pause_step_reset_and_colour():
 
 @pytest.fixture(scope="module")
 def xvfb():
+    """A private X server on a display number Xvfb picks itself (-displayfd: no race with other tests)."""
     exe = shutil.which("Xvfb")
     if exe is None:
         pytest.skip("Xvfb is not installed")
-    for display in range(91, 99):
-        if not Path(f"/tmp/.X11-unix/X{display}").exists() and not Path(f"/tmp/.X{display}-lock").exists():
+    r, w = os.pipe()
+    proc = subprocess.Popen([exe, "-displayfd", str(w), "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(w,))
+    os.close(w)
+    number = b""
+    deadline = time.time() + 10
+    while time.time() < deadline and not number.endswith(b"\n"):
+        if not select.select([r], [], [], 0.2)[0]:
+            continue
+        chunk = os.read(r, 16)
+        if not chunk:
             break
-    proc = subprocess.Popen([exe, f":{display}", "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    for _ in range(50):
-        if Path(f"/tmp/.X11-unix/X{display}").exists():
-            break
-        time.sleep(0.1)
-    else:
+        number += chunk
+    os.close(r)
+    if not number.strip():
         proc.kill()
         pytest.skip("Xvfb did not start")
-    yield f":{display}"
+    yield f":{int(number)}"
     proc.terminate()
     proc.wait(10)
 
