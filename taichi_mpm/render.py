@@ -27,13 +27,25 @@ _ALIASES = {"velocity": "speed", "velocity_x": "vx", "velocity_y": "vy", "veloci
 _CAMERAS_3D = ("iso", "xy", "xz", "yz", "front", "side", "top")
 
 
+_BACKEND: dict = {}
+
+
 def _pyvista():
+    """pyvista, set up once for off-screen work: without a display VTK renders through EGL when the
+    library is there (no X attempt, no warning); failing that, through a virtual X server (Xvfb)."""
     import pyvista as pv
 
     pv.OFF_SCREEN = True
-    if not os.environ.get("DISPLAY"):
-        # Without X, VTK >= 9.4 picks EGL/OSMesa itself; make it skip the X attempt (and its warning).
-        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    if not _BACKEND:
+        _BACKEND["display"] = os.environ.get("DISPLAY") or None
+        if not _BACKEND["display"]:
+            import ctypes.util
+            import shutil
+
+            if ctypes.util.find_library("EGL"):
+                os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+            elif shutil.which("Xvfb"):
+                pv.start_xvfb()
     return pv
 
 
