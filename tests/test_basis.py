@@ -13,8 +13,9 @@ from taichi_mpm.basis import BASES, make_basis
 N_CELLS = 8
 
 
-def evaluate(name, u, lp):
-    """(first node, w, dw) of basis `name` at grid coordinates u (M,), half-widths lp (M,) (GIMP only)."""
+def evaluate(name, u, lp, n_cells=N_CELLS):
+    """(first node, w, dw) of basis `name` at grid coordinates u (M,) on a grid of n_cells cells,
+    half-widths lp (M,) (GIMP only)."""
     ti.init(arch=ti.cpu, default_fp=ti.f64, log_level=ti.ERROR, offline_cache=True)
     basis = make_basis(name)
     S = basis.stencil
@@ -27,7 +28,7 @@ def evaluate(name, u, lp):
     def run(u: ti.types.ndarray(), lp: ti.types.ndarray(), first: ti.types.ndarray(),
             w: ti.types.ndarray(), dw: ti.types.ndarray()):
         for i in range(u.shape[0]):
-            b, W, DW = basis.weights_1d(u[i], N_CELLS, lp[i])
+            b, W, DW = basis.weights_1d(u[i], n_cells, lp[i])
             first[i] = b
             for k in ti.static(range(S)):
                 w[i, k] = W[k]
