@@ -145,6 +145,8 @@ class CrackFinder:
         contact = bool(cc.contact_in_compression)
         laws = self.laws
         has_law = self.has_law
+        law_on = [law is not None for law in laws]
+        laws = [law if law is not None else (1.0, 0.0, 0.0) for law in laws]
         single_mat = len(laws) == 1
         imped = [float(np.sqrt(m.density * (m.lam + 2 * m.mu))) for m in sim._materials]  # rho c
         tol = 1e-12 if sim.cfg.precision == "f64" else 1e-6   # pseudo-inverse cut-off, relative
@@ -255,7 +257,7 @@ class CrackFinder:
                 if ti.static(has_law):
                     sig = effective_stress(p)
                     for k in ti.static(range(len(laws))):
-                        if ti.static(laws[k] is not None):
+                        if ti.static(law_on[k]):
                             hit = True
                             if ti.static(not single_mat):
                                 hit = mat[p] == k

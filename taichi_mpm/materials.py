@@ -165,7 +165,7 @@ def rankine_damage(sigma, kappa, E, eps0, eps_f):
     d = 0.0
     if k > eps0:
         d = 1.0
-        if ti.static(eps_f > eps0):
+        if eps_f > eps0:
             d = ti.min(1.0, eps_f * (k - eps0) / (k * (eps_f - eps0)))
     return d, k
 

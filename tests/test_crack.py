@@ -1,0 +1,291 @@
+"""Crack finder (issue 4): modified shape functions, separation, cracked bars, contact, damage law.
+
+Fast tests run 2D scenes on coarse grids (dx = 0.05, two particles per cell per axis); the 3D and
+other-basis variants of the scene tests are marked slow.
+"""
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import taichi as ti
+
+import taichi_mpm as tm
+from conftest import make_cfg
+
+DATA = Path(__file__).parent / "data"
+BASES = ["linear", "gimp", "quadratic", "cubic"]
+
+
+# ---------------------------------------------------------------- scenes
+def blocks_cfg(dim=2, basis="quadratic", v=0.2, crack=True, dx=0.05, height=0.3, **crack_keys):
+    """Two interface blocks touching at x = 0.5, moving apart at +-v (towards each other for v < 0)."""
+    lo, hi = [0.1] * (dim - 1), [0.1 + height] * (dim - 1)
+    cfg = make_cfg(dim, basis=basis, dx=dx, end_time=1.0)
+    cfg["bodies"] = [
+        dict(name="a", shape=dict(type="box", lower=[0.2] + lo, upper=[0.5] + hi), material="m",
+             velocity=[-v] + [0.0] * (dim - 1), interface=True),
+        dict(name="b", shape=dict(type="box", lower=[0.5] + lo, upper=[0.8] + hi), material="m",
+             velocity=[v] + [0.0] * (dim - 1), interface=True)]
+    if crack:
+        cfg["crack"] = dict(crack_keys)
+    return cfg
+
+
+def bar_cfg(crack, basis="quadratic"):
+    """A bar [0.1, 0.9] x [0.4, 0.6] with a through crack: one fully damaged particle column at x = 0.4875."""
+    cfg = make_cfg(2, dx=0.05, end_time=1.0, E=1.0e4, nu=0.0, basis=basis, boundaries="free")
+    cfg["bodies"] = [dict(name="bar", shape=dict(type="box", lower=[0.1, 0.4], upper=[0.9, 0.6]), material="m",
+                          damage_regions=[dict(shape=dict(type="box", lower=[0.475, 0.3], upper=[0.5, 0.7]))])]
+    if crack:
+        cfg["crack"] = {}
+    return cfg
+
+
+def disks_cfg(crack=True, transfer="apic"):
+    """Sulsky's colliding elastic disks (coarse), unequal speeds so the total momentum is not zero."""
+    cfg = make_cfg(2, dx=0.05, end_time=1.5, E=1000.0, transfer=transfer)
+    cfg["bodies"] = [
+        dict(name="a", shape=dict(type="sphere", center=[0.35, 0.35], radius=0.15), material="m",
+             velocity=[0.13, 0.11], interface=True),
+        dict(name="b", shape=dict(type="sphere", center=[0.65, 0.65], radius=0.15), material="m",
+             velocity=[-0.08, -0.1], interface=True)]
+    if crack:
+        cfg["crack"] = {}
+    return cfg
+
+
+# ---------------------------------------------------------------- modified shape functions
+def _check_partition(cfg):
+    sim = tm.Simulation(cfg)
+    out = sim.crack.partition_check()
+    masked = out[:, 0] > 0
+    assert masked.sum() >= 10
+    inv_dx = 1.0 / cfg["domain"]["dx"]
+    assert np.abs(out[masked, 1] - 1).max() < 1e-12      # sum of tangential functions
+    assert np.abs(out[masked, 2] - 1).max() < 1e-12      # sum of normal functions
+    assert out[masked, 3].max() < 1e-12 * inv_dx          # sum of their gradients
+    assert out[masked, 4].max() < 1e-12 * inv_dx
+    assert out[masked, 5].max() < 1e-12                   # sum_i W_ip = I (tensor weights)
+    assert out[masked, 6].all()                           # every masked particle has a node across
+    return out
+
+
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("basis", BASES)
+def test_modified_functions_partition_of_unity(dim, basis):
+    """Masked particles (cut in tension, and cut with normal contact when approaching): both rescaled
+    families sum to 1 and their gradients to 0, to 1e-12 in f64."""
+    apart = _check_partition(blocks_cfg(dim, basis, v=0.2))
+    assert (apart[:, 0] == 1).sum() > 0
+    closing = _check_partition(blocks_cfg(dim, basis, v=-0.2))
+    assert (closing[:, 0] == 2).sum() > 0                 # contact state: normal part kept across
+
+
+def test_modified_functions_partition_3d_quadratic():
+    _check_partition(blocks_cfg(3, "quadratic", v=0.2, dx=0.1))
+
+
+# ---------------------------------------------------------------- no crack section: unchanged
+def _reference_run(dim, crack):
+    """The scene stored in data/no_crack_reference.npz (made by this function before the crack finder
+    existed, without the `crack` key). Regenerate only after a deliberate change of the core numerics."""
+    cfg = make_cfg(dim, velocity=[0.3] + [0.0] * (dim - 1), dx=0.1, gravity=[0.0, -9.81] + [0.0] * (dim - 2))
+    cfg["bodies"][0]["angular_velocity"] = 2.0 if dim == 2 else [0.0, 0.0, 2.0]
+    if crack:
+        cfg["crack"] = {}
+    sim = tm.Simulation(cfg)
+    for _ in range(20):
+        sim.step(1e-3)
+    return sim
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_scene_without_crack_is_bit_for_bit_unchanged(dim):
+    ref = np.load(DATA / "no_crack_reference.npz")
+    sim = _reference_run(dim, crack=False)
+    assert sim.crack is None and "A0" not in sim.grid.vec          # nothing allocated
+    p = sim.particles()
+    assert "damage" not in p
+    assert np.array_equal(p["x"], ref[f"x{dim}"]) and np.array_equal(p["v"], ref[f"v{dim}"])
+    plain_bytes = sim.bytes_per_particle
+    # with a crack section but nothing damaged, every particle keeps its standard functions: same bits
+    sim = _reference_run(dim, crack=True)
+    assert sim.bytes_per_particle > plain_bytes
+    assert np.array_equal(sim.particles()["x"], ref[f"x{dim}"])
+
+
+# ---------------------------------------------------------------- two blocks pulled apart
+def _pull(cfg, steps=30):
+    sim = tm.Simulation(cfg)
+    b = sim.particles()["body"]
+    gaps, times, smax = [], [], 0.0
+    for _ in range(steps):
+        sim.step()
+        p = sim.particles()
+        gaps.append(p["x"][b == 1, 0].min() - p["x"][b == 0, 0].max())
+        times.append(sim.time)
+        smax = max(smax, p["stress"][:, 0, 0].max())
+    return sim, p, b, np.array(gaps), np.array(times), smax
+
+
+def test_two_blocks_stay_joined_without_crack_finder():
+    sim, p, b, gaps, t, smax = _pull(blocks_cfg(crack=False))
+    assert gaps.max() < 0.05                                   # below one cell
+    assert smax > 50.0                                         # tension builds up (E = 1e4, v = 0.2)
+
+
+def test_two_blocks_separate_with_crack_finder():
+    """Each block keeps its imposed velocity within 5 %; the gap between their facing surfaces opens at
+    their relative speed (averaged over 40 steps: the freed faces vibrate)."""
+    sim, p, b, gaps, t, smax = _pull(blocks_cfg(crack=True), steps=40)
+    va, vb = p["v"][b == 0, 0].mean(), p["v"][b == 1, 0].mean()
+    assert abs(va + 0.2) < 0.05 * 0.2 and abs(vb - 0.2) < 0.05 * 0.2
+    rate = (gaps[-1] - gaps[0]) / (t[-1] - t[0])
+    assert rate == pytest.approx(vb - va, rel=0.10)
+    assert gaps[-1] > 0.1
+
+
+# ---------------------------------------------------------------- cracked bar
+def _bar(crack, v0, basis="quadratic"):
+    """Left of the crack moves at v0 (< 0 pulls the crack open, > 0 closes it); mean sigma_xx over the
+    right side near the crack once the wave of the uncracked bar has run 0.2 into it; the gap between
+    the two sides' particles (the damaged column excluded)."""
+    sim = tm.Simulation(bar_cfg(crack, basis))
+    x0 = sim.particles()["x"]
+    v = np.zeros_like(x0)
+    left, right = x0[:, 0] < 0.475, x0[:, 0] > 0.5
+    v[left, 0] = v0
+    sim.set_particles(v=v)
+    sim.advance(0.2 / np.sqrt(1.0e4 / 1000.0))
+    p = sim.particles()
+    near = right & (x0[:, 0] < 0.65)
+    return p["stress"][near, 0, 0].mean(), p["x"][right, 0].min() - p["x"][left, 0].max()
+
+
+@pytest.mark.parametrize("basis", ["quadratic", pytest.param("linear", marks=pytest.mark.slow),
+                                   pytest.param("gimp", marks=pytest.mark.slow),
+                                   pytest.param("cubic", marks=pytest.mark.slow)])
+def test_precracked_bar_in_tension(basis):
+    plain, _ = _bar(False, -0.05, basis)
+    cracked, _ = _bar(True, -0.05, basis)
+    assert plain > 50.0                                        # without the finder, stress crosses the crack
+    assert abs(cracked) < 0.05 * plain
+
+
+@pytest.mark.parametrize("basis", ["quadratic", pytest.param("linear", marks=pytest.mark.slow),
+                                   pytest.param("gimp", marks=pytest.mark.slow),
+                                   pytest.param("cubic", marks=pytest.mark.slow)])
+def test_closed_crack_in_compression(basis):
+    plain, _ = _bar(False, 0.05, basis)
+    cracked, gap = _bar(True, 0.05, basis)
+    assert plain < -50.0
+    assert cracked == pytest.approx(plain, rel=0.10)
+    assert gap > 0.0                                           # the two sides do not interpenetrate
+
+
+# ---------------------------------------------------------------- colliding disks
+def test_colliding_disks_with_interfaces():
+    sim = tm.Simulation(disks_cfg())
+    p = sim.particles()
+    b, m = p["body"], p["mass"]
+    axis = np.array([1.0, 1.0]) / np.sqrt(2.0)
+    P0 = (m[:, None] * p["v"]).sum(0)
+    scale = (m[:, None] * np.abs(p["v"])).sum()
+    overlap = []
+    while sim.time < 1.5:
+        sim.step()
+        p = sim.particles()
+        overlap.append((p["x"][b == 0] @ axis).max() - (p["x"][b == 1] @ axis).min())
+        assert np.abs((m[:, None] * p["v"]).sum(0) - P0).max() < 1e-8 * scale
+    overlap = np.array(overlap)
+    assert overlap.max() < 0.0                                 # no particle of a disk passes the other's front
+    assert overlap.max() > -0.05                               # ... and they did meet
+    va, vb = p["v"][b == 0].mean(0) @ axis, p["v"][b == 1].mean(0) @ axis
+    assert va < 0.0 < vb + 0.1 and vb - va > 0.05              # moving apart after the impact
+    assert overlap[-1] < overlap.max() - 0.02
+
+
+# ---------------------------------------------------------------- damage law
+def test_rankine_law_softens_linearly():
+    """Uniaxial stress path: (1 - d) E kappa falls linearly from f_t at eps0 to 0 at eps_f = 2 G_f / (f_t dx)."""
+    from taichi_mpm.config import Material
+    from taichi_mpm.materials import degrade_tension, rankine_damage, rankine_params
+
+    ti.init(arch=ti.cpu, default_fp=ti.f64)
+    mat = Material(model="linear_elastic", density=1000.0, E=1.0e6, tensile_strength=1.0e3, fracture_energy=2.0)
+    E, eps0, epsf = rankine_params(mat, dx=0.01)
+    assert eps0 == pytest.approx(1e-3) and epsf == pytest.approx(0.4)
+
+    @ti.kernel
+    def stress_at(eps: ti.types.ndarray(), out: ti.types.ndarray()):
+        for i in range(eps.shape[0]):
+            sig = ti.Matrix([[E * eps[i], 0.0], [0.0, -0.5 * E * eps[i]]])
+            d, k = rankine_damage(sig, 0.0, E, eps0, epsf)
+            deg = degrade_tension(sig, d)
+            out[i, 0] = d
+            out[i, 1] = deg[0, 0]
+            out[i, 2] = deg[1, 1]
+
+    eps = np.array([0.5e-3, 1e-3, 0.1, 0.2, 0.3, 0.5])
+    out = np.zeros((len(eps), 3))
+    stress_at(eps, out)
+    expected = np.where(eps <= eps0, E * eps, np.maximum(0.0, 1e3 * (epsf - eps) / (epsf - eps0)))
+    assert np.allclose(out[:, 1], expected, rtol=1e-10, atol=1e-9)
+    assert np.allclose(out[:, 2], -0.5 * E * eps, rtol=1e-12)   # compression is not degraded
+    assert out[-1, 0] == 1.0
+
+
+def test_load_to_failure_crack_grows():
+    """A notched bar whose ends are jerked outwards: the two tension waves meet at the notch, damage
+    nucleates at its tip and runs through the section; the crack finder then lets the halves drift apart
+    and the section carries no more tension."""
+    sim = tm.Simulation(load_to_failure_cfg())
+    x0 = sim.particles()["x"]
+    v = np.zeros_like(x0)
+    v[:, 0] = 0.04 * (np.where(x0[:, 0] > 0.7, 1.0, 0.0) - np.where(x0[:, 0] < 0.3, 1.0, 0.0))
+    sim.set_particles(v=v)
+    right, left = x0[:, 0] > 0.6, x0[:, 0] < 0.4
+    seps = []
+    for _ in range(3):
+        sim.advance(0.1)
+        p = sim.particles()
+        seps.append(p["x"][right, 0].mean() - p["x"][left, 0].mean())
+    broken = p["damage"] >= 0.99
+    rows = np.unique(np.round(x0[broken, 1], 6))
+    assert len(rows) == 16                                      # every particle row of the bar is cut
+    assert np.abs(x0[broken, 0] - 0.5).max() < 0.02             # along the notch section
+    assert seps[0] < seps[1] < seps[2]                          # the halves drift apart
+    section = np.abs(x0[:, 0] - 0.5) < 0.05
+    assert np.abs(p["stress"][section, 0, 0]).mean() < 0.1 * 500.0
+
+
+def load_to_failure_cfg():
+    cfg = make_cfg(2, dx=0.025, end_time=0.3, E=1.0e5, nu=0.2, model="neo_hookean", boundaries="free")
+    cfg["materials"]["m"].update(tensile_strength=500.0, fracture_energy=0.035)
+    cfg["bodies"] = [dict(name="bar", shape=dict(type="box", lower=[0.2, 0.4], upper=[0.8, 0.6]), material="m",
+                          damage_regions=[dict(shape=dict(type="box", lower=[0.4875, 0.4], upper=[0.5125, 0.45]))])]
+    cfg["crack"] = {}
+    return cfg
+
+
+# ---------------------------------------------------------------- cost
+@pytest.mark.slow
+@pytest.mark.parametrize("dim", [2, 3])
+def test_report_step_cost(dim, capsys):
+    """Step time with the crack finder (interface blocks) over the same scene without it; printed."""
+    dx = 0.02 if dim == 2 else 0.05
+    times = {}
+    for crack in (False, True):
+        sim = tm.Simulation(blocks_cfg(dim, v=0.2, crack=crack, dx=dx))
+        for _ in range(3):
+            sim.step()
+        t0 = time.perf_counter()
+        for _ in range(20):
+            sim.step()
+        ti.sync()
+        times[crack] = (time.perf_counter() - t0) / 20 / sim.n
+    with capsys.disabled():
+        print(f"\n{dim}D crack finder step cost: {times[True] * 1e9:.0f} ns/particle vs {times[False] * 1e9:.0f} "
+              f"plain, ratio {times[True] / times[False]:.2f}")
+    assert times[True] > 0
