@@ -1,0 +1,115 @@
+"""Conservation (issue 2, item 5), f64, no gravity, bodies away from the walls:
+linear momentum for every basis x transfer; APIC angular momentum of a spinning disk; energy drift of a
+free vibrating block."""
+import numpy as np
+import pytest
+
+import taichi_mpm as tm
+from conftest import make_cfg
+
+BASES = ["linear", "gimp", "quadratic", "cubic"]
+TRANSFERS = ["pic", "flip", "apic"]
+
+
+def stressed_moving_block(dim, basis, transfer, sparse=True, steps=20):
+    """A block drifting, spinning and breathing (so it carries stress); returns (P0, P_end, scale).
+    The drift is kept slow: with the linear basis a particle of a stressed body crossing into an empty
+    cell meets a node of tiny mass and full gradient, and the block collapses (J <= 0 within ~20 steps
+    at 0.2 m/s, measured) -- the known linear-MPM cell-crossing failure, not a conservation matter."""
+    cfg = make_cfg(dim, basis=basis, transfer=transfer, dx=0.05 if dim == 2 else 0.1, E=1e4,
+                   lower=[0.35] * dim, upper=[0.65] * dim)
+    cfg["domain"]["sparse"] = sparse
+    cfg["domain"]["boundaries"]["default"] = "free"
+    sim = tm.Simulation(cfg)
+    X = sim.scene.x
+    r = X - 0.5
+    v = np.full_like(X, 0.05) + 0.4 * r + 0.1 * np.sin(7.0 * X)
+    v[:, 0] += -0.5 * r[:, 1]
+    v[:, 1] += 0.5 * r[:, 0]
+    sim.set_particles(v=v)
+    P0 = sim.momentum()["linear"]
+    for _ in range(steps):
+        sim.step()
+    P1 = sim.momentum()["linear"]
+    scale = np.sum(sim.scene.mass[:, None] * np.abs(v))
+    assert np.abs(sim.particles()["F"] - np.eye(dim)).max() > 1e-3   # it did deform
+    return P0, P1, scale
+
+
+@pytest.mark.parametrize("transfer", TRANSFERS)
+@pytest.mark.parametrize("basis", BASES)
+def test_linear_momentum_2d(basis, transfer):
+    P0, P1, scale = stressed_moving_block(2, basis, transfer)
+    assert np.abs(P1 - P0).max() < 1e-10 * scale
+    assert np.abs(P0).max() > 0.02 * scale
+
+
+def test_linear_momentum_3d_sparse():
+    P0, P1, scale = stressed_moving_block(3, "quadratic", "apic", sparse=True, steps=10)
+    assert np.abs(P1 - P0).max() < 1e-10 * scale
+
+
+def spinning_disk(basis, update, steps=1000):
+    cfg = make_cfg(2, basis=basis, transfer="apic", dx=0.05, E=1e4, update=update)
+    cfg["bodies"][0]["shape"] = dict(type="sphere", center=[0.5, 0.5], radius=0.15)
+    cfg["bodies"][0]["angular_velocity"] = 2.0
+    sim = tm.Simulation(cfg)
+    L0 = sim.momentum()["angular"][2]
+    for _ in range(steps):
+        sim.step()
+    return L0, sim.momentum()["angular"][2]
+
+
+def test_apic_angular_momentum_spinning_disk():
+    """Quadratic APIC, 1000 steps (about 11 rad of rotation): measured relative change 1.9e-15."""
+    L0, L1 = spinning_disk("quadratic", "usl")
+    assert L0 > 1.0
+    assert abs(L1 - L0) < 1e-5 * abs(L0)
+
+
+@pytest.mark.xfail(strict=True, reason="solver bug: with a linear basis (APIC C from grad w) under MUSL, the "
+                   "velocity pass reads grad v from the still-empty remap grid v2, so C = 0 and APIC acts as PIC")
+def test_apic_angular_momentum_linear_musl():
+    L0, L1 = spinning_disk("linear", "musl", steps=200)
+    assert abs(L1 - L0) < 1e-5 * abs(L0)
+
+
+def energy_history(transfer, update, cfl, dx=0.025, nu=0.3, steps=2000, every=20):
+    """Free block [0.3, 0.7]^2 vibrating in its lowest modes (v = 0.05 cos(pi (X - 0.3) / 0.4) per axis)."""
+    cfg = make_cfg(2, basis="quadratic", transfer=transfer, dx=dx, E=1e4, nu=nu, lower=[0.3] * 2, upper=[0.7] * 2,
+                   cfl=cfl, update=update, flip_blend=1.0)
+    sim = tm.Simulation(cfg)
+    X = sim.scene.x
+    sim.set_particles(v=0.05 * np.cos(np.pi * (X - 0.3) / 0.4))
+    e = sim.energy()
+    E0 = e["kinetic"] + e["strain"]
+    hist = []
+    for k in range(steps):
+        sim.step()
+        if (k + 1) % every == 0:
+            e = sim.energy()
+            hist.append((e["kinetic"] + e["strain"]) / E0)
+    return np.array(hist)
+
+
+def drift(hist):
+    """Secular change: mean over the last tenth against 1 (the staggered kinetic/strain energies make the
+    instantaneous total oscillate by ~omega dt)."""
+    return abs(np.mean(hist[-len(hist) // 10:]) - 1.0)
+
+
+def test_flip_energy_drift():
+    """FLIP (blend 1), MUSL, cfl 0.2, 16 cells across the block, 2000 steps (~12 periods): measured
+    end 0.987, range 0.971..1.022."""
+    h = energy_history("flip", "musl", 0.2)
+    assert drift(h) < 0.03
+    assert np.abs(h - 1).max() < 0.05
+
+
+@pytest.mark.slow
+def test_apic_energy_drift():
+    """APIC dissipates the non-affine part of the motion: on a clean mode (nu = 0) at 32 cells across the
+    block, 2000 steps, it measured 3.4 % (11 % at 16 cells; 45 % at 16 cells with nu = 0.3, where
+    Poisson coupling feeds short waves)."""
+    h = energy_history("apic", "usl", 0.4, dx=0.0125, nu=0.0)
+    assert drift(h) < 0.05
