@@ -104,6 +104,18 @@ class CrackFinder:
     def damage(self) -> np.ndarray:
         return self.sim._to_creation(self.d.to_numpy())
 
+    def get_state(self) -> dict:
+        state = {"damage": self.damage()}
+        if self.kappa is not None:
+            state["damage_kappa"] = self.sim._to_creation(self.kappa.to_numpy())
+        return state
+
+    def set_state(self, state: dict):
+        if "damage" in state:
+            self.d.from_numpy(self.sim._to_solver(np.asarray(state["damage"], np.float64)))
+        if self.kappa is not None and "damage_kappa" in state:
+            self.kappa.from_numpy(self.sim._to_solver(np.asarray(state["damage_kappa"], np.float64)))
+
     def update(self):
         """The crack finder's per-step work, before P2G."""
         self.nodes.clear()

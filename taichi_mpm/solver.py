@@ -608,12 +608,16 @@ class Simulation:
         self._check_live()
         state = {name: self._read(name) for name in self._state_fields()}
         state.update(time=self.time, n_steps=self.n_steps, dt=self.dt, vmax=self._vmax)
+        if self.crack is not None:
+            state.update(self.crack.get_state())  # damage (and the damage law's history)
         return state
 
     def set_state(self, state: dict):
         self.set_particles(**{k: state[k] for k in self._state_fields() if k in state})
         self.time, self.n_steps = float(state["time"]), int(state["n_steps"])
         self.dt, self._vmax = float(state["dt"]), float(state["vmax"])
+        if self.crack is not None:
+            self.crack.set_state(state)
 
     def energy(self) -> dict:
         self._check_live()
