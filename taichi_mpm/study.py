@@ -588,7 +588,7 @@ def plot_pareto(points, front, group_keys, metric, time_metric, path, title):
     ax.set_ylabel(metric)
     ax.set_title(f"{title}: error vs time")
     ax.grid(True, which="both", alpha=0.3)
-    if points:
+    if points and len(_groups(points, group_keys)) <= 16:
         ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path)
@@ -612,7 +612,8 @@ def plot_convergence(points, fits, group_keys, conv_key, metric, path, title):
     if any(_finite(p["params"].get(conv_key)) for p in points):
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.legend(fontsize=7)
+        if len(fits) <= 16:
+            ax.legend(fontsize=7)
     else:
         ax.text(0.5, 0.5, f"{conv_key} is not varied in this study", ha="center", transform=ax.transAxes)
     ax.set_xlabel(conv_key)
