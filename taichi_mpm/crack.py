@@ -33,6 +33,7 @@ from .materials import degrade_tension, rankine_damage, rankine_params, sym_eig
 STANDARD, MODIFIED, CONTACT = 0, 1, 2   # particle states: unmodified, cut (tension), cut with normal contact
 S_FLOOR = 1e-3                          # a family whose kept weights sum below this keeps standard functions
 MAX_CELLS = 1 << 26
+CELL_SPLIT = 2                          # cell list cells of r/2: a query scans 5^d cells, (2.5 r)^d, not (3 r)^d
 
 
 def grid_fields(dim: int) -> list[str]:
@@ -54,7 +55,7 @@ class CrackFinder:
         self.reach = 0.5 * sim.basis.stencil * sim.dx
         self.radius = max(cc.kernel_radius * self.spacing, self.reach + self.spacing)
         extent = sim.upper - sim.lower
-        self.cells = [max(1, int(math.ceil(e / self.radius))) for e in extent]
+        self.cells = [max(1, int(math.ceil(e * CELL_SPLIT / self.radius))) for e in extent]  # cell = r / CELL_SPLIT
         self.n_cell_total = int(np.prod(self.cells))
         if self.n_cell_total > MAX_CELLS:
             raise ConfigError(f"the crack finder's cell list would need {self.n_cell_total} cells; "
@@ -162,14 +163,15 @@ class CrackFinder:
         single_mat = len(laws) == 1
         imped = [float(np.sqrt(m.density * (m.lam + 2 * m.mu))) for m in sim._materials]  # rho c
         tol = 1e-12 if sim.cfg.precision == "f64" else 1e-6   # pseudo-inverse cut-off, relative
-        nbr = [(-1, 2)] * dim
+        nbr = [(-CELL_SPLIT, CELL_SPLIT + 1)] * dim
+        inv_cell = CELL_SPLIT / radius
 
         # ---- SPH on a cell list ------------------------------------------------
         @ti.func
         def cell_of(xq):
             c = ti.Vector.zero(int, dim)
             for a in ti.static(range(dim)):
-                c[a] = ti.min(ti.max(int(ti.floor((xq[a] - lower[a]) * inv_r)), 0), cells[a] - 1)
+                c[a] = ti.min(ti.max(int(ti.floor((xq[a] - lower[a]) * inv_cell)), 0), cells[a] - 1)
             return c
 
         @ti.func
@@ -399,39 +401,36 @@ class CrackFinder:
             for p in x:
                 if state[p] != STANDARD:
                     n = normal[p]
-                    comp = False
-                    if ti.static(contact):  # material across within reach, and trial normal traction < 0
-                        vc, touching = normal_closing_speed(p, n)
-                        comp = touching and n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0
                     base, W, DW, R = stencil(p)
                     m = ti.cast(0, mask_t)
-                    St, Sn = 0.0, 0.0
+                    St, Sx = 0.0, 0.0   # weights of the nodes on p's side / across
                     Gt = ti.Vector.zero(float, dim)
-                    Gn = ti.Vector.zero(float, dim)
+                    Gx = ti.Vector.zero(float, dim)
                     ct = ti.Vector.zero(float, dim)
-                    cn = ti.Vector.zero(float, dim)
+                    cx = ti.Vector.zero(float, dim)
                     for off in ti.grouped(ti.ndrange(*span)):
                         w, gw = node_weight(W, DW, off)
                         I = base + off
                         r = node_offset(R, off)
                         if node_mark[I] > 1.5 or n.dot(node_n[I]) < -thr:
                             m |= ti.cast(1, mask_t) << ti.cast(stencil_index(off), mask_t)
-                            if comp:
-                                Sn += w
-                                Gn += gw
-                                cn += w * r
+                            Sx += w
+                            Gx += gw
+                            cx += w * r
                         else:
                             St += w
                             Gt += gw
                             ct += w * r
-                            Sn += w
-                            Gn += gw
-                            cn += w * r
-                    st = MODIFIED
-                    if comp:
-                        st = CONTACT
-                    if m == 0 or St < S_FLOOR:
-                        st = STANDARD   # nothing across, or it would lose (almost) every node
+                    st = STANDARD       # nothing across, or it would lose (almost) every node
+                    if m != 0 and St >= S_FLOOR:
+                        st = MODIFIED
+                        if ti.static(contact):  # material across within reach, and trial normal traction < 0
+                            vc, touching = normal_closing_speed(p, n)
+                            if touching and n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
+                                st = CONTACT
+                    Sn, Gn, cn = St, Gt, ct
+                    if st == CONTACT:   # the normal family keeps the nodes across
+                        Sn, Gn, cn = St + Sx, Gt + Gx, ct + cx
                     state[p] = st
                     mask[p] = m
                     sums[p] = ti.Vector([St, Sn])
