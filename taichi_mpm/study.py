@@ -637,12 +637,13 @@ def summary_markdown(st, records, varied, metric, front, fits) -> str:
     for r in records:
         lines.append("| " + " | ".join(_md(r.get(c, "")) for c in cols) + " |")
     if fits:
-        lines += ["", f"## Convergence (slope of log {metric} against log {st.convergence_key})", "",
-                  "| group | rate | " + " | ".join(f"{st.convergence_key}={_short(p['params'][st.convergence_key])}"
-                                                 for p in next(iter(fits.values()))["points"]) + " |",
-                  "|---|---|" + "---|" * len(next(iter(fits.values()))["points"])]
+        ck = st.convergence_key
+        hs = sorted({float(p["params"][ck]) for fit in fits.values() for p in fit["points"]}, reverse=True)
+        lines += ["", f"## Convergence (slope of log {metric} against log {ck})", "",
+                  "| group | rate | " + " | ".join(f"{ck}={h:g}" for h in hs) + " |", "|---|---|" + "---|" * len(hs)]
         for label, fit in fits.items():
-            lines.append(f"| {label} | {fit['rate']:.2f} | " + " | ".join(f"{p['error']:.3g}" for p in fit["points"]) + " |")
+            err = {float(p["params"][ck]): p["error"] for p in fit["points"]}
+            lines.append(f"| {label} | {fit['rate']:.2f} | " + " | ".join(f"{err[h]:.3g}" if h in err else "-" for h in hs) + " |")
     if front:
         lines += ["", "## Pareto front (fastest first)", "", "| " + " | ".join(varied) + f" | {st.time_metric} | {metric} |",
                   "|" + "---|" * (len(varied) + 2)]
