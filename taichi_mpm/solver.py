@@ -92,11 +92,12 @@ class Simulation:
             apic=c.solver.transfer == "apic",
             flip=c.solver.transfer == "flip",
             musl=c.solver.update == "musl",
-            store_grad_v=c.solver.transfer == "apic" or uses_viscosity,  # C holds B D^-1 (APIC) or grad v
+            store_grad_v=c.solver.transfer == "apic" or uses_viscosity,  # C: APIC B_p or C_p, or grad v
             multi_material=len(self._materials) > 1,
             body_force=self.body_force is not None,
             gimp_per_particle=c.solver.basis == "gimp" and len(spacing) > 1,
             gravity=any(g != 0 for g in c.gravity),
+            viscosity=uses_viscosity,
         )
 
     def _allocate(self):
@@ -180,6 +181,7 @@ class Simulation:
         x, v, F, C, vol0, mat = self.x, self.v, self.F, self.C, self.vol0, self.mat
         body_acc, half_width = self.body_acc, self.half_width
         has_C, has_body_acc, has_half_width = C is not None, body_acc is not None, half_width is not None
+        store_B = f["apic"] and not basis.apic_gradient  # the C field holds APIC's B_p (see affine())
         grid = self.grid
         gm, gv = grid.m, grid.vec["v"]
         gv_old = grid.vec.get("v_old")
@@ -204,8 +206,8 @@ class Simulation:
         @ti.func
         def kirchhoff(p, Fp):
             Lp = ti.Matrix.zero(float, dim, dim)
-            if ti.static(has_C):
-                Lp = C[p]
+            if ti.static(f["viscosity"]):
+                Lp = velocity_gradient(p)
             tau = ti.Matrix.zero(float, dim, dim)
             if ti.static(len(mats) == 1):
                 tau = mats[0][0].kirchhoff(Fp, Lp, mats[0][1], mats[0][2], mats[0][3])
@@ -305,11 +307,25 @@ class Simulation:
             return Dinv
 
         @ti.func
-        def affine(p):
+        def affine(p, W, R):
+            """APIC's C_p at the particle's current position. Where D_p varies with position (GIMP, B-splines
+            next to walls) the field stores B_p and C_p = B_p D_p^-1 uses the current D_p: the affine part's
+            angular momentum, eps : B_p, is then carried exactly when the particle moves (Jiang et al. 2015)."""
             A = ti.Matrix.zero(float, dim, dim)
-            if ti.static(f["apic"]):
+            if ti.static(store_B):
+                A = C[p] @ inertia_inverse(W, R)
+            elif ti.static(f["apic"]):
                 A = C[p]
             return A
+
+        @ti.func
+        def velocity_gradient(p):
+            """grad v of the last step (viscosity reads it)."""
+            L = C[p]
+            if ti.static(store_B):
+                base, W, DW, R = stencil(p)
+                L = affine(p, W, R)
+            return L
 
         crack = self.crack is not None  # crack finder (crack.py): modified shape functions near discontinuities
         crk = self.crack.build(stencil, node_weight, node_offset, kirchhoff, wall, gravity, f["gravity"],
@@ -325,7 +341,7 @@ class Simulation:
                 if ti.static(crack):
                     stress = -crk.degrade(p, -stress)
                 vp = v[p]
-                Ap = affine(p)
+                Ap = affine(p, W, R)
                 force_density = ti.Vector.zero(float, dim)
                 if ti.static(has_body_acc):
                     force_density = mp * body_acc[p]
@@ -363,7 +379,7 @@ class Simulation:
                 base, W, DW, R = stencil(p)
                 mp = density(p) * vol0[p]
                 vp = v[p]
-                Ap = affine(p)
+                Ap = affine(p, W, R)
                 if ti.static(crack):
                     if crk.modified(p):
                         crk.p2g_momentum(p, base, W, DW, R, mp, vp, Ap)
@@ -405,8 +421,10 @@ class Simulation:
                         dv += w * (vi - gv_old[I])
                     if ti.static(velocity and f["apic"] and not basis.apic_gradient):
                         B += w * vi.outer_product(node_offset(R, off))
-                    if ti.static(deform or (f["apic"] and basis.apic_gradient)):
+                    if ti.static(deform):
                         G += vgrad[I].outer_product(gw)
+                    elif ti.static(f["apic"] and basis.apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
+                        G += vi.outer_product(gw)
                 if ti.static(crack):
                     if crk.modified(p):
                         v_pic, dv, B, G = crk.g2p(p, base, W, DW, R, deform)
@@ -419,7 +437,7 @@ class Simulation:
                         if ti.static(basis.apic_gradient):
                             C[p] = G
                         else:
-                            C[p] = B @ inertia_inverse(W, R)
+                            C[p] = B  # store_B
                 if ti.static(deform):
                     xp = x[p] + dt * v_pic
                     Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
@@ -469,8 +487,9 @@ class Simulation:
                     Lp = mp * x3.cross(v3)
                     if ti.static(f["apic"]):
                         base, W, DW, R = stencil(p)
-                        Dm = inertia(W, R)
-                        B = C[p] @ Dm   # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
+                        B = C[p]  # store_B: the affine part's angular momentum is eps : B
+                        if ti.static(not store_B):
+                            B = C[p] @ inertia(W, R)  # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
                         B3 = ti.Matrix.zero(float, 3, 3)
                         for a, b in ti.static(ti.ndrange(dim, dim)):
                             B3[a, b] = B[a, b]

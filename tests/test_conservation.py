@@ -67,11 +67,20 @@ def test_apic_angular_momentum_spinning_disk():
     assert abs(L1 - L0) < 1e-5 * abs(L0)
 
 
-@pytest.mark.xfail(strict=True, reason="solver bug: with a linear basis (APIC C from grad w) under MUSL, the "
-                   "velocity pass reads grad v from the still-empty remap grid v2, so C = 0 and APIC acts as PIC")
-def test_apic_angular_momentum_linear_musl():
+@pytest.mark.parametrize("basis, update", [("gimp", "usl"), ("cubic", "musl")])
+def test_apic_angular_momentum_exact_for_varying_inertia(basis, update):
+    """GIMP's D_p varies with position; storing B_p keeps the affine part's angular momentum exact anyway
+    (measured change ~1e-15 over 200 steps, both USL and MUSL)."""
+    L0, L1 = spinning_disk(basis, update, steps=200)
+    assert abs(L1 - L0) < 1e-10 * abs(L0)
+
+
+def test_apic_angular_momentum_linear_is_approximate():
+    """Multilinear APIC keeps C = sum v grad(w)^T (D_p is singular at nodes, so B_p cannot be stored): moving a
+    particle changes its D_p and so the affine part's angular momentum. Measured: -0.76 % over 200 steps here.
+    The bound would fail if C were dropped: linear PIC loses all of it (-100 %) in the same run."""
     L0, L1 = spinning_disk("linear", "musl", steps=200)
-    assert abs(L1 - L0) < 1e-5 * abs(L0)
+    assert 1e-4 * abs(L0) < abs(L1 - L0) < 0.02 * abs(L0)
 
 
 def energy_history(transfer, update, cfl, dx=0.025, nu=0.3, steps=2000, every=20):
