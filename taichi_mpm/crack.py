@@ -454,18 +454,23 @@ class CrackFinder:
             return out
 
         @ti.func
-        def weights(p, off, w, gw):
+        def family(p):
+            """A modified particle's mask, contact flag and sums, read once per particle."""
+            Gt = ti.Vector([gsum[p][0, a] for a in ti.static(range(dim))])
+            Gn = ti.Vector([gsum[p][1, a] for a in ti.static(range(dim))])
+            return mask[p], state[p] == CONTACT, sums[p][0], sums[p][1], Gt, Gn
+
+        @ti.func
+        def weights(fam, off, w, gw):
             """Rescaled tangential and normal functions of one node: (Nt, Nn, grad Nt, grad Nn)."""
-            across = (mask[p] >> ti.cast(stencil_index(off), mask_t)) & ti.cast(1, mask_t)
+            m, contact_state, St, Sn, Gt, Gn = fam
+            across = (m >> ti.cast(stencil_index(off), mask_t)) & ti.cast(1, mask_t)
             wt, wn = w, w
             gt, gn = gw, gw
             if across != 0:
                 wt, gt = 0.0, ti.Vector.zero(float, dim)
-                if state[p] != CONTACT:
+                if not contact_state:
                     wn, gn = 0.0, ti.Vector.zero(float, dim)
-            St, Sn = sums[p][0], sums[p][1]
-            Gt = ti.Vector([gsum[p][0, a] for a in ti.static(range(dim))])
-            Gn = ti.Vector([gsum[p][1, a] for a in ti.static(range(dim))])
             return wt / St, wn / Sn, (St * gt - wt * Gt) / (St * St), (Sn * gn - wn * Gn) / (Sn * Sn)
 
         @ti.func
@@ -489,11 +494,12 @@ class CrackFinder:
             centroid, so sum_i W_ip mom_i = v_p exactly), stress force and body force."""
             Pt, Pn, n = frame(p)
             ct, cn = centroids(p)
-            contact_state = state[p] == CONTACT
+            fam = family(p)
+            contact_state = fam[1]
             for off in ti.grouped(ti.ndrange(*span)):
                 w, gw = node_weight(W, DW, off)
                 I = base + off
-                wt, wn, gt, gn = weights(p, off, w, gw)
+                wt, wn, gt, gn = weights(fam, off, w, gw)
                 mom_t, mom_n = vp, vp
                 if ti.static(apic):
                     r = node_offset(R, off)
@@ -512,10 +518,11 @@ class CrackFinder:
         def p2g_momentum(p, base, W, DW, R, mp, vp, Ap):
             Pt, Pn, n = frame(p)
             ct, cn = centroids(p)
+            fam = family(p)
             for off in ti.grouped(ti.ndrange(*span)):
                 w, gw = node_weight(W, DW, off)
                 I = base + off
-                wt, wn, gt, gn = weights(p, off, w, gw)
+                wt, wn, gt, gn = weights(fam, off, w, gw)
                 mom_t, mom_n = vp, vp
                 if ti.static(apic):
                     r = node_offset(R, off)
@@ -529,13 +536,14 @@ class CrackFinder:
             APIC's affine C of such a particle is its velocity gradient: B = G D_p makes the solver's
             C = B D_p^-1 equal G."""
             Pt, Pn, n = frame(p)
+            fam = family(p)
             v_pic = ti.Vector.zero(float, dim)
             dv = ti.Vector.zero(float, dim)
             G = ti.Matrix.zero(float, dim, dim)
             for off in ti.grouped(ti.ndrange(*span)):
                 w, gw = node_weight(W, DW, off)
                 I = base + off
-                wt, wn, gt, gn = weights(p, off, w, gw)
+                wt, wn, gt, gn = weights(fam, off, w, gw)
                 vi = gv[I]
                 v_pic += wt * (Pt @ vi) + wn * (Pn @ vi)
                 if ti.static(flip):
@@ -614,7 +622,7 @@ class CrackFinder:
                     w, gw = node_weight(W, DW, off)
                     wt, wn, gt, gn = w, w, gw, gw
                     if st_ != STANDARD:
-                        wt, wn, gt, gn = weights(p, off, w, gw)
+                        wt, wn, gt, gn = weights(family(p), off, w, gw)
                     swt += wt
                     swn += wn
                     sgt += gt
