@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from taichi_mpm.solver import FAIL_CAUSES
-from taichi_mpm.stability import SCENARIOS, largest_stable_cfl, make_scenario
+from taichi_mpm.stability import SCENARIOS, largest_stable_cfl, make_scenario, plot_map
 from taichi_mpm.study import run_study
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,7 +54,10 @@ def fast_map(tmp_path_factory):
                  energy_limit=LIMIT, samples=10, timeout=300, cases=[c for c, _, _ in FAST])
     path = tmp / "study.yaml"
     path.write_text(yaml.safe_dump(study, sort_keys=False))
-    return _rows(run_study(path, out=tmp / "out", jobs=2))
+    out = run_study(path, out=tmp / "out", jobs=2)
+    plot_map(out / "results.csv", out / "map.png")
+    assert (out / "map.png").read_bytes()[:4] == b"\x89PNG" and (out / "map.png").stat().st_size > 5000
+    return _rows(out)
 
 
 @pytest.mark.parametrize("i", range(len(FAST)), ids=[str(c) for c, _, _ in FAST])
