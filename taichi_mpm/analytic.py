@@ -340,7 +340,8 @@ class HertzSphere(Problem):
     Hertz: t_c = 2.87 (m_eff^2 / (R_eff E_eff^2 v))^(1/5) with m_eff = m, R_eff = R and
     E_eff = E / (1 - nu^2) for a rigid wall. The contact interval is where the wall force on the sphere
     (mass times the rate of change of its mean vertical velocity, recorded each step) exceeds
-    `threshold` of its peak; errors() gives the relative error of that duration."""
+    `threshold` of its peak (the contiguous interval around the peak, so wave ringing after separation
+    does not count); errors() gives the relative error of that duration."""
 
     name = "hertz"
 
@@ -378,12 +379,14 @@ class HertzSphere(Problem):
         h = np.asarray(self.history)
         t, py = h[:, 0], h[:, 1]
         force = np.diff(py) / np.diff(t)
-        tm = 0.5 * (t[1:] + t[:-1])
-        on = force > self.threshold * force.max()
-        if not on.any():
+        peak = int(np.argmax(force))
+        if force[peak] <= 0:
             return 0.0
-        idx = np.nonzero(on)[0]
-        return float(t[idx[-1] + 1] - t[idx[0]])
+        off = np.nonzero(force <= self.threshold * force[peak])[0]
+        before, after = off[off < peak], off[off > peak]
+        start = before[-1] + 1 if len(before) else 0          # contiguous interval around the peak
+        end = after[0] if len(after) else len(force)
+        return float(t[end] - t[start])
 
     def errors(self, sim):
         tc = self.contact_duration()
