@@ -356,9 +356,8 @@ class HertzSphere(Problem):
         self.history: list[tuple[float, float]] = []
 
     def config(self) -> dict:
-        R, ext = self.R, 4 * self.R
-        height = 2 * R + self.gap + 2 * self.gap + R  # room to bounce back
-        height = math.ceil(height / (ext / self.cells)) * (ext / self.cells)
+        R, ext = self.R, 4 * self.R   # a cube of side 4R, so any dx that divides 4R fits (studies override dx)
+        height = ext
         body = dict(name="ball", shape=dict(type="sphere", center=[ext / 2, R + self.gap, ext / 2], radius=R),
                     material="m", particles_per_cell=self.ppc, velocity=[0.0, -self.speed, 0.0])
         mats = {"m": dict(model="neo_hookean", E=self.E, nu=self.nu, density=self.rho)}
