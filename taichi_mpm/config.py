@@ -91,14 +91,19 @@ Shape = Annotated[Union[Box, Sphere, Ring, Cylinder, Mesh], Field(discriminator=
 
 
 # ---------------------------------------------------------------- sections
+# slip: frictionless, no flow into the wall, may separate; roller: normal velocity zero both ways (bilateral);
+# sticky: velocity zero; free: nothing
+Wall = Literal["slip", "roller", "sticky", "free"]
+
+
 class Boundaries(Strict):
-    default: Literal["slip", "sticky", "free"] = "slip"
-    x_min: Optional[Literal["slip", "sticky", "free"]] = None
-    x_max: Optional[Literal["slip", "sticky", "free"]] = None
-    y_min: Optional[Literal["slip", "sticky", "free"]] = None
-    y_max: Optional[Literal["slip", "sticky", "free"]] = None
-    z_min: Optional[Literal["slip", "sticky", "free"]] = None
-    z_max: Optional[Literal["slip", "sticky", "free"]] = None
+    default: Wall = "slip"
+    x_min: Optional[Wall] = None
+    x_max: Optional[Wall] = None
+    y_min: Optional[Wall] = None
+    y_max: Optional[Wall] = None
+    z_min: Optional[Wall] = None
+    z_max: Optional[Wall] = None
 
     def face(self, axis: int, side: int) -> str:
         v = getattr(self, f"{'xyz'[axis]}_{'min' if side == 0 else 'max'}")
