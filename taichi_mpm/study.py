@@ -583,8 +583,10 @@ def plot_pareto(points, front, group_keys, metric, time_metric, path, title):
     if not points:
         ax.text(0.5, 0.5, "no finished case with an error value", ha="center", transform=ax.transAxes)
     else:
-        ax.set_xscale("log")
-        ax.set_yscale("log")
+        if all(p["time"] > 0 for p in points):
+            ax.set_xscale("log")
+        if all(p["error"] > 0 for p in points):
+            ax.set_yscale("log")
     xlabel = {"step_time": "stepping wall time [s] (JIT excluded)", "wall_time": "wall time [s]",
               "compile_time": "first step (JIT) time [s]"}[time_metric]
     ax.set_xlabel(xlabel)
@@ -614,7 +616,8 @@ def plot_convergence(points, fits, group_keys, conv_key, metric, path, title):
             ax.plot(hs, [math.exp(fit["intercept"]) * h ** fit["rate"] for h in hs], "-", color=line.get_color(), lw=1)
     if any(_finite(p["params"].get(conv_key)) for p in points):
         ax.set_xscale("log")
-        ax.set_yscale("log")
+        if all(p["error"] > 0 for p in points):
+            ax.set_yscale("log")
         if len(fits) <= 16:
             ax.legend(fontsize=7)
     else:

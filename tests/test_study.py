@@ -146,3 +146,26 @@ def test_two_cases_on_a_local_dask_cluster(tmp_path):
     assert [r["solver.basis"] for r in rows] == ["quadratic", "gimp"]
     assert [r["outcome"] for r in rows] == ["ok", "ok"], [r["message"] for r in rows]
     assert all(float(r["error_rms"]) < 1e-4 for r in rows)
+
+
+def test_study_over_a_base_config_file(tmp_path):
+    """`base:` a config file (relative to the study file); no exact solution: energy drift is the metric."""
+    from conftest import make_cfg
+    cfg = make_cfg(2, velocity=[0.3, 0.0], dx=0.1, end_time=0.02, E=1.0e4)
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "configs" / "block.yaml").write_text(yaml.safe_dump(cfg))
+    (tmp_path / "studies").mkdir()
+    path = tmp_path / "studies" / "s.yaml"
+    path.write_text(yaml.safe_dump(dict(study="base_cfg", base="../configs/block.yaml", samples=3,
+                                        vary={"solver.transfer": ["pic", "apic"]})))
+    out = run_study(path, out=tmp_path / "out")
+    rows = _rows(out)
+    assert [r["solver.transfer"] for r in rows] == ["pic", "apic"]
+    assert [r["outcome"] for r in rows] == ["ok", "ok"]
+    assert not any(k.startswith("error_") for k in rows[0])
+    for r in rows:   # a free block in uniform motion keeps its kinetic energy exactly
+        assert float(r["energy_ratio_end"]) == pytest.approx(1.0, abs=1e-9)
+        assert int(r["particles"]) == 36
+    assert "energy_drift" in (out / "summary.md").read_text()
+    with pytest.raises(ConfigError, match="base config not found"):
+        load_study(_write(tmp_path, dict(study="x", base="nope.yaml", vary={"domain.dx": [0.1]})))
