@@ -154,6 +154,7 @@ class CrackFinder:
         n_cell_total = self.n_cell_total
         radius = self.radius
         inv_r = 1.0 / radius
+        radius2 = radius * radius
         thr, dthr, gthr = float(cc.threshold), float(cc.damage_threshold), float(cc.gradient_threshold)
         contact = bool(cc.contact_in_compression)
         laws = self.laws
@@ -195,8 +196,9 @@ class CrackFinder:
                     for j in range(cell_start[cid], cell_start[cid] + cell_count[cid]):
                         q = ids[j]
                         rv = xq - x[q]
-                        dist = rv.norm()
-                        if dist < radius:
+                        d2 = rv.norm_sqr()
+                        if d2 < radius2:   # most candidates of the 5^d cells fall outside: no sqrt for them
+                            dist = ti.sqrt(d2)
                             s = dist * inv_r
                             wk, dk = 0.0, 0.0
                             if s < 0.5:
