@@ -30,6 +30,7 @@ FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                2: "non-finite value (NaN or infinity) in velocity or deformation",
                3: "particle left the domain"}
 _NO_FAIL = 2**31 - 1
+ENERGY_CHECK_EVERY = 20  # steps between energy-growth checks
 
 _live = {"id": 0, "key": None}
 
@@ -78,6 +79,7 @@ class Simulation:
         self._materials = [c.materials[name] for name in self.scene.materials]
         self.wave_speed = max(wave_speed(m) for m in self._materials)
         self.time, self.n_steps, self.dt = 0.0, 0, 0.0
+        self._energy_ref = None  # (total energy at the reference time, peak kinetic + strain energy since)
         self._allocate()
         self._build_kernels()
         self._upload()
@@ -528,6 +530,9 @@ class Simulation:
         self._check_live()
         k = self._k
         dt = float(dt if dt is not None else self.stable_dt())
+        watch_energy = self.cfg.solver.energy_growth_limit is not None and self.body_acc is None
+        if watch_energy and self._energy_ref is None:
+            self._energy_ref = self._energy_reference()
         if self.body_acc is not None:
             acc = np.asarray(self.body_force(self.scene.x, self.time), dtype=np.float64)
             self.body_acc.from_numpy(self._to_solver(acc))
@@ -554,7 +559,27 @@ class Simulation:
             p, cause = int(self._perm[code // 4]), FAIL_CAUSES[code % 4]
             raise InstabilityError(cause, self.n_steps, self.time, particle=p,
                                    detail=f"dt={dt:.3g}, max speed={self._vmax:.3g}")
+        if watch_energy and self.n_steps % ENERGY_CHECK_EVERY == 0:
+            self._check_energy_growth()
         return dt
+
+    def _energy_reference(self):
+        e = self.energy()
+        return sum(e.values()), e["kinetic"] + e["strain"]
+
+    def _check_energy_growth(self):
+        """An explicit step past its stability limit can grow energy without any NaN or inverted particle."""
+        total, mech = self._energy_reference()
+        ref_total, peak = self._energy_ref
+        peak = max(peak, mech)
+        self._energy_ref = (ref_total, peak)
+        limit = self.cfg.solver.energy_growth_limit
+        if total - ref_total > limit * peak and peak > 0:
+            speed = np.sum(self._read("v") ** 2, axis=1)
+            raise InstabilityError(
+                f"energy growth: total energy rose by {(total - ref_total) / peak:.0%} of the peak kinetic + "
+                f"strain energy (limit {limit:.0%}); the time step is past its stability limit, lower solver.cfl",
+                self.n_steps, self.time, particle=int(np.argmax(speed)), detail="particle named: the fastest")
 
     def advance(self, duration: float) -> int:
         """Advance by `duration` of simulation time, shortening the last step to land on it exactly."""
@@ -619,6 +644,7 @@ class Simulation:
                 raise ValueError(f"{name} must have shape {want}, got {value.shape}")
             value = self._to_solver(value)
             fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
+        self._energy_ref = None  # a new state: energy is measured afresh
         if "v" in arrays:
             self._vmax = float(np.sqrt(np.max(np.sum(np.asarray(arrays["v"]) ** 2, axis=1))))
 
