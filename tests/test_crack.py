@@ -186,8 +186,12 @@ def test_closed_crack_in_compression(basis):
 
 
 # ---------------------------------------------------------------- colliding disks
-def test_colliding_disks_with_interfaces():
-    sim = tm.Simulation(disks_cfg())
+@pytest.mark.parametrize("transfer,update", [("apic", "usl"), pytest.param("flip", "musl", marks=pytest.mark.slow),
+                                             pytest.param("pic", "musl", marks=pytest.mark.slow)])
+def test_colliding_disks_with_interfaces(transfer, update):
+    cfg = disks_cfg(transfer=transfer)
+    cfg["solver"]["update"] = update
+    sim = tm.Simulation(cfg)
     p = sim.particles()
     b, m = p["body"], p["mass"]
     axis = np.array([1.0, 1.0]) / np.sqrt(2.0)
