@@ -156,6 +156,7 @@ class CrackFinder:
         inv_r = 1.0 / radius
         radius2 = radius * radius
         thr, dthr, gthr = float(cc.threshold), float(cc.damage_threshold), float(cc.gradient_threshold)
+        contact_thr = max(thr, 0.0)   # particles facing each other for contact: never merely non-aligned ones
         contact = bool(cc.contact_in_compression)
         laws = self.laws
         has_law = self.has_law
@@ -235,7 +236,7 @@ class CrackFinder:
                     for j in range(cell_start[cid], cell_start[cid] + cell_count[cid]):
                         q = ids[j]
                         dist = (x[p] - x[q]).norm()
-                        if dist < radius and n.dot(normal[q]) < -thr:
+                        if dist < radius and n.dot(normal[q]) < -contact_thr:
                             s = dist * inv_r
                             wk = 2.0 * (1.0 - s) ** 3
                             if s < 0.5:
