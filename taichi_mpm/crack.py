@@ -1,16 +1,17 @@
 """Crack finder: cracks and body interfaces inside one velocity field (seed talk, Part II).
 
-Per step, before P2G (`CrackFinder.update`):
-  1. damage law (Rankine, materials.py) updates d_p; D_p = max(d_p, I_p) (I_p: interface flag).
-  2. a cell list (cell size = SPH support radius r) bins the particles; counting sort, linear in N.
-  3. particles whose neighbourhood holds varying D get the Shepard-normalised SPH gradient of D;
+Per step, before P2G (`CrackFinder.update`, five kernels; details and reasons in docs/crack_finder.md):
+  1. damage law (Rankine, materials.py) updates d_p; D_p = max(d_p, I_p) (I_p: interface flag);
+     a cell list (cells of r/2, r = SPH support radius) bins the particles: counting sort, linear in N.
+  2. particles whose neighbourhood holds varying D get the Shepard-normalised SPH gradient of D;
      a particle is *near* a discontinuity when D_p >= damage_threshold or |grad D_p| r >= gradient_threshold.
      Its normal is n_p = grad D_p / |grad D_p|, and it marks the grid nodes of its stencil.
+  3. a damaged particle without a gradient (middle of an odd-width band) takes its neighbours' normal.
   4. marked nodes y_g get grad D(y_g) from the same SPH sums.
-  5. per near particle and stencil node: opposite sides when n_p . n_g < -threshold, or when the node
-     lies on the discontinuity itself (|grad D(y_g)| r < gradient_threshold with D(y_g) >= damage_threshold).
-     The tangential functions drop opposite nodes; the normal ones keep them while the particle's
-     effective normal stress n.sigma.n <= 0 (contact_in_compression). Both families are rescaled to a
+  5. per near particle and stencil node: across when n_p . n_g < -threshold, or when the node lies on
+     the discontinuity itself (|grad D(y_g)| r < gradient_threshold with D(y_g) >= damage_threshold).
+     The tangential functions drop nodes across; the normal ones keep them while the particle is in
+     contact (trial normal traction n.sigma.n + rho c v_close < 0). Both families are rescaled to a
      partition of unity; their sums are stored per particle so P2G/G2P modify weights node by node.
 
 Direction-dependent coupling: particle p couples to node i through the tensor
