@@ -25,18 +25,22 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def time_steps(step, steps: int, repeats: int, sync=ti.sync) -> float:
-    """Median seconds per step over `repeats` runs of `steps` steps (after one warm-up step)."""
+def time_steps(step, steps: int, repeats: int, sync=ti.sync, cpu: bool = False):
+    """Median seconds per step over `repeats` runs of `steps` steps (after one warm-up step).
+
+    With cpu=True, also the median process CPU time per step (all threads): on a shared machine it moves far less
+    than wall time, so ratios of CPU times are the steadier comparison."""
     step()
     sync()
-    per_step = []
+    wall, proc = [], []
     for _ in range(repeats):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         for _ in range(steps):
             step()
         sync()
-        per_step.append((time.perf_counter() - t) / steps)
-    return statistics.median(per_step)
+        wall.append((time.perf_counter() - t) / steps)
+        proc.append((time.process_time() - c) / steps)
+    return (statistics.median(wall), statistics.median(proc)) if cpu else statistics.median(wall)
 
 
 def report(rows: list[dict], path: Path | None):

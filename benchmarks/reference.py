@@ -19,32 +19,38 @@ def main(argv=None):
     p = parser(__doc__)
     p.add_argument("--grid", type=int, default=64)
     p.add_argument("--sparse", choices=["true", "false", "both"], default="both")
+    p.add_argument("--unroll", choices=["true", "false", "both"], default=None,
+                   help="stencil unrolling (solver.unroll); default both, --tiny: false (unrolled 3D compiles ~30 s)")
     a = p.parse_args(argv)
     n_grid = 16 if a.tiny else a.grid
     steps = a.steps or (3 if a.tiny else 50)
     repeats = 1 if a.tiny else a.repeats
 
     substep, x, n, dt = mpm3d_reference(n_grid, a.arch)
-    t_ref = time_steps(substep, steps, repeats)
+    t_ref, c_ref = time_steps(substep, steps, repeats, cpu=True)
     rows = [dict(case="mpm3d reference (dense, MLS fluid)", particles=n, ms_per_step=t_ref * 1e3,
-                 particle_steps_per_s=n / t_ref, ratio=1.0)]
+                 cpu_ms_per_step=c_ref * 1e3, particle_steps_per_s=n / t_ref, ratio=1.0, cpu_ratio=1.0,
+                 first_step_s=None)]
 
     import taichi_mpm as tm
 
     sparse_opts = {"both": [True, False], "true": [True], "false": [False]}[a.sparse]
     for model in ("fluid", "fixed_corotated"):
-        for sparse in sparse_opts:
-            cfg = block_config(3, n_grid, model=model, sparse=sparse, arch=a.arch)
-            cfg["solver"]["dt"] = dt
-            cfg, scene = positions_scene(cfg, x)
-            t0 = time.perf_counter()
-            sim = tm.Simulation(cfg, scene=scene)
-            sim.step()
-            compile_s = time.perf_counter() - t0
-            t = time_steps(sim.step, steps, repeats)
-            rows.append(dict(case=f"taichi-mpm quadratic APIC {model} {'sparse' if sparse else 'dense'}",
-                             particles=sim.n, ms_per_step=t * 1e3, particle_steps_per_s=sim.n / t,
-                             ratio=t_ref / t, first_step_s=compile_s))
+        for unroll in {"both": [True, False], "true": [True], "false": [False]}[a.unroll or ("false" if a.tiny else "both")]:
+            for sparse in sparse_opts:
+                cfg = block_config(3, n_grid, model=model, sparse=sparse, arch=a.arch)
+                cfg["solver"].update(dt=dt, unroll=unroll)
+                cfg, scene = positions_scene(cfg, x)
+                t0 = time.perf_counter()
+                sim = tm.Simulation(cfg, scene=scene)
+                sim.step()
+                compile_s = time.perf_counter() - t0
+                t, c = time_steps(sim.step, steps, repeats, cpu=True)
+                rows.append(dict(case=f"quadratic APIC {model} {'sparse' if sparse else 'dense'}"
+                                      f"{' unrolled' if unroll else ''}",
+                                 particles=sim.n, ms_per_step=t * 1e3, cpu_ms_per_step=c * 1e3,
+                                 particle_steps_per_s=sim.n / t, ratio=t_ref / t, cpu_ratio=c_ref / c,
+                                 first_step_s=compile_s))
     print(f"grid {n_grid}^3, dt {dt}, {steps} steps x {repeats} repeats (median), arch {a.arch}, "
           f"peak RSS {peak_rss_mb():.0f} MB")
     report(rows, a.json)

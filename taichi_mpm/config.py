@@ -129,6 +129,9 @@ class Solver(Strict):
     end_time: PositiveFloat
     gravity: Optional[Vec] = None
     max_steps: Optional[Annotated[int, Field(gt=0)]] = None
+    # unroll the stencil loop: faster steps, slower first compile (3D quadratic: ~20 % faster, 29 s against 3 s
+    # cold); auto unrolls stencils of at most 16 nodes (all 1D and 2D bases)
+    unroll: Union[Literal["auto"], bool] = "auto"
     # stop when total energy rises by more than this fraction of the peak kinetic + strain energy (checked every
     # 20 steps; skipped with a body force, whose work is not tracked); null turns the check off
     energy_growth_limit: Optional[PositiveFloat] = 0.5

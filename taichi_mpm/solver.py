@@ -12,6 +12,7 @@ velocities give the velocity gradient for F (Sulsky et al. 1995; Nairn 2003).
 Physics code only: no CLI, rendering or file I/O here.
 """
 
+import itertools
 import math
 from typing import Callable, Optional
 
@@ -125,6 +126,11 @@ class Simulation:
         if self.crack is not None:
             self.bytes_per_particle += self.crack.bytes_per_particle()
 
+    def _unroll(self) -> bool:
+        """Unroll the stencil loop: always for `solver.unroll: true`, for auto when it has at most 16 nodes."""
+        u = self.cfg.solver.unroll
+        return u is True or (u == "auto" and self.basis.stencil ** self.dim <= 16)
+
     def _bytes_per_particle(self) -> int:
         size = 8 if self.cfg.precision == "f64" else 4
         d = self.dim
@@ -192,8 +198,13 @@ class Simulation:
         faces = [(self.cfg.domain.boundaries.face(a, 0), self.cfg.domain.boundaries.face(a, 1)) for a in range(dim)]
         wall = make_wall_condition(dim, n_cells, faces, basis)
         span = [S] * dim
-        # The stencil loop is a runtime loop: unrolling it (ti.static) compiles 10x slower
-        # (26 s against 2.2 s cold for 3D quadratic APIC) for about 20 % faster steps.
+        # The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))`
+        # with off = o + inner[k]. Unrolled, the outer range is a single point and `inner` lists every node, so
+        # the weights stay in registers (3D quadratic: P2G 37 against 43 ms, G2P 7.5 against 11 ms CPU time for
+        # 65k particles) but compiling takes 29 s instead of 3 s cold; otherwise the loop runs at run time.
+        unroll = self._unroll()
+        outer = [1] * dim if unroll else span
+        inner = [ti.Vector(list(o)) for o in itertools.product(range(S), repeat=dim)] if unroll else [ti.Vector([0] * dim)]
 
         @ti.func
         def density(p):
@@ -351,7 +362,9 @@ class Simulation:
                     if crk.modified(p):
                         crk.p2g(p, base, W, DW, R, mp, stress, vp, Ap, force_density, dt)
                         continue
-                for off in ti.grouped(ti.ndrange(*span)):
+                for o in ti.grouped(ti.ndrange(*outer)):
+                  for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
+                    off = o + inner[k]
                     w, gw = node_weight(W, DW, off)
                     I = base + off
                     gm[I] += w * mp
@@ -386,7 +399,9 @@ class Simulation:
                     if crk.modified(p):
                         crk.p2g_momentum(p, base, W, DW, R, mp, vp, Ap)
                         continue
-                for off in ti.grouped(ti.ndrange(*span)):
+                for o in ti.grouped(ti.ndrange(*outer)):
+                  for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
+                    off = o + inner[k]
                     w, gw = node_weight(W, DW, off)
                     I = base + off
                     mom = vp
@@ -414,7 +429,9 @@ class Simulation:
                 dv = ti.Vector.zero(float, dim)
                 B = ti.Matrix.zero(float, dim, dim)
                 G = ti.Matrix.zero(float, dim, dim)
-                for off in ti.grouped(ti.ndrange(*span)):
+                for o in ti.grouped(ti.ndrange(*outer)):
+                  for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
+                    off = o + inner[k]
                     w, gw = node_weight(W, DW, off)
                     I = base + off
                     vi = gv[I]
