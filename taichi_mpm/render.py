@@ -267,11 +267,13 @@ class FrameRenderer:
         c = 0.5 * (lo3 + hi3)
         ext = hi3 - lo3
         w, h = self.size
-        top, bottom = 0.92, 0.2   # window fractions the domain may use
+        top = min(0.92, 1 - 40 / h)       # window fractions the domain may use: below the time label
+        bottom = max(0.2, 75 / h)         # and above the colour bar
         mid = 0.5 * (top + bottom)
         if self.dim < 3:
             p.enable_parallel_projection()
-            scale = max(ext[1] / (top - bottom), ext[0] * h / w / 0.92, 1e-9) / 2  # half the visible height
+            fit_height = ext[1] / (top - bottom) if self.dim == 2 else 0.0  # a 1D strip only fits the width
+            scale = max(fit_height, ext[0] * h / w / 0.92, 1e-9) / 2  # half the visible height
             focal = c - np.array([0.0, (mid - 0.5) * 2 * scale, 0.0])
             p.camera.focal_point = tuple(focal)
             p.camera.position = tuple(focal + np.array([0, 0, 10 * max(ext.max(), 1e-9)]))
