@@ -128,7 +128,8 @@ class CrackFinder:
         self._k["particle_masks"]()
 
     # ------------------------------------------------------------------ kernels
-    def build(self, stencil, node_weight, node_offset, kirchhoff, wall, gravity, has_gravity, vgrad, basis, mat):
+    def build(self, stencil, node_weight, node_offset, inertia, kirchhoff, wall, gravity, has_gravity, vgrad, basis,
+              mat):
         """Build the crack finder's funcs and kernels from the solver's stencil and material funcs.
         Returns self; the solver calls modified(p), degrade(p, tau), p2g(...), p2g_momentum(...), g2p(...)
         and takes grid_update / grid_remap from `grid_kernels()`."""
@@ -493,6 +494,16 @@ class CrackFinder:
             return ct, cn
 
         @ti.func
+        def split_momentum(vp, Ap, R, off, ct, cn):
+            """Velocity a node sees through the tangential and normal parts (APIC about each part's centroid)."""
+            mom_t, mom_n = vp, vp
+            if ti.static(apic):
+                r = node_offset(R, off)
+                mom_t = vp + Ap @ (r - ct)
+                mom_n = vp + Ap @ (r - cn)
+            return mom_t, mom_n
+
+        @ti.func
         def p2g(p, base, W, DW, R, mp, stress, vp, Ap, force_density, dt):
             """P2G of a particle near a discontinuity: mass, momentum (APIC about the kept nodes'
             centroid, so sum_i W_ip mom_i = v_p exactly), stress force and body force."""
@@ -504,11 +515,7 @@ class CrackFinder:
                 w, gw = node_weight(W, DW, off)
                 I = base + off
                 wt, wn, gt, gn = weights(fam, off, w, gw)
-                mom_t, mom_n = vp, vp
-                if ti.static(apic):
-                    r = node_offset(R, off)
-                    mom_t = vp + Ap @ (r - ct)
-                    mom_n = vp + Ap @ (r - cn)
+                mom_t, mom_n = split_momentum(vp, Ap, R, off, ct, cn)
                 gm[I] += wt * mp
                 if contact_state:
                     for a in ti.static(range(dim)):
@@ -527,11 +534,7 @@ class CrackFinder:
                 w, gw = node_weight(W, DW, off)
                 I = base + off
                 wt, wn, gt, gn = weights(fam, off, w, gw)
-                mom_t, mom_n = vp, vp
-                if ti.static(apic):
-                    r = node_offset(R, off)
-                    mom_t = vp + Ap @ (r - ct)
-                    mom_n = vp + Ap @ (r - cn)
+                mom_t, mom_n = split_momentum(vp, Ap, R, off, ct, cn)
                 gv2[I] += mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n))
 
         @ti.func
@@ -557,13 +560,7 @@ class CrackFinder:
                 if ti.static(deform):  # MUSL's deform pass reads the remapped velocities
                     vg = vgrad[I]
                 G += (Pt @ vg).outer_product(gt) + (Pn @ vg).outer_product(gn)
-            Dm = ti.Matrix.zero(float, dim, dim)
-            for a in ti.static(range(dim)):
-                s = 0.0
-                for k in ti.static(range(S)):
-                    s += W[a, k] * R[a, k] * R[a, k]
-                Dm[a, a] = s
-            return v_pic, dv, G @ Dm, G
+            return v_pic, dv, G @ inertia(W, R), G
 
         # ---- grid update with tensor node mass ----------------------------------
         @ti.func

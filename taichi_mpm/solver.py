@@ -332,6 +332,14 @@ class Simulation:
             return A
 
         @ti.func
+        def node_momentum(vp, Ap, R, off):
+            """Particle velocity seen by a node: v_p, plus C_p (x_i - x_p) with APIC."""
+            mom = vp
+            if ti.static(f["apic"]):
+                mom += Ap @ node_offset(R, off)
+            return mom
+
+        @ti.func
         def velocity_gradient(p):
             """grad v of the last step (viscosity reads it)."""
             L = C[p]
@@ -341,7 +349,7 @@ class Simulation:
             return L
 
         crack = self.crack is not None  # crack finder (crack.py): modified shape functions near discontinuities
-        crk = self.crack.build(stencil, node_weight, node_offset, kirchhoff, wall, gravity, f["gravity"],
+        crk = self.crack.build(stencil, node_weight, node_offset, inertia, kirchhoff, wall, gravity, f["gravity"],
                                gv2 if f["musl"] else gv, basis, mat) if crack else None
 
         @ti.kernel
@@ -368,9 +376,7 @@ class Simulation:
                     w, gw = node_weight(W, DW, off)
                     I = base + off
                     gm[I] += w * mp
-                    mom = vp
-                    if ti.static(f["apic"]):
-                        mom += Ap @ node_offset(R, off)
+                    mom = node_momentum(vp, Ap, R, off)
                     gv[I] += w * mp * mom + dt * (stress @ gw + w * force_density)
                     if ti.static(f["flip"]):
                         gv_old[I] += w * mp * vp
@@ -404,9 +410,7 @@ class Simulation:
                     off = o + inner[k]
                     w, gw = node_weight(W, DW, off)
                     I = base + off
-                    mom = vp
-                    if ti.static(f["apic"]):
-                        mom += Ap @ node_offset(R, off)
+                    mom = node_momentum(vp, Ap, R, off)
                     gv2[I] += w * mp * mom
 
         @ti.kernel
