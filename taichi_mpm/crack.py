@@ -203,13 +203,7 @@ class CrackFinder:
                         if d2 < radius2:   # most candidates of the 5^d cells fall outside: no sqrt for them
                             dist = ti.sqrt(d2)
                             s = dist * inv_r
-                            wk, dk = 0.0, 0.0
-                            if s < 0.5:
-                                wk = 1.0 - 6.0 * s * s + 6.0 * s * s * s
-                                dk = -12.0 * s + 18.0 * s * s
-                            else:
-                                wk = 2.0 * (1.0 - s) ** 3
-                                dk = -6.0 * (1.0 - s) ** 2
+                            wk, dk = sph_kernel(s)
                             gw = ti.Vector.zero(float, dim)
                             if dist > 0:
                                 gw = (dk * inv_r / dist) * rv
@@ -226,6 +220,14 @@ class CrackFinder:
             return val, grad
 
         @ti.func
+        def sph_kernel(s):
+            """Cubic spline kernel (unnormalised; Shepard normalisation divides it out) and d/ds, s = r / support."""
+            wk, dk = 2.0 * (1.0 - s) ** 3, -6.0 * (1.0 - s) ** 2
+            if s < 0.5:
+                wk, dk = 1.0 - 6.0 * s * s + 6.0 * s * s * s, -12.0 * s + 18.0 * s * s
+            return wk, dk
+
+        @ti.func
         def normal_closing_speed(p, n):
             """Kernel-weighted mean of (v_q - v_p) . n_p over neighbours q across the discontinuity
             (n_p . n_q < -threshold): negative when the other side approaches p; and whether any q is in reach."""
@@ -240,9 +242,7 @@ class CrackFinder:
                         dist = (x[p] - x[q]).norm()
                         if dist < radius and n.dot(normal[q]) < -contact_thr:
                             s = dist * inv_r
-                            wk = 2.0 * (1.0 - s) ** 3
-                            if s < 0.5:
-                                wk = 1.0 - 6.0 * s * s + 6.0 * s * s * s
+                            wk, _ = sph_kernel(s)
                             sw += wk
                             sv += wk * (v[q] - v[p]).dot(n)
             res = 0.0
@@ -354,9 +354,7 @@ class CrackFinder:
                                 dist = (x[p] - x[q]).norm()
                                 if dist < radius and D[q] < dthr and state[q] == MODIFIED:
                                     s = dist * inv_r
-                                    wk = 2.0 * (1.0 - s) ** 3
-                                    if s < 0.5:
-                                        wk = 1.0 - 6.0 * s * s + 6.0 * s * s * s
+                                    wk, _ = sph_kernel(s)
                                     T += wk * normal[q].outer_product(normal[q])
                     if T.trace() > 0:
                         ev, Q = sym_eig(T)
