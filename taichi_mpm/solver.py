@@ -75,7 +75,6 @@ class Simulation:
         self.scene = scene if scene is not None else build_scene(c)
         self.n = self.scene.n
         self._id = init_taichi(c.arch, c.precision)
-        self.real = ti.f64 if c.precision == "f64" else ti.f32
         self.basis = make_basis(c.solver.basis)
         self._materials = [c.materials[name] for name in self.scene.materials]
         self.wave_speed = max(wave_speed(m) for m in self._materials)
@@ -84,7 +83,7 @@ class Simulation:
         self._allocate()
         self._build_kernels()
         self._upload()
-        self._vmax = float(np.sqrt(np.max(np.sum(self.scene.v**2, axis=1))))
+        self._vmax = _max_speed(self.scene.v)
 
     # ------------------------------------------------------------------ fields
     def _features(self):
@@ -533,7 +532,6 @@ class Simulation:
                        cauchy_stress=cauchy_stress)
         if crack:
             self._k.update(crk.grid_kernels())
-        self._stencil, self._node_weight = stencil, node_weight  # for the crack finder and tests
 
     # ------------------------------------------------------------------ stepping
     def _check_live(self):
@@ -667,7 +665,7 @@ class Simulation:
             fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
         self._energy_ref = None  # a new state: energy is measured afresh
         if "v" in arrays:
-            self._vmax = float(np.sqrt(np.max(np.sum(np.asarray(arrays["v"]) ** 2, axis=1))))
+            self._vmax = _max_speed(arrays["v"])
 
     def get_state(self) -> dict:
         """Everything needed to continue bit for bit: particle fields (creation order), clock, CFL speed estimate."""
@@ -701,10 +699,14 @@ class Simulation:
         return {"linear": m[: self.dim], "angular": m[self.dim: self.dim + 3]}
 
     def max_speed(self) -> float:
-        return float(np.sqrt(np.max(np.sum(self.v.to_numpy().reshape(self.n, -1) ** 2, axis=1))))
+        return _max_speed(self._read("v"))
 
     def cfl_number(self) -> float:
         return self.dt * (self.wave_speed + self._vmax) / self.dx
+
+
+def _max_speed(v) -> float:
+    return float(np.sqrt(np.max(np.sum(np.asarray(v) ** 2, axis=1))))
 
 
 def _cell_counts(lower, upper, dx) -> list[int]:
