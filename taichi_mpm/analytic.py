@@ -418,8 +418,5 @@ def run_problem(problem: Problem, overrides: Optional[dict] = None):
     cfg = load_config(problem.config(), overrides)
     sim = Simulation(cfg, body_force=problem.body_force)
     problem.setup(sim)
-    end = cfg.solver.end_time
-    while sim.time < end - 1e-12 * end:
-        sim.step(min(sim.stable_dt(), end - sim.time))
-        problem.observe(sim)
+    sim.advance_to(cfg.solver.end_time, on_step=problem.observe)
     return sim, problem.errors(sim)

@@ -201,7 +201,6 @@ class Run:
         Ctrl-C (when called from the main thread) finishes the current step, writes the checkpoint and
         raises Interrupted. InstabilityError propagates with the last good checkpoint left on disk."""
         sim, end = self.sim, self.cfg.solver.end_time
-        max_steps = self.cfg.solver.max_steps
         restore = None
         if handle_sigint and threading.current_thread() is threading.main_thread():
             def _stop(signum, frame):
@@ -211,25 +210,23 @@ class Run:
         try:
             if self.index == 0:
                 self(sim)
+
+            def after_step(s):
+                if on_step is not None:
+                    on_step(s)
+                if self.stop_requested:
+                    self.checkpoint()
+                    raise Interrupted(self)
+
             while not self.done:
+                if self.stop_requested:
+                    self.checkpoint()
+                    raise Interrupted(self)
                 target = self.next_time()
-                tol = 1e-12 * max(1.0, abs(target))
-                capped = False
-                while sim.time < target - tol:
-                    if self.stop_requested:
-                        self.checkpoint()
-                        raise Interrupted(self)
-                    if max_steps and sim.n_steps >= max_steps:
-                        capped = True
-                        break
-                    sim.step(min(sim.stable_dt(), target - sim.time))
-                    if on_step is not None:
-                        on_step(sim)
-                if not capped:
-                    sim.time = target  # land exactly on the output time, as Simulation.advance does
+                sim.advance_to(target, on_step=after_step)
                 self(sim)
-                if capped:
-                    self.log(f"stopped at solver.max_steps={max_steps} (t={sim.time:.6g} of {end:g})")
+                if sim.at_step_limit and sim.time < target:
+                    self.log(f"stopped at solver.max_steps={self.cfg.solver.max_steps} (t={sim.time:.6g} of {end:g})")
                     break
         except InstabilityError as e:
             e.run_dir = self.out_dir

@@ -600,27 +600,39 @@ class Simulation:
                 f"strain energy (limit {limit:.0%}); the time step is past its stability limit, lower solver.cfl",
                 self.n_steps, self.time, particle=int(np.argmax(speed)), detail="particle named: the fastest")
 
-    def advance(self, duration: float) -> int:
-        """Advance by `duration` of simulation time, shortening the last step to land on it exactly."""
-        target = self.time + duration
+    @property
+    def at_step_limit(self) -> bool:
+        """solver.max_steps reached."""
+        m = self.cfg.solver.max_steps
+        return bool(m) and self.n_steps >= m
+
+    def advance_to(self, target: float, on_step: Optional[Callable] = None) -> int:
+        """Step until simulation time `target`, shortening the last step to land on it exactly; stop early at
+        solver.max_steps. on_step(self) runs after every step. Returns the number of steps taken.
+        (Every stepping loop uses this one, so a resumed run takes exactly the steps of an uninterrupted one.)"""
         steps = 0
         while self.time < target - 1e-12 * max(1.0, abs(target)):
-            dt = min(self.stable_dt(), target - self.time)
-            self.step(dt)
+            if self.at_step_limit:
+                return steps
+            self.step(min(self.stable_dt(), target - self.time))
             steps += 1
-        self.time = target if steps else self.time
+            if on_step is not None:
+                on_step(self)
+        self.time = target
         return steps
 
+    def advance(self, duration: float, on_step: Optional[Callable] = None) -> int:
+        """Advance by `duration` of simulation time (see advance_to)."""
+        return self.advance_to(self.time + duration, on_step)
+
     def run(self, on_output: Optional[Callable] = None, every: Optional[float] = None):
-        """Run to solver.end_time, calling on_output(self) at t=0 and every `every` seconds."""
+        """Run to solver.end_time (or solver.max_steps), calling on_output(self) at t=0 and every `every` seconds."""
         end = self.cfg.solver.end_time
         every = every or self.cfg.output.every
         if on_output:
             on_output(self)
-        while self.time < end - 1e-12 * end:
-            if self.cfg.solver.max_steps and self.n_steps >= self.cfg.solver.max_steps:
-                break
-            self.advance(min(every, end - self.time))
+        while self.time < end - 1e-12 * end and not self.at_step_limit:
+            self.advance_to(min(self.time + every, end))
             if on_output:
                 on_output(self)
         return self
