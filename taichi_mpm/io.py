@@ -16,13 +16,16 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from . import fields as registry
+
 SNAPSHOT = "particles_{:06d}"
 PVD_NAME = "particles.pvd"
 DIAGNOSTICS_NAME = "diagnostics.csv"
 CHECKPOINT_NAME = "checkpoint.npz"
 CONFIG_NAME = "config.yaml"
 
-ALWAYS = ("velocity", "stress", "von_mises", "J", "body", "damage")  # written to every VTU ("damage" when present)
+ALWAYS = registry.ALWAYS  # written to every VTU ("damage" when present)
+von_mises = registry.von_mises
 
 
 # ---------------------------------------------------------------- helpers
@@ -38,55 +41,30 @@ def _pad3(a: np.ndarray) -> np.ndarray:
     return np.pad(a, ((0, 0), (0, 3 - a.shape[1])))
 
 
-def _tensor9(a: np.ndarray) -> np.ndarray:
-    """(N, d, d) -> (N, 9), the 3x3 tensor padded with zeros, as ParaView expects a tensor."""
-    n, d = a.shape[0], a.shape[1]
-    out = np.zeros((n, 3, 3))
-    out[:, :d, :d] = a
-    return out.reshape(n, 9)
-
-
-def von_mises(stress: np.ndarray) -> np.ndarray:
-    """von Mises stress sqrt(3/2 s:s) of the (N, d, d) Cauchy stress, padded to 3x3 with zeros
-    (plane stress in 2D, uniaxial stress in 1D: |sigma_xx|)."""
-    s = _tensor9(stress).reshape(-1, 3, 3)
-    dev = s - np.trace(s, axis1=1, axis2=2)[:, None, None] / 3.0 * np.eye(3)
-    return np.sqrt(1.5 * np.einsum("nij,nij->n", dev, dev))
-
-
 def derived_fields(p: dict, scene=None) -> dict:
-    """Add J, von_mises, speed, pressure (and displacement/material/interface when the scene is given)
-    to a particles() dict; returns a new dict."""
-    out = dict(p)
-    d = p["x"].shape[1]
-    out["J"] = np.linalg.det(p["F"])
-    out["von_mises"] = von_mises(p["stress"])
-    out["speed"] = np.linalg.norm(p["v"], axis=1)
-    out["pressure"] = -np.trace(p["stress"], axis1=1, axis2=2) / d
-    if scene is not None:
-        out["displacement"] = p["x"] - scene.x
-        out["material"] = np.asarray(scene.material)
-        out["interface"] = np.asarray(scene.interface)
-        if "damage" not in out and getattr(scene, "damage", None) is not None and np.any(scene.damage):
-            out["damage"] = np.asarray(scene.damage, float)
+    """A particles() dict with the output fields computed once (registry.REGISTRY: J, von_mises, speed, pressure,
+    ... and, when the scene is given, displacement, material and interface); returns a new dict."""
+    out = registry.with_scene(p, scene) if scene is not None else dict(p)
+    for name in registry.REGISTRY:
+        if name not in out and registry.available(out, name) and registry.REGISTRY[name].kind in ("scalar", "label"):
+            out[name] = registry.values(out, name)
     return out
 
 
 def point_data(p: dict, fields=()) -> dict:
-    """VTU point data from a derived_fields() dict: the ALWAYS set plus `fields` (config output.fields)."""
-    names = list(dict.fromkeys(list(ALWAYS) + list(fields)))
-    source = {"velocity": "v"}
+    """VTU point data of a particle dict: the ALWAYS set plus `fields` (config output.fields), each as the
+    registry computes it; vectors padded to 3 components, tensors written as full 3x3 (9 components)."""
     out = {}
-    for name in names:
-        key = source.get(name, name)
-        if key not in p:
+    for name in dict.fromkeys(list(ALWAYS) + list(fields)):
+        if not registry.available(p, name):
             continue  # e.g. damage without a crack section, C without APIC
-        a = np.asarray(p[key])
-        if a.ndim == 3:
-            a = _tensor9(a)
-        elif a.ndim == 2:
+        kind = registry.REGISTRY[name].kind
+        a = np.asarray(registry.values(p, name))
+        if kind == "tensor":
+            a = a.reshape(len(a), 9).astype(np.float64)
+        elif kind == "vector":
             a = _pad3(a)
-        elif np.issubdtype(a.dtype, np.integer):
+        elif kind == "label" or np.issubdtype(a.dtype, np.integer):
             a = a.astype(np.int32)
         else:
             a = a.astype(np.float64)
@@ -109,7 +87,8 @@ def write_vtu(path, p: dict, fields=()):
 
 
 def read_vtu(path, dim: int | None = None) -> dict:
-    """Read a snapshot back: x (N, dim) plus the point data, tensors as (N, dim, dim)."""
+    """Read a snapshot back: x (N, dim) plus the point data, vectors as (N, dim), tensors as (N, dim, dim), and
+    the full 3x3 stress as stress3."""
     import meshio
 
     m = meshio.read(path)
@@ -118,6 +97,8 @@ def read_vtu(path, dim: int | None = None) -> dict:
     out = {"x": m.points[:, :dim].copy()}
     for name, a in m.point_data.items():
         if a.ndim == 2 and a.shape[1] == 9:
+            if name == "stress":
+                out["stress3"] = a.reshape(-1, 3, 3).copy()
             a = a.reshape(-1, 3, 3)[:, :dim, :dim]
         elif a.ndim == 2 and a.shape[1] == 3:
             a = a[:, :dim]
@@ -126,10 +107,16 @@ def read_vtu(path, dim: int | None = None) -> dict:
 
 
 def write_npz(path, p: dict, fields=()):
-    """One particle snapshot as .npz: x, v, F, stress, mass, volume, body and the VTU fields, unpadded."""
+    """One particle snapshot as .npz, unpadded: x, v, F, stress (N, d, d), stress3 (N, 3, 3), mass, volume, body, the
+    scalar fields of the ALWAYS set and `fields` (vectors (N, d); the tensors F and C as (N, d, d))."""
     path = Path(path)
-    names = ["x", "v", "F", "stress", "mass", "volume", "body"] + [f for f in list(ALWAYS) + list(fields) if f != "velocity"]
-    arrays = {n: np.asarray(p[n]) for n in dict.fromkeys(names) if n in p}
+    arrays = {k: np.asarray(p[k]) for k in ("x", "v", "F", "stress", "stress3", "mass", "volume", "body") if k in p}
+    if "stress3" not in arrays and "stress" in p:
+        arrays["stress3"] = registry.stress3(p)
+    for name in dict.fromkeys(list(ALWAYS) + list(fields)):
+        if name in ("velocity", "stress") or not registry.available(p, name):
+            continue
+        arrays[name] = np.asarray(p[name]) if name in ("F", "C") else np.asarray(registry.values(p, name))
     tmp = _atomic(path)
     with open(tmp, "wb") as f:
         np.savez(f, **arrays)

@@ -3,6 +3,11 @@
 Adding a model means writing two `@ti.func`s and one registry line. The solver computes nodal
 forces as f_i = -sum_p V0_p tau_p grad w_ip, which is -sum_p V0_p P_p grad_X w_ip.
 `L` is the particle's velocity gradient (only fluids with viscosity read it).
+
+Every model is written for any dimension d, and a d-dimensional state is the 3D state with the missing
+axes held fixed: 2D is plane strain (F_zz = 1, no velocity along z), 1D is uniaxial strain (F_yy = F_zz = 1).
+So the full 3x3 stress of a 1D or 2D particle, out-of-plane normal stresses included, is the model's own
+3D stress at `embed3(F, 1)` (with `embed3(L, 0)`); its in-plane block equals the d-dimensional stress.
 """
 
 from dataclasses import dataclass
@@ -28,6 +33,16 @@ def register(name, fluid=False):
         MODELS[name] = Model(name, cls.kirchhoff, cls.energy, fluid)
         return cls
     return wrap
+
+
+@ti.func
+def embed3(A, fill):
+    """The 3x3 matrix with A (d x d) in its upper-left block and `fill` on the rest of the diagonal: F or L of a
+    plane-strain (2D) or uniaxial-strain (1D) state as a 3D tensor (fill 1 for F, 0 for L)."""
+    out = ti.Matrix.identity(float, 3) * fill
+    for a, b in ti.static(ti.ndrange(A.n, A.n)):
+        out[a, b] = A[a, b]
+    return out
 
 
 POLAR_ITERATIONS = 8  # scaled Newton: quadratic convergence; 8 reach f64 round-off for stretches up to ~1e3

@@ -17,11 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-# Scalar fields a frame can be coloured by (besides stress components sxx, sxy, ...).
-FIELDS = ("speed", "von_mises", "J", "body", "damage", "pressure", "vx", "vy", "vz")
-_LABELS = {"speed": "speed [m/s]", "von_mises": "von Mises stress [Pa]", "J": "J = det F", "body": "body",
-           "damage": "damage", "pressure": "pressure [Pa]", "vx": "velocity x [m/s]", "vy": "velocity y [m/s]",
-           "vz": "velocity z [m/s]"}
+from . import fields as registry
+from .fields import von_mises  # noqa: F401 (the one implementation, in fields.py)
+
+# Scalar fields a frame can be coloured by: the registry's scalar and label fields, velocity components vx, vy, vz
+# and the components sxx, sxy, ..., szz of the full 3x3 stress.
+FIELDS = tuple(n for n, f in registry.REGISTRY.items() if f.kind in ("scalar", "label")) + ("vx", "vy", "vz")
 _ALIASES = {"velocity": "speed", "velocity_x": "vx", "velocity_y": "vy", "velocity_z": "vz", "mises": "von_mises",
             "stress": "von_mises"}
 _CAMERAS_3D = ("iso", "xy", "xz", "yz", "front", "side", "top")
@@ -50,63 +51,30 @@ def _pyvista():
 
 
 # ---------------------------------------------------------------- fields
-def _tensor(a, n, d):
-    """A stress or F array from the solver (N,d,d) or a file (N,9 / N,d*d / N,3,3) as (N,d,d)."""
-    a = np.asarray(a, float)
-    if a.ndim == 2:
-        k = int(round(np.sqrt(a.shape[1])))
-        a = a.reshape(n, k, k)
-    return a[:, :d, :d]
-
-
-def von_mises(stress: np.ndarray) -> np.ndarray:
-    """Von Mises stress sqrt(3/2 s:s) of (N,d,d) Cauchy stresses padded to 3x3 with zeros (as io.py
-    writes it: plane stress in 2D, |sigma_xx| in 1D), so live and re-rendered frames agree."""
-    s = np.asarray(stress, float)
-    n, d = s.shape[0], s.shape[1]
-    s3 = np.zeros((n, 3, 3))
-    s3[:, :d, :d] = s
-    dev = s3 - np.einsum("nii->n", s3)[:, None, None] / 3.0 * np.eye(3)
-    return np.sqrt(1.5 * np.einsum("nij,nij->n", dev, dev))
-
-
 def field_values(particles: dict, name: str, dim: int) -> np.ndarray:
-    """Per-particle scalar values of a named field: speed, von_mises, J, body, damage, pressure,
-    vx/vy/vz, or a stress component sxx, syy, sxy, ... Raises ValueError for an unknown or absent field."""
+    """Per-particle scalar values of a named field: a scalar field of the output-field registry (speed, von_mises,
+    J, body, damage, pressure, ...), vx/vy/vz, or a component sxx, syy, szz, sxy, ... of the full 3x3 stress.
+    Raises ValueError for an unknown or absent field."""
     name = _ALIASES.get(name, name)
-    x = np.asarray(particles["x"])
-    n = len(x)
-    if name in ("speed", "vx", "vy", "vz"):
-        v = np.asarray(particles["v"], float).reshape(n, -1)[:, :dim]
-        if name == "speed":
-            return np.linalg.norm(v, axis=1)
+    n = len(np.asarray(particles["x"]))
+    if name in ("vx", "vy", "vz"):
         a = "xyz".index(name[1])
         if a >= dim:
             raise ValueError(f"field '{name}' needs dim > {a}")
-        return v[:, a]
-    if name == "von_mises":
-        if "von_mises" in particles:
-            return np.asarray(particles["von_mises"], float).reshape(n)
-        return von_mises(_tensor(particles["stress"], n, dim))
-    if name == "pressure":
-        return -np.einsum("nii->n", _tensor(particles["stress"], n, dim)) / dim
-    if name == "J":
-        if "J" in particles:
-            return np.asarray(particles["J"], float).reshape(n)
-        return np.linalg.det(_tensor(particles["F"], n, dim))
-    if name in ("body", "damage"):
-        if name not in particles:
-            if name == "damage":
-                raise ValueError("this state has no damage field (the scene has no crack section)")
-            return np.zeros(n)
-        return np.asarray(particles[name], float).reshape(n)
+        return np.asarray(particles["v"], float).reshape(n, -1)[:, a]
     m = re.fullmatch(r"s([xyz])([xyz])", name)
     if m:
         i, j = "xyz".index(m.group(1)), "xyz".index(m.group(2))
-        if max(i, j) >= dim:
-            raise ValueError(f"stress component '{name}' needs dim > {max(i, j)}")
-        return _tensor(particles["stress"], n, dim)[:, i, j]
-    raise ValueError(f"unknown colour field '{name}' (choose from {', '.join(FIELDS)}, or sxx, sxy, ...)")
+        return registry.stress3(particles)[:, i, j]
+    if name not in FIELDS:
+        raise ValueError(f"unknown colour field '{name}' (choose from {', '.join(FIELDS)}, or sxx, sxy, ..., szz)")
+    if name == "body" and "body" not in particles:
+        return np.zeros(n)
+    if not registry.available(particles, name):
+        if name == "damage":
+            raise ValueError("this state has no damage field (the scene has no crack section)")
+        raise ValueError(f"this state has no '{name}' field (it needs {', '.join(registry.REGISTRY[name].needs)})")
+    return np.asarray(registry.values(particles, name), float).reshape(n)
 
 
 def available_fields(particles: dict, dim: int) -> list[str]:
@@ -118,7 +86,11 @@ def available_fields(particles: dict, dim: int) -> list[str]:
 
 def _label(name):
     name = _ALIASES.get(name, name)
-    return _LABELS.get(name, f"stress {name[1:]} [Pa]")
+    if name in registry.REGISTRY:
+        return registry.label(name)
+    if name in ("vx", "vy", "vz"):
+        return f"velocity {name[1]} [m/s]"
+    return f"stress {name[1:]} [Pa]"
 
 
 # ---------------------------------------------------------------- renderer
@@ -362,22 +334,13 @@ def read_series(run_dir) -> list[tuple[float, Path]]:
 
 
 def read_particles(vtu_path, dim: int) -> dict:
-    """A particle dict (x, v, stress, von_mises, J, body, damage, volume) from one saved VTU file."""
-    import meshio
+    """A particle dict (x, v, stress, stress3, F, von_mises, J, body, damage, ...) from one saved VTU file."""
+    from .io import read_vtu
 
-    m = meshio.read(vtu_path)
-    pd = m.point_data
-    n = len(m.points)
-    out = {"x": np.asarray(m.points, float)[:, :dim]}
-    if "velocity" in pd:
-        out["v"] = np.asarray(pd["velocity"], float).reshape(n, -1)[:, :dim]
-    for key in ("stress", "F"):
-        if key in pd:
-            out[key] = _tensor(pd[key], n, dim)
-    for key in ("von_mises", "J", "body", "damage", "volume", "mass"):
-        if key in pd:
-            out[key] = np.asarray(pd[key], float).reshape(n)
-    return out
+    p = read_vtu(vtu_path, dim)
+    if "velocity" in p:
+        p["v"] = p.pop("velocity")
+    return p
 
 
 def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: int = 20) -> dict:

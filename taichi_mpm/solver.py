@@ -24,7 +24,7 @@ from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
 from .errors import InstabilityError
 from .grid import Grid, make_wall_condition
-from .materials import MODELS, wave_speed
+from .materials import MODELS, embed3, wave_speed
 from .scene import Scene, build_scene
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
@@ -220,7 +220,19 @@ class Simulation:
             Lp = ti.Matrix.zero(float, dim, dim)
             if ti.static(f["viscosity"]):
                 Lp = velocity_gradient(p)
-            tau = ti.Matrix.zero(float, dim, dim)
+            return model_kirchhoff(p, Fp, Lp)
+
+        @ti.func
+        def kirchhoff3(p):
+            """The full 3x3 Kirchhoff stress: the 3D model at F with the missing axes held fixed (materials.embed3)."""
+            Lp = ti.Matrix.zero(float, dim, dim)
+            if ti.static(f["viscosity"]):
+                Lp = velocity_gradient(p)
+            return model_kirchhoff(p, embed3(F[p], 1.0), embed3(Lp, 0.0))
+
+        @ti.func
+        def model_kirchhoff(p, Fp, Lp):
+            tau = ti.Matrix.zero(float, Fp.n, Fp.n)
             if ti.static(len(mats) == 1):
                 tau = mats[0][0].kirchhoff(Fp, Lp, mats[0][1], mats[0][2], mats[0][3])
             else:
@@ -521,11 +533,13 @@ class Simulation:
 
         @ti.kernel
         def cauchy_stress(out: ti.types.ndarray()):
+            """(N, 3, 3) Cauchy stress, out-of-plane normal stresses included (plane strain in 2D, uniaxial strain
+            in 1D); the upper-left d x d block is the stress the step uses."""
             for p in x:
-                tau = kirchhoff(p, F[p]) / F[p].determinant()
+                tau = kirchhoff3(p) / F[p].determinant()
                 if ti.static(crack):
                     tau = crk.degrade(p, tau)
-                for a, b in ti.static(ti.ndrange(dim, dim)):
+                for a, b in ti.static(ti.ndrange(3, 3)):
                     out[p, a, b] = tau[a, b]
 
         self._k = dict(p2g=p2g, grid_update=grid_update, g2p=g2p, p2g_momentum=p2g_momentum, grid_remap=grid_remap, energies=energies, momenta=momenta,
@@ -639,13 +653,17 @@ class Simulation:
 
     # ------------------------------------------------------------------ state access
     def particles(self) -> dict:
-        """Particle state as numpy arrays in creation order."""
+        """Particle state as numpy arrays in creation order: x, v, F, C (when stored), stress (N, d, d), stress3
+        (N, 3, 3: the full Cauchy stress, out-of-plane normal stresses of plane strain / uniaxial strain included),
+        mass, volume, body, damage (with a crack section)."""
         self._check_live()
         s = self.scene
         out = {name: self._read(name) for name in self._state_fields()}
-        stress = np.zeros((self.n, self.dim, self.dim), dtype=np.float64)
-        self._k["cauchy_stress"](stress)
-        out.update(stress=self._to_creation(stress), mass=s.mass.copy(),
+        stress3 = np.zeros((self.n, 3, 3), dtype=np.float64)
+        self._k["cauchy_stress"](stress3)
+        stress3 = self._to_creation(stress3)
+        d = self.dim
+        out.update(stress=np.ascontiguousarray(stress3[:, :d, :d]), stress3=stress3, mass=s.mass.copy(),
                    volume=s.volume * np.linalg.det(out["F"]), body=s.body.copy())
         if self.crack is not None:
             out["damage"] = self.crack.damage()

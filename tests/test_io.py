@@ -11,7 +11,10 @@ def state(dim, n=7, seed=1):
     rng = np.random.default_rng(seed)
     F = np.eye(dim) + 0.1 * rng.standard_normal((n, dim, dim))
     s = rng.standard_normal((n, dim, dim))
-    p = dict(x=rng.random((n, dim)), v=rng.standard_normal((n, dim)), F=F, stress=s + s.transpose(0, 2, 1),
+    s3 = rng.standard_normal((n, 3, 3))
+    s3 = s3 + s3.transpose(0, 2, 1)
+    s3[:, :dim, dim:] = s3[:, dim:, :dim] = 0  # plane strain / uniaxial strain: no out-of-plane shear
+    p = dict(x=rng.random((n, dim)), v=rng.standard_normal((n, dim)), F=F, stress=s3[:, :dim, :dim].copy(), stress3=s3,
              mass=np.full(n, 0.5), volume=np.full(n, 0.1), body=np.arange(n) % 2, damage=rng.random(n))
     return io.derived_fields(p)
 
@@ -32,10 +35,11 @@ def test_vtu_round_trip(tmp_path, dim):
     p = state(dim)
     io.write_vtu(tmp_path / "particles_000000.vtu", p, fields=["F", "speed"])
     back = io.read_vtu(tmp_path / "particles_000000.vtu", dim)
-    assert set(back) == {"x", "velocity", "stress", "von_mises", "J", "body", "damage", "F", "speed"}
+    assert set(back) == {"x", "velocity", "stress", "stress3", "von_mises", "J", "body", "damage", "F", "speed"}
     np.testing.assert_allclose(back["x"], p["x"], rtol=1e-15)
     np.testing.assert_allclose(back["velocity"], p["v"], rtol=1e-15)
     np.testing.assert_allclose(back["stress"], p["stress"], rtol=1e-15)
+    np.testing.assert_allclose(back["stress3"], p["stress3"], rtol=1e-15)  # the full tensor, sigma_zz included
     np.testing.assert_allclose(back["F"], p["F"], rtol=1e-15)
     np.testing.assert_allclose(back["J"], np.linalg.det(p["F"]), rtol=1e-14)
     np.testing.assert_array_equal(back["body"], p["body"])

@@ -22,7 +22,10 @@ def particle_dict(dim, n_side=12, seed=0):
     stress = np.zeros((n, dim, dim))
     stress[:, 0, 0] = 1e3 * (x[:, 0] - 0.3)
     body = (x[:, 0] > 0.5).astype(int)
-    return dict(x=x, v=v, F=F, stress=stress, mass=np.full(n, h**dim), volume=np.full(n, h**dim), body=body)
+    stress3 = np.zeros((n, 3, 3))
+    stress3[:, :dim, :dim] = stress
+    return dict(x=x, v=v, F=F, stress=stress, stress3=stress3, mass=np.full(n, h**dim), volume=np.full(n, h**dim),
+                body=body)
 
 
 def image_stats(path):
