@@ -11,7 +11,7 @@ from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator,
-                      model_validator)
+                      model_serializer, model_validator)
 
 from .errors import ConfigError
 
@@ -91,23 +91,66 @@ Shape = Annotated[Union[Box, Sphere, Ring, Cylinder, Mesh], Field(discriminator=
 
 
 # ---------------------------------------------------------------- sections
-# slip: frictionless, no flow into the wall, may separate; roller: normal velocity zero both ways (bilateral);
-# sticky: velocity zero; free: nothing
-Wall = Literal["slip", "roller", "sticky", "free"]
+# slip: no flow into the wall, may separate; roller: normal velocity zero both ways (bilateral);
+# sticky: velocity zero; free: nothing. Slip and roller faces may carry Coulomb friction.
+WALL_TYPES = ("slip", "roller", "sticky", "free")
+FACES = ("default", "x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+
+
+class Face(Strict):
+    """One wall: `slip` (a wall type alone) or `{type: slip, friction: 0.3}`."""
+    __shorthand__ = "type"  # a plain string stands for {type: <string>}
+    type: Literal[WALL_TYPES]
+    friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
+
+    @model_validator(mode="after")
+    def _friction_needs_contact(self):
+        if self.friction > 0 and self.type not in ("slip", "roller"):
+            raise _Located("friction", f"Coulomb friction needs a slip or roller wall, not {self.type}")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _short(self, handler):
+        return self.type if self.friction == 0 else handler(self)
 
 
 class Boundaries(Strict):
-    default: Wall = "slip"
-    x_min: Optional[Wall] = None
-    x_max: Optional[Wall] = None
-    y_min: Optional[Wall] = None
-    y_max: Optional[Wall] = None
-    z_min: Optional[Wall] = None
-    z_max: Optional[Wall] = None
+    default: Face = Face(type="slip")
+    x_min: Optional[Face] = None
+    x_max: Optional[Face] = None
+    y_min: Optional[Face] = None
+    y_max: Optional[Face] = None
+    z_min: Optional[Face] = None
+    z_max: Optional[Face] = None
 
-    def face(self, axis: int, side: int) -> str:
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, data):
+        """`y_min: slip` means `y_min: {type: slip}`."""
+        if not isinstance(data, dict):
+            return data
+        out = dict(data)
+        for k, v in data.items():
+            if isinstance(v, str):
+                if v not in WALL_TYPES:
+                    raise _Located(k, f"must be one of {', '.join(WALL_TYPES)} or {{type: ..., friction: ...}} "
+                                      f"(got {v!r})")
+                out[k] = {"type": v}
+            elif v is not None and not isinstance(v, dict):
+                raise _Located(k, f"must be one of {', '.join(WALL_TYPES)} or {{type: ..., friction: ...}} (got {v!r})")
+        return out
+
+    def _get(self, axis: int, side: int) -> Face:
         v = getattr(self, f"{'xyz'[axis]}_{'min' if side == 0 else 'max'}")
         return v if v is not None else self.default
+
+    def face(self, axis: int, side: int) -> str:
+        """The wall type of a face (side 0: min, 1: max)."""
+        return self._get(axis, side).type
+
+    def friction(self, axis: int, side: int) -> float:
+        """The Coulomb friction coefficient of a face."""
+        return self._get(axis, side).friction
 
 
 class Domain(Strict):

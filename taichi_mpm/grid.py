@@ -54,16 +54,44 @@ def _pow2(n: int) -> int:
     return 1 << max(0, (n - 1).bit_length())
 
 
-def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str]], basis):
+def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str]], basis, friction=None):
     """@ti.func (I, v) -> v with each face's condition applied at nodes on or beyond that wall.
 
     faces[a] = (kind at the lower wall, kind at the upper wall) of axis a:
-    sticky: v = 0; slip: no flow into the wall (frictionless, may separate); roller: no normal velocity
-    either way (frictionless, bilateral); free: nothing.
+    sticky: v = 0; slip: no flow into the wall (may separate); roller: no normal velocity either way
+    (bilateral); free: nothing. friction[a] = (mu at the lower wall, mu at the upper wall), default 0.
+
+    Coulomb friction at a slip or roller node (Bardenhagen et al. 2000): when the wall removes a velocity dv_n
+    flowing into it (a compressive contact impulse m dv_n), the tangential velocity is reduced by mu dv_n, and
+    not below zero (then the node sticks). A roller pulling a node back from outside the wall (tension) adds no
+    friction.
     """
 
     kind = {"free": 0, "sticky": 1, "slip": 2, "roller": 3}
     codes = [(kind[lo], kind[hi]) for lo, hi in faces]
+    mus = [(float(lo), float(hi)) for lo, hi in (friction or [(0.0, 0.0)] * dim)]
+
+    @ti.func
+    def coulomb(v, a: ti.template(), dv_n, mu: ti.template()):
+        """Reduce the velocity tangential to axis a by mu dv_n (dv_n >= 0: the normal velocity removed)."""
+        vt = v
+        vt[a] = 0.0
+        speed = vt.norm()
+        if speed > 0.0:
+            v -= vt * ti.min(1.0, mu * dv_n / speed)
+        return v
+
+    @ti.func
+    def contact(v, a: ti.template(), side: ti.template(), code: ti.template(), mu: ti.template()):
+        """Slip (2) or roller (3) wall normal to axis a; side +1 at the lower wall, -1 at the upper one."""
+        into = ti.max(-side * v[a], 0.0)  # speed into the wall
+        if ti.static(code == 2):
+            v[a] += side * into
+        else:
+            v[a] = 0.0
+        if ti.static(mu > 0 and dim > 1):
+            v = coulomb(v, a, into, mu)
+        return v
 
     @ti.func
     def apply(I, v):
@@ -72,17 +100,13 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
             if c <= 0.0:
                 if ti.static(codes[a][0] == 1):
                     v = ti.Vector.zero(float, dim)
-                elif ti.static(codes[a][0] == 2):
-                    v[a] = ti.max(v[a], 0.0)
-                elif ti.static(codes[a][0] == 3):
-                    v[a] = 0.0
+                elif ti.static(codes[a][0] >= 2):
+                    v = contact(v, a, 1.0, codes[a][0], mus[a][0])
             if c >= ti.static(float(n_cells[a])):
                 if ti.static(codes[a][1] == 1):
                     v = ti.Vector.zero(float, dim)
-                elif ti.static(codes[a][1] == 2):
-                    v[a] = ti.min(v[a], 0.0)
-                elif ti.static(codes[a][1] == 3):
-                    v[a] = 0.0
+                elif ti.static(codes[a][1] >= 2):
+                    v = contact(v, a, -1.0, codes[a][1], mus[a][1])
         return v
 
     return apply
