@@ -91,7 +91,7 @@ _field("C", "1/s or m^2/s", "the solver's affine matrix: APIC's B_p (quadratic, 
 _field("mass", "kg", "particle mass", lambda p: np.asarray(p["mass"], float), needs=["mass"])
 _field("volume", "m^3 (m^2 per m in 2D, m per m^2 in 1D)", "current particle volume J V0",
        lambda p: np.asarray(p["volume"], float), needs=["volume"])
-_field("material", "", "index of the particle's material (order of the scene's materials)",
+_field("material", "", "index of the particle's material (materials numbered in order of first use by the bodies)",
        lambda p: np.asarray(p["material"]), "label", ["material"])
 _field("interface", "", "1 for interface (surface) particles of bodies with interface: true, else 0",
        lambda p: np.asarray(p["interface"]).astype(np.int32), "label", ["interface"])

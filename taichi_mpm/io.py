@@ -232,8 +232,10 @@ def load_checkpoint(path) -> tuple[dict, dict]:
 
 
 def config_dict(cfg) -> dict:
-    """The resolved config as plain data; mesh files become absolute paths so the copy stays usable."""
-    data = cfg.to_dict()
+    """The resolved config as plain data, every key included (null where unset, so `validate` shows them and a
+    null that turns a default off, e.g. solver.energy_growth_limit, survives); mesh files become absolute paths
+    so the copy stays usable."""
+    data = cfg.model_dump(mode="json")
     src = getattr(cfg, "_source", None)
     if src:
         base = Path(src).resolve().parent

@@ -1,0 +1,350 @@
+"""The config reference, docs/config.md, generated from the schema: `python -m taichi_mpm.config_reference > docs/config.md`.
+
+Type, default and allowed values come from walking the pydantic models of config.py; unit and meaning come from
+DESCRIPTIONS below (dotted key -> (unit, one line)), kept here so the schema stays short. tests/test_config_reference.py
+fails when a schema key has no description, a description names no key, or docs/config.md is stale.
+"""
+from __future__ import annotations
+
+import sys
+import types
+import typing
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import BaseModel
+from pydantic_core import PydanticUndefined
+
+from . import config, fields, io
+
+FACE_NAMES = "x_min, x_max, y_min, y_max, z_min, z_max"
+SHAPE_KEYS = "box, sphere, ring, cylinder or mesh"
+
+# dotted key -> (unit, meaning). Units: SI; "1" dimensionless; "" for names, switches and counts.
+DESCRIPTIONS: dict[str, tuple[str, str]] = {
+    "name": ("", "name of the scene; `{name}` in output.dir; no '/'"),
+    "dim": ("", "dimension: 1 (uniaxial strain), 2 (plane strain) or 3"),
+    "precision": ("", "floating point of the Taichi fields: f32 (fast) or f64 (verification)"),
+    "arch": ("", "Taichi backend; auto picks cuda, vulkan or metal when present, else cpu"),
+    "domain": ("", "the background grid: a box [lower, upper] of cells dx"),
+    "domain.lower": ("m", "lower corner of the domain, one number per axis"),
+    "domain.upper": ("m", "upper corner; upper - lower must be a whole number of cells dx on every axis"),
+    "domain.dx": ("m", "grid spacing (the same on every axis)"),
+    "domain.sparse": ("", "sparse grid (pointer blocks that follow the particles) or dense"),
+    "domain.boundaries": ("", f"wall condition per face: `default` and optionally {FACE_NAMES}"),
+    "domain.boundaries.default": ("", "wall of every face not named: a wall type (`slip`) or `{type, friction}`"),
+    "domain.boundaries.default.type": ("", "slip: no flow into the wall, may separate; roller: normal velocity "
+                                           "zero both ways; sticky: velocity zero; free: no wall"),
+    "domain.boundaries.default.friction": ("1", "Coulomb friction coefficient mu (slip and roller walls): the "
+                                                "tangential velocity drops by mu times the normal velocity removed"),
+    **{f"domain.boundaries.{f}": ("", f"wall at the {'lower' if f.endswith('min') else 'upper'} {f[0]} face; null "
+                                      "takes `default`") for f in FACE_NAMES.split(", ")},
+    "solver": ("", "time integration and the MPM scheme"),
+    "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines"),
+    "solver.transfer": ("", "particle-grid velocity transfer: pic, flip or apic"),
+    "solver.update": ("", "usl (update stress last) or musl (F from re-mapped velocities, Sulsky 1995)"),
+    "solver.flip_blend": ("1", "FLIP fraction of the velocity update when transfer is flip (1: pure FLIP)"),
+    "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa)"),
+    "solver.cfl": ("1", "adaptive time step dt = cfl dx / (elastic wave speed + max particle speed)"),
+    "solver.dt": ("s", "fixed time step instead of the CFL rule; null: adaptive"),
+    "solver.end_time": ("s", "simulated time to run to"),
+    "solver.gravity": ("m/s^2", "gravitational acceleration, one number per axis; null: none"),
+    "solver.max_steps": ("", "stop after this many steps; null: no limit"),
+    "solver.unroll": ("", "unroll the stencil loop (true / false); auto unrolls stencils of at most 16 nodes"),
+    "solver.energy_growth_limit": ("1", "stop with an instability when the total energy rises by more than this "
+                                        "fraction of the peak kinetic + strain energy (checked every 20 steps, not "
+                                        "with a body force); null: off"),
+    "crack": ("", "crack finder (damage gradients, opposite-side flags); absent or null: off, nothing compiled"),
+    "crack.threshold": ("1", "epsilon_thresh: a node is across the crack from a particle when n_p . n_node < -threshold"),
+    "crack.kernel_radius": ("1", "SPH support radius, in initial particle spacings"),
+    "crack.contact_in_compression": ("", "keep a node across the crack while the normal stress is compressive"),
+    "crack.damage_threshold": ("1", "damage D at or above which a particle is near a discontinuity"),
+    "crack.gradient_threshold": ("1", "|grad D| r (r: the SPH radius) at or above which a particle is near a "
+                                      "discontinuity"),
+    "materials": ("", "named materials; bodies refer to them by name"),
+    "materials.<name>": ("", "one material"),
+    "materials.<name>.model": ("", "constitutive model: linear_elastic (small strain), neo_hookean, "
+                                   "fixed_corotated, fluid (weakly compressible)"),
+    "materials.<name>.density": ("kg/m^3", "initial mass density"),
+    "materials.<name>.E": ("Pa", "Young's modulus (every model but fluid)"),
+    "materials.<name>.nu": ("1", "Poisson's ratio"),
+    "materials.<name>.K": ("Pa", "bulk modulus of a fluid (pressure K (1 - J))"),
+    "materials.<name>.viscosity": ("Pa s", "dynamic viscosity of a fluid"),
+    "materials.<name>.tensile_strength": ("Pa", "Rankine damage: principal stress at which damage starts (needs "
+                                                "a crack section); null: no damage law"),
+    "materials.<name>.fracture_energy": ("J/m^2", "energy per crack area of the linear softening (crack band); "
+                                                  "null: brittle"),
+    "bodies": ("", "the bodies, at least one; particles fill each shape"),
+    "bodies[].name": ("", "label of the body for the reader (bodies are numbered in list order); null: unnamed"),
+    "bodies[].shape": ("", f"region filled with particles: {SHAPE_KEYS}, chosen by `type`"),
+    "bodies[].shape.type": ("", "box {lower, upper}, sphere {center, radius} (a disk in 2D, a segment in 1D), "
+                                "ring {center, inner_radius, outer_radius}, cylinder (3D), mesh {file}"),
+    "bodies[].shape.lower": ("m", "lower corner of the box"),
+    "bodies[].shape.upper": ("m", "upper corner of the box"),
+    "bodies[].shape.rotation": ("deg", "rotation about the centre: a scalar in 2D, Euler angles [rx, ry, rz] in 3D"),
+    "bodies[].shape.center": ("m", "centre point"),
+    "bodies[].shape.radius": ("m", "radius"),
+    "bodies[].shape.inner_radius": ("m", "inner radius of the ring (0: a full disk or ball)"),
+    "bodies[].shape.outer_radius": ("m", "outer radius of the ring"),
+    "bodies[].shape.height": ("m", "length of the cylinder along its axis"),
+    "bodies[].shape.axis": ("", "axis of the cylinder"),
+    "bodies[].shape.file": ("", "a closed surface or volume mesh meshio reads; relative to the config file"),
+    "bodies[].shape.scale": ("1", "scale factor of the mesh coordinates: one number or one per axis"),
+    "bodies[].shape.translate": ("m", "shift of the mesh after scaling; null: none"),
+    "bodies[].material": ("", "name of a material in `materials`"),
+    "bodies[].particles_per_cell": ("", "particles per cell along each axis"),
+    "bodies[].placement": ("", "regular grid of particles, or jittered (each moved randomly by up to a quarter "
+                               "spacing per axis)"),
+    "bodies[].velocity": ("m/s", "initial velocity, one number per axis; null: at rest"),
+    "bodies[].angular_velocity": ("rad/s", "initial rotation about the shape's centre, added to velocity: a scalar "
+                                           "in 2D, a vector in 3D; null: none"),
+    "bodies[].interface": ("", "flag the surface particles for multi-body interaction (crack finder)"),
+    "bodies[].damage_regions": ("", "pre-cracks and notches: regions whose particles start damaged"),
+    "bodies[].damage_regions[].shape": ("", "the region (a shape like bodies[].shape)"),
+    "bodies[].damage_regions[].value": ("1", "initial damage of the particles inside"),
+    "output": ("", "what a run writes into its folder"),
+    "output.dir": ("", "run folder; {name} is replaced by the scene name"),
+    "output.every": ("s", "simulated time between outputs"),
+    "output.formats": ("", "vtu and npz snapshots, png frames, mp4 or gif movie"),
+    "output.fields": ("", "particle fields written besides the ones always written (see Output fields below)"),
+    "output.render": ("", "off-screen frames"),
+    "output.render.color_by": ("", "colour field: speed, von_mises, J, body, damage, pressure, vx, vy, vz, or a "
+                                   "stress component sxx, syy, szz, sxy, ..."),
+    "output.render.size": ("px", "[width, height] of a frame"),
+    "output.render.camera": ("", "3D view: iso, xy, xz, yz, front, side, top (1D and 2D are always seen along z)"),
+    "output.render.point_size": ("px", "particle size on screen; null: from the particle spacing"),
+    "output.render.colormap": ("", "matplotlib colormap name"),
+    "output.render.clim": ("unit of the field", "fixed colour limits [min, max]; null: widened from the data"),
+}
+
+# diagnostics.csv: one row per output; 2D and 3D have the angular momentum, momentum has one column per axis
+DIAGNOSTICS: dict[str, tuple[str, str]] = {
+    "time": ("s", "simulated time of the row"),
+    "step": ("", "steps taken so far"),
+    "dt": ("s", "time step in force at this time (CFL rule or fixed dt), not the last shortened step"),
+    "kinetic": ("J", "kinetic energy sum 1/2 m v^2"),
+    "strain": ("J", "strain energy sum V0 psi(F)"),
+    "gravity": ("J", "gravitational potential energy -sum m g . x (zero at the origin)"),
+    "total": ("J", "kinetic + strain + gravity"),
+    "momentum_x": ("kg m/s", "linear momentum along x (also _y, _z up to dim)"),
+    "angular_momentum_x": ("kg m^2/s", "angular momentum about the origin, APIC's affine part included "
+                                       "(also _y, _z; 2D and 3D)"),
+    "max_speed": ("m/s", "largest particle speed"),
+    "cfl": ("1", "dt (wave speed + max speed) / dx"),
+}
+
+CONVENTIONS = """\
+Conventions, once for every key and file:
+
+- Units are SI (m, s, kg, Pa, J); angles in degrees unless stated.
+- 2D is plane strain: nothing moves or stretches along z (F_zz = 1), so sigma_zz is not zero; lengths per axis are
+  m, a particle's volume is an area (m^2 per metre of depth) and masses, energies and momenta are per metre of depth.
+- 1D is uniaxial strain: the lateral axes are held (F_yy = F_zz = 1), so the lateral stress sigma_yy = sigma_zz is
+  not zero; volumes, masses and energies are per m^2 of cross-section.
+- Stress is the Cauchy stress, tension positive; pressure is -tr(sigma) / 3, compression positive.
+- Unknown keys are errors. Overrides use dotted keys: `--set solver.basis=cubic`, `--set bodies.0.velocity=[0,-2,0]`.
+- In the tables, `<name>` is any material name, `[]` any list item; `required` marks keys without a default.
+"""
+
+
+# ---------------------------------------------------------------- walking the schema
+def _strip(tp):
+    """(bare type, constraints) of an annotation: Annotated metadata gathered into a list."""
+    cons = []
+    while typing.get_origin(tp) is Annotated:
+        tp, *meta = typing.get_args(tp)
+        for m in meta:
+            cons.extend(getattr(m, "metadata", None) or [m])
+    return tp, cons
+
+
+def _constraints(cons) -> list[str]:
+    out = []
+    for c in cons:
+        for attr, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="), ("min_length", "at least")):
+            v = getattr(c, attr, None)
+            if v is not None:
+                out.append(f"{op} {v}" + (" items" if attr == "min_length" else ""))
+    return out
+
+
+def _union_args(tp):
+    if typing.get_origin(tp) in (Union, types.UnionType):
+        return list(typing.get_args(tp))
+    return None
+
+
+def _is_model(tp) -> bool:
+    return isinstance(tp, type) and issubclass(tp, BaseModel)
+
+
+def _describe_type(tp) -> tuple[str, list[str]]:
+    """(type text, allowed-value notes) of an annotation without None."""
+    tp, cons = _strip(tp)
+    allowed = _constraints(cons)
+    args = _union_args(tp)
+    if args is not None:
+        if all(_is_model(_strip(a)[0]) for a in args):
+            return "mapping", allowed
+        parts = [_describe_type(a) for a in args]
+        texts = [t for t, _ in parts]
+        if "bool" in texts and any(typing.get_origin(a) is Literal for a in args):
+            lits = [v for a in args if typing.get_origin(a) is Literal for v in typing.get_args(a)]
+            return "string or bool", [" \\| ".join(map(str, lits)) + " \\| true \\| false"]
+        for _, al in parts:
+            allowed += [x for x in al if x not in allowed]
+        return " or ".join(dict.fromkeys(texts)), allowed
+    if typing.get_origin(tp) is Literal:
+        vals = typing.get_args(tp)
+        kind = "int" if all(isinstance(v, int) for v in vals) else "string"
+        return kind, [" \\| ".join(map(str, vals))]
+    if typing.get_origin(tp) is list:
+        inner, al = _describe_type(typing.get_args(tp)[0])
+        return "list of " + {"number": "numbers", "string": "strings", "int": "ints"}.get(inner, inner), allowed + al
+    if typing.get_origin(tp) is dict:
+        return "mapping of name to " + _describe_type(typing.get_args(tp)[1])[0], allowed
+    if _is_model(tp):
+        short = getattr(tp, "__shorthand__", None)
+        return (f"string or mapping (a string s means {{{short}: s}})" if short else "mapping"), allowed
+    return {float: "number", int: "int", bool: "bool", str: "string"}.get(tp, getattr(tp, "__name__", str(tp))), allowed
+
+
+def _default_text(field) -> str:
+    if field.default is PydanticUndefined and field.default_factory is None:
+        return "required"
+    value = field.default_factory() if field.default is PydanticUndefined else field.default
+    if isinstance(value, BaseModel):
+        if not getattr(type(value), "__shorthand__", None):
+            return ""  # a section: its keys have their own defaults
+        value = value.model_dump(mode="json")
+    return _yaml(value)
+
+
+def _yaml(value) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_yaml(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_yaml(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def _without_none(tp):
+    args = _union_args(tp)
+    if args is None or type(None) not in args:
+        return tp, False
+    rest = [a for a in args if a is not type(None)]
+    return (rest[0] if len(rest) == 1 else Union[tuple(rest)]), True
+
+
+def _child(tp, key):
+    """What a key holds inside: (a model or the variant models of a discriminated union, prefix of its keys, the
+    key of a row for one entry of a mapping of names) or None."""
+    tp = _strip(tp)[0]
+    head = None
+    if typing.get_origin(tp) is list:
+        tp, key = _strip(typing.get_args(tp)[0])[0], key + "[]"
+    elif typing.get_origin(tp) is dict:
+        tp, key = _strip(typing.get_args(tp)[1])[0], key + ".<name>"
+        head = key
+    if _is_model(tp):
+        return tp, key, head
+    args = _union_args(tp)
+    if args and all(_is_model(_strip(a)[0]) for a in args):
+        return [_strip(a)[0] for a in args], key, head
+    return None
+
+
+def walk(model=config.Config, prefix: str = "", seen: dict | None = None):
+    """Rows (dotted key, type, default, allowed values, note) of every key under `model`, depth first. A model reached
+    again (the wall form on every face, the shapes of damage regions) is referred to, not repeated."""
+    seen = {} if seen is None else seen
+    for name, field in model.model_fields.items():
+        key = prefix + name
+        tp, cons = _strip(field.annotation)
+        tp, nullable = _without_none(tp)
+        text, allowed = _describe_type(tp)
+        allowed = _constraints(cons + list(field.metadata)) + allowed
+        child = _child(tp, key)
+        ident = None if child is None else (tuple(child[0]) if isinstance(child[0], list) else child[0])
+        note = ""
+        if child is not None and ident in seen:
+            note, child = f"same keys as `{seen[ident]}`", None
+        yield key, text + (" or null" if nullable else ""), _default_text(field), " ; ".join(allowed), note
+        if child is None:
+            continue
+        inner, child_key, head = child
+        seen[ident] = child_key
+        if head:
+            yield head, "mapping", "", "", ""
+        if isinstance(inner, list):
+            yield from _walk_variants(inner, child_key + ".", seen)
+        else:
+            yield from walk(inner, child_key + ".", seen)
+
+
+def _walk_variants(variants, prefix, seen):
+    """Keys of a discriminated union (the shapes), each key once, noting the variants that have it."""
+    tags = [typing.get_args(v.model_fields["type"].annotation)[0] for v in variants]
+    rows: dict[str, list] = {prefix + "type": [(prefix + "type", "string", "required", " \\| ".join(tags), ""), []]}
+    for v, tag in zip(variants, tags):
+        for row in walk(v, prefix, seen):
+            if row[0] != prefix + "type":
+                rows.setdefault(row[0], [row, []])[1].append(tag)
+    for row, have in rows.values():
+        yield row[:4] + ((", ".join(have) if have else row[4]),)
+
+
+def keys() -> list[str]:
+    return [row[0] for row in walk()]
+
+
+# ---------------------------------------------------------------- the document
+def _cell(text: str) -> str:
+    return str(text).replace("|", "\\|") if text else ""
+
+
+def render() -> str:
+    out = ["# Config reference", "",
+           "Generated from the schema (`taichi_mpm/config.py`) by `python -m taichi_mpm.config_reference > "
+           "docs/config.md`; do not edit by hand. The contract around it (CLI, Python API, output layout, exit "
+           "codes) is in `docs/contract.md`.", "", CONVENTIONS,
+           "## Keys", "",
+           "| key | type | default | unit | allowed | meaning |", "| --- | --- | --- | --- | --- | --- |"]
+    for key, text, default, allowed, note in walk():
+        unit, meaning = DESCRIPTIONS.get(key, ("?", "UNDOCUMENTED"))
+        if note:
+            meaning = f"{meaning} ({note})" if not note.startswith("same") else f"{meaning}; {note}"
+        out.append(f"| `{key}` | {_cell(text)} | {_cell(f'`{default}`' if default and default != 'required' else default)} "
+                   f"| {_cell(unit)} | {allowed} | {_cell(meaning)} |")
+    out += ["", "In the shape rows the note in parentheses names the shape types that have the key.", "",
+            "A wall face is a wall type alone (`y_min: slip`) or a mapping with friction "
+            "(`y_min: {type: slip, friction: 0.3}`); a frictionless face is written back as its plain string.", "",
+            "## Output fields", "",
+            "Per-particle fields of the VTU and NPZ snapshots (`output.fields` adds to the ones always written), "
+            "also the colour fields of frames and the window (`taichi_mpm/fields.py`). VTU vectors have 3 components "
+            "(zero beyond dim), tensors 9 (the full 3x3 tensor, row-major); NPZ arrays are unpadded, with the stress "
+            "both as `stress` (N, d, d) and `stress3` (N, 3, 3).", "",
+            "| field | unit | kind | always written | meaning |", "| --- | --- | --- | --- | --- |"]
+    for name, f in fields.REGISTRY.items():
+        always = "yes" + (" (when present)" if name == "damage" else "") if name in fields.ALWAYS else ""
+        out.append(f"| `{name}` | {_cell(f.unit)} | {f.kind} | {always} | {_cell(f.meaning)} |")
+    out += ["", "## diagnostics.csv", "",
+            "One row per output time, columns in this order (" + ", ".join(io.diagnostics_columns(3)) + " in 3D; "
+            "1D and 2D have the momentum components up to dim, 1D no angular momentum). In 2D the energies and "
+            "momenta are per metre of depth, in 1D per m^2 of cross-section.", "",
+            "| column | unit | meaning |", "| --- | --- | --- |"]
+    for name, (unit, meaning) in DIAGNOSTICS.items():
+        out.append(f"| `{name}` | {_cell(unit)} | {_cell(meaning)} |")
+    return "\n".join(out) + "\n"
+
+
+def main() -> int:
+    sys.stdout.write(render())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
