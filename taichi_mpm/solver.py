@@ -62,7 +62,7 @@ def init_taichi(arch: str, precision: str):
 
 
 class Simulation:
-    """A running MPM simulation built from a config (see DESIGN.md for the API contract)."""
+    """A running MPM simulation built from a config (the API contract is in docs/contract.md)."""
 
     def __init__(self, cfg, body_force: Optional[Callable] = None, scene: Optional[Scene] = None):
         self.cfg: Config = cfg if isinstance(cfg, Config) else load_config(cfg)
