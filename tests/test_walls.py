@@ -34,3 +34,10 @@ def test_sticky_wall_holds_both_components():
     xmin, vy, t = pulled_block("sticky")
     assert xmin < 0.025 + 0.05 * 0.5 * t
     assert vy < 0.15                                          # wall-layer drag slows the tangential motion
+
+
+@pytest.mark.parametrize("wall", ["slip", "roller"])
+def test_friction_acts_only_while_the_wall_pushes(wall):
+    """Coulomb friction scales with the velocity the wall removes from flow *into* it: a block leaving a slip wall,
+    or held back by a roller (tension), moves exactly as on the frictionless wall."""
+    assert pulled_block({"type": wall, "friction": 1.0}) == pytest.approx(pulled_block(wall), rel=1e-12)
