@@ -285,16 +285,29 @@ def walk(model=config.Config, prefix: str = "", seen: dict | None = None):
             yield from walk(inner, child_key + ".", seen)
 
 
+def _tag_field(variants) -> str:
+    """The discriminator: the field every variant fixes to one literal value (`type` for shapes)."""
+    for name in variants[0].model_fields:
+        if all(name in v.model_fields and typing.get_origin(v.model_fields[name].annotation) is Literal
+               and len(typing.get_args(v.model_fields[name].annotation)) == 1 for v in variants):
+            return name
+    raise TypeError(f"no discriminator field in {[v.__name__ for v in variants]}")
+
+
 def _walk_variants(variants, prefix, seen):
     """Keys of a discriminated union (the shapes), each key once, noting the variants that have it."""
-    tags = [typing.get_args(v.model_fields["type"].annotation)[0] for v in variants]
-    rows: dict[str, list] = {prefix + "type": [(prefix + "type", "string", "required", " \\| ".join(tags), ""), []]}
-    for v, tag in zip(variants, tags):
+    tag = _tag_field(variants)
+    tags = [typing.get_args(v.model_fields[tag].annotation)[0] for v in variants]
+    rows: dict[str, list] = {prefix + tag: [(prefix + tag, "string", "required", " \\| ".join(tags), ""), {}]}
+    for v, t in zip(variants, tags):
         for row in walk(v, prefix, seen):
-            if row[0] != prefix + "type":
-                rows.setdefault(row[0], [row, []])[1].append(tag)
+            if row[0] != prefix + tag:
+                rows.setdefault(row[0], [row, {}])[1][t] = row[2]
     for row, have in rows.values():
-        yield row[:4] + ((", ".join(have) if have else row[4]),)
+        default = row[2]
+        if len(set(have.values())) > 1:  # the variants differ: name each one's default
+            default = "; ".join(f"{d} ({t})" for t, d in have.items())
+        yield (row[0], row[1], default, row[3], ", ".join(have) if have else row[4])
 
 
 def keys() -> list[str]:
