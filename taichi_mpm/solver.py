@@ -247,7 +247,8 @@ class Simulation:
         def is_fluid(p):
             res = False
             if ti.static(len(mats) == 1):
-                res = ti.static(mats[0][0].fluid)
+                if ti.static(mats[0][0].fluid):  # (`res = ti.static(...)` would bind a new, block-local name)
+                    res = True
             else:
                 for k in ti.static(range(len(mats))):
                     if ti.static(mats[k][0].fluid):
