@@ -42,8 +42,9 @@ class FBar:
         self.sim = sim
         self.J_start = ti.field(float, sim.n)        # J^n_p = det F_p at the start of the step
         self.J_start.fill(1.0)                       # the scene starts undeformed (F = I)
-        # node sums (new volume, old volume) = (sum w V0 det F, sum w V0 J^n); 3D leaves the third slot unused
-        self.nodes = Grid(sim.dim, sim.grid.shape, sim.cfg.domain.sparse, ["vol"])
+        # node volumes at the end and at the start of the step, sum w V0 det F and sum w V0 J^n: two scalar grids
+        # (their `m`), so the scatter costs two atomic adds per node
+        self.grids = [Grid(sim.dim, sim.grid.shape, sim.cfg.domain.sparse, []) for _ in range(2)]
 
     def bytes_per_particle(self) -> int:
         return 8 if self.sim.cfg.precision == "f64" else 4
@@ -53,7 +54,7 @@ class FBar:
         sim = self.sim
         dim, S = sim.dim, sim.basis.stencil
         x, F, vol0, J_start = sim.x, sim.F, sim.vol0, self.J_start
-        vol = self.nodes.vec["vol"]
+        vol_new, vol_old = self.grids[0].m, self.grids[1].m
         outer = [1] * dim if sim._unroll() else [S] * dim     # the solver's stencil loop (see Simulation.unroll)
         inner = ([ti.Vector(list(o)) for o in itertools.product(range(S), repeat=dim)] if sim._unroll()
                  else [ti.Vector([0] * dim)])
@@ -68,9 +69,8 @@ class FBar:
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil)
                     off = o + inner[k]
                     w, gw = node_weight(W, DW, off)
-                    s = ti.Vector.zero(float, dim)
-                    s[0], s[1] = w * new, w * Vn
-                    vol[base + off] += s
+                    vol_new[base + off] += w * new
+                    vol_old[base + off] += w * Vn
 
         @ti.kernel
         def gather():
@@ -81,9 +81,9 @@ class FBar:
                   for k in ti.static(range(len(inner))):  # noqa: E111
                     off = o + inner[k]
                     w, gw = node_weight(W, DW, off)
-                    s = vol[base + off]
-                    if s[1] > 0:                     # w > 0 implies s[1] > 0; w = 0 at a support's edge
-                        dJbar += w * s[0] / s[1]
+                    old = vol_old[base + off]
+                    if old > 0:                      # w > 0 implies old > 0; w = 0 at a support's edge
+                        dJbar += w * vol_new[base + off] / old
                 Fp = F[p]
                 Fp *= ti.pow(J_start[p] * dJbar / Fp.determinant(), 1.0 / dim)
                 F[p] = Fp
@@ -98,7 +98,8 @@ class FBar:
 
     def apply(self):
         """After G2P: replace each particle's volume change of this step by its grid average."""
-        self.nodes.clear()
+        for g in self.grids:
+            g.clear()
         self._k["scatter"]()
         self._k["gather"]()
 
