@@ -21,8 +21,8 @@ def resting_block(volumetric, basis="quadratic", nu=0.499, dx=1 / 16, cfl=0.8, s
     """The block [0.25, 0.75] x [0, H] (8 x 4 cells, 2 particles per cell per axis) in [0, 1] x [0, 0.5],
     PIC (its damping lets it settle), released from rest under gravity.
     Returns the particle rows' heights, mean pressure -tr(sigma)/2 and mean -sigma_yy, and the kinetic energy.
-    nu = 0.499: the shear waves that settle the bulge are 22x slower than the pressure waves; at 0.4999 (71x)
-    the block needs 4x more steps to settle (docs/accuracy.md has both)."""
+    nu = 0.499: the shear waves that settle the bulge are 22x slower than the pressure waves (which set dt); at
+    0.4999 (71x) settling took 12000 steps at dx = 1/32 (docs/accuracy.md has both)."""
     cfg = make_cfg(2, basis=basis, transfer="pic", dx=dx, E=1e6, nu=nu, density=RHO, lower=[0.5 - W / 2, 0.0],
                    upper=[0.5 + W / 2, H], gravity=[0.0, -G], end_time=1.0, cfl=cfl, volumetric=volumetric, **solver)
     cfg["domain"]["upper"] = [1.0, 0.5]
