@@ -178,6 +178,9 @@ class Solver(Strict):
     # stop when total energy rises by more than this fraction of the peak kinetic + strain energy (checked every
     # 20 steps; skipped with a body force, whose work is not tracked); null turns the check off
     energy_growth_limit: Optional[PositiveFloat] = 0.5
+    # volumetric locking: standard (each particle's own J) or fbar (the step's volume change averaged over the
+    # grid, for nearly incompressible solids and fluids; see docs/accuracy.md, "Volumetric locking")
+    volumetric: Literal["standard", "fbar"] = "standard"
 
 
 class Crack(Strict):
@@ -316,6 +319,9 @@ class Config(Strict):
             _check_shape(f"{key}.shape", b.shape, d)
             for j, r in enumerate(b.damage_regions):
                 _check_shape(f"{key}.damage_regions.{j}.shape", r.shape, d)
+        if self.crack is not None and self.solver.volumetric == "fbar":
+            raise _Located("solver.volumetric", "fbar cannot be combined with the crack finder (section 'crack'): "
+                                                "its modified shape functions are not averaged; use standard")
         if self.crack is None and any(b.interface or b.damage_regions for b in self.bodies):
             pass  # allowed: damage/interface flags are stored but only act with a crack section
         return self

@@ -22,6 +22,7 @@ import taichi as ti
 from .basis import make_basis
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
+from . import fbar
 from .errors import InstabilityError
 from .grid import Grid, make_wall_condition
 from .materials import MODELS, embed3, wave_speed
@@ -118,12 +119,14 @@ class Simulation:
         shape = [self.basis.nodes(nc) for nc in self.n_cells]
         self.grid = Grid(d, shape, self.cfg.domain.sparse, vec)
         self.crack = crack_finder.CrackFinder(self) if self.cfg.crack is not None else None
+        self.fbar = fbar.create(self)  # solver.volumetric: fbar (fbar.py), else None
         self.fail = ti.field(ti.i32, ())
         self.vmax2 = ti.field(float, ())
         self.diag = ti.field(ti.f64, 8)  # reduction slots for energies and momenta
         self.bytes_per_particle = self._bytes_per_particle()
         if self.crack is not None:
             self.bytes_per_particle += self.crack.bytes_per_particle()
+        self.bytes_per_particle += self.fbar.bytes_per_particle() if self.fbar is not None else 0
 
     def _unroll(self) -> bool:
         """Unroll the stencil loop: always for `solver.unroll: true`, for auto when it has at most 16 nodes."""
@@ -257,7 +260,8 @@ class Simulation:
         def is_fluid(p):
             res = False
             if ti.static(len(mats) == 1):
-                res = ti.static(mats[0][0].fluid)
+                if ti.static(mats[0][0].fluid):  # (`res = ti.static(...)` would bind a new, block-local name)
+                    res = True
             else:
                 for k in ti.static(range(len(mats))):
                     if ti.static(mats[k][0].fluid):
@@ -360,6 +364,8 @@ class Simulation:
                 L = affine(p, W, R)
             return L
 
+        if self.fbar is not None:
+            self.fbar.build(stencil, node_weight)
         crack = self.crack is not None  # crack finder (crack.py): modified shape functions near discontinuities
         crk = self.crack.build(stencil, node_weight, node_offset, inertia, kirchhoff, wall, gravity, f["gravity"],
                                gv2 if f["musl"] else gv, basis, mat) if crack else None
@@ -584,6 +590,8 @@ class Simulation:
             k["g2p"](dt, False, True)
         else:
             k["g2p"](dt, True, True)
+        if self.fbar is not None:
+            self.fbar.apply()  # F-bar: the step's volume change averaged over the grid
         self.dt = dt
         self.n_steps += 1
         self.time += dt
@@ -695,6 +703,8 @@ class Simulation:
             value = self._to_solver(value)
             fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
         self._energy_ref = None  # a new state: energy is measured afresh
+        if self.fbar is not None and "F" in arrays:
+            self.fbar.sync()
         if "v" in arrays:
             self._vmax = _max_speed(arrays["v"])
 
