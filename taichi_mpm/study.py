@@ -42,6 +42,7 @@ import json
 import math
 import os
 import re
+import reprlib
 import resource
 import subprocess
 import sys
@@ -157,15 +158,32 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
+_repr = reprlib.Repr()  # values in messages, cut short
+_repr.maxlevel, _repr.maxlist, _repr.maxdict, _repr.maxstring, _repr.maxother = 3, 6, 6, 60, 60
+
+
 def _what(v) -> str:
     """How a wrong value is named in a message; a YAML 1.1 pitfall gets a hint."""
     if isinstance(v, str):
         try:
             float(v)
-            return f"the text {v!r} (YAML reads 1e3 as text: write 1.0e3)"
+            return f"the text {_repr.repr(v)} (YAML reads 1e3 as text: write 1.0e3)"
         except ValueError:
-            return f"the text {v!r}"
-    return "null" if v is None else f"{str(v).lower() if isinstance(v, bool) else repr(v)}"
+            return f"the text {_repr.repr(v)}"
+    return "null" if v is None else str(v).lower() if isinstance(v, bool) else _repr.repr(v)
+
+
+def _non_text_key(data, path=""):
+    """(dotted path of the mapping, key) of the first key that is not text (a number, a boolean, null), or None."""
+    stack = [(path, data)]
+    while stack:
+        where, v = stack.pop()
+        items = v.items() if isinstance(v, dict) else enumerate(v) if isinstance(v, list) else ()
+        for k, child in items:
+            if isinstance(v, dict) and not isinstance(k, str):
+                return where, k
+            stack.append((f"{where}.{k}" if where else str(k), child))
+    return None
 
 
 def _dotted_ok(k) -> bool:
@@ -193,6 +211,9 @@ def load_study(source, allow_problems=()) -> Study:
                 parts.pop()
         raise ConfigError(msg, key=key, line=line, file=path)
 
+    bad_key = _non_text_key(data)
+    if bad_key is not None:
+        fail(f"keys must be text, got the key {_what(bad_key[1])}", bad_key[0] or None)
     unknown = [k for k in data if k not in STUDY_KEYS]
     if unknown:
         fail(f"unknown key (study keys: {', '.join(sorted(STUDY_KEYS))})", unknown[0])
@@ -308,9 +329,10 @@ def load_study(source, allow_problems=()) -> Study:
                 raise ConfigError(why)
             case_config(case)
         except ConfigError as e:
-            fail(f"case {case['params']}: {e}", "vary" if st.vary else "cases")
+            fail(f"case {_repr.repr(case['params'])}: {e}", "vary" if st.vary else "cases")
         except Exception as e:  # noqa: BLE001 - a project (or opted-in) problem refusing its parameters
-            fail(f"case {case['params']}: invalid problem {case['problem']}: {type(e).__name__}: {e}", "problem")
+            fail(f"case {_repr.repr(case['params'])}: invalid problem {_repr.repr(case['problem'])}: "
+                 f"{type(e).__name__}: {e}", "problem")
     return st
 
 
