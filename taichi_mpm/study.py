@@ -1,35 +1,20 @@
-"""Speed/accuracy studies: sweep dotted config keys over a base config or an analytic problem.
+"""Speed/accuracy studies: sweep dotted config keys over a base config or a built-in problem.
 
-A study file (see DESIGN.md, "Study contract")::
+The study file, its checks, the allowed problems (`--allow-problem`), the metrics and the output folder are
+described in docs/study.md. In short::
 
-    study: bases_vs_resolution        # required; output goes to studies/NAME/ unless out= is given
-    base: ../mms_1d.yaml              # a config file (relative to the study file), or
-    problem: {type: mms_axis_aligned, dim: 1, amplitude: 0.05}
-    vary:                             # dotted keys -> values; the cases are the full grid
-      solver.basis: [linear, quadratic]
-      domain.dx: [0.05, 0.025]
-    cases:                            # and/or listed cases (each combined with every grid point)
-      - {solver.transfer: pic}
-    set: {arch: cpu}                  # overrides applied to every case
-    repeats: 1
-    metric: error_rms                 # the error column for the Pareto and convergence plots
-    time_metric: step_time            # wall_time | step_time | compile_time (Pareto x axis)
-    convergence_key: domain.dx
-    energy_limit: null                # a finished case whose mechanical energy grew past this
-                                      # factor is recorded as unstable ("undetected energy growth")
-    timeout: null                     # seconds per case
-    samples: 20                       # energy samples per case
+    study: bases_vs_resolution        # required; names the output folder studies/NAME (--out overrides)
+    problem: {type: mms_axis_aligned, dim: 1, amplitude: 0.05}     # or base: a config file
+    vary: {solver.basis: [linear, quadratic], domain.dx: [0.05, 0.025]}
+    cases: [{solver.transfer: pic}]   # each combined with every grid point
 
-Keys starting with `problem.` change the problem spec (`problem.amplitude: [0.01, 0.05]`); the
-others are config overrides (`solver.basis`, `bodies.0.velocity`, ...).
-
-Each case runs in its own Python process (`python -m taichi_mpm.study --case CASE.json --result
-OUT.json`), so Taichi state is isolated and a crash or hang of one case is recorded as its outcome
-without stopping the study. Cases run on a local thread pool (`jobs`) that launches those
-processes, or on a Dask distributed cluster (`scheduler`), whose workers launch the same process.
-Each finished case is written to `OUT/cases/ID.json`; `results.csv`, the plots and `summary.md`
-are rebuilt from those files, and `resume=True` reruns only the cases without a result (and those
-that ended in `error`).
+`load_study` checks everything before anything runs and imports nothing outside the project unless allowed.
+Each case runs in its own Python process (`python -m taichi_mpm.study --case CASE.json --result OUT.json`), so
+Taichi state is isolated and a crash or hang of one case is recorded as its outcome without stopping the study.
+Cases run on a local thread pool (`jobs`) that launches those processes, or on a Dask distributed cluster
+(`scheduler`), whose workers launch the same process. Each finished case is written to `OUT/cases/ID.json`;
+`results.csv`, the plots and `summary.md` are rebuilt from those files, and `resume=True` reruns only the
+cases without a result (and those that ended in `error`).
 """
 
 import argparse
