@@ -5,7 +5,8 @@
     taichi-mpm demo [NAME] [--list] [run options]
     taichi-mpm render RUN_DIR [--color-by FIELD] [--size WxH] [--camera CAMERA] [--movie FILE|mp4|gif]
     taichi-mpm gui CONFIG [--set KEY=VALUE]... [--arch ARCH] [--max-frames N] [--screenshot PNG]
-    taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume]
+    taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume | --overwrite]
+                    [--allow-problem MODULE:FACTORY]... [--dry-run]
 
 Exit codes: 0 success; 2 invalid input (one message on stderr, no traceback); 3 numerical
 instability (the last good state is kept as checkpoint.npz); 130 stopped by Ctrl-C (checkpoint kept).
@@ -127,12 +128,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-frames", type=_positive_int, metavar="N", help="close after N frames")
     p.add_argument("--screenshot", metavar="PNG", help="save the last frame to this file")
 
-    p = sub.add_parser("study", help="speed/accuracy sweep")
+    p = sub.add_parser("study", help="speed/accuracy sweep (docs/study.md)")
     p.add_argument("study", metavar="STUDY.yaml")
-    p.add_argument("--jobs", type=_positive_int, default=1, metavar="N", help="cases run in parallel")
+    p.add_argument("--jobs", type=_positive_int, metavar="N", help="cases run in parallel (default: the study's jobs, 1)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler address")
     p.add_argument("--out", metavar="DIR", help="output directory (default: studies/NAME)")
-    p.add_argument("--resume", action="store_true", help="skip the cases already in results.csv")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="keep the finished cases in the output directory, run the rest")
+    again.add_argument("--overwrite", action="store_true", help="replace the results already in the output directory")
+    p.add_argument("--allow-problem", dest="allow_problems", action="append", default=[], metavar="MODULE:FACTORY",
+                   help="let the study run this problem factory (Python code outside the project), repeatable")
+    p.add_argument("--dry-run", action="store_true", help="check the study and list its cases; run and write nothing")
     return parser
 
 
@@ -306,9 +312,11 @@ def cmd_study(args) -> int:
     path = Path(args.study)
     if not path.is_file():
         raise _InputError(f"study file not found: {path}")
-    from .study import run_study
+    from .study import print_progress, run_study
 
-    out = run_study(path, out=args.out, jobs=args.jobs, scheduler=args.scheduler, resume=args.resume)
+    out = run_study(path, out=args.out, jobs=args.jobs, scheduler=args.scheduler, resume=args.resume,
+                    overwrite=args.overwrite, allow_problems=args.allow_problems, dry_run=args.dry_run,
+                    progress=print_progress)
     if out is not None:
         print(f"study done: results.csv, summary.md and plots in {out}", file=sys.stderr)
     return EXIT_OK

@@ -6,6 +6,8 @@ Unknown keys are errors everywhere (`extra="forbid"`).
 from __future__ import annotations
 
 import copy
+import os
+import reprlib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -231,7 +233,8 @@ class Body(Strict):
     name: Optional[str] = None
     shape: Shape
     material: str
-    particles_per_cell: Annotated[int, Field(gt=0)] = 2
+    # per axis; capped so that dx / particles_per_cell stays a number (10**400 overflowed: tests/test_fuzz.py)
+    particles_per_cell: Annotated[int, Field(gt=0, le=1000)] = 2
     placement: Literal["regular", "jittered"] = "regular"
     velocity: Optional[Vec] = None
     angular_velocity: Optional[Union[Real, Vec]] = None
@@ -430,9 +433,14 @@ def apply_overrides(data: dict, overrides: dict[str, Any] | None) -> dict:
 
 
 # ---------------------------------------------------------------- loading
-def _line_index(node, path=(), out=None, file=None):
+def _line_index(node, path=(), out=None, file=None, seen_nodes=None):
     """Map dotted key paths to 1-based line numbers from a composed YAML node tree; duplicate keys are errors."""
     out = {} if out is None else out
+    seen_nodes = set() if seen_nodes is None else seen_nodes
+    if isinstance(node, (yaml.MappingNode, yaml.SequenceNode)):
+        if id(node) in seen_nodes:  # an alias: its lines are those of its anchor (walking it again can explode)
+            return out
+        seen_nodes.add(id(node))
     if isinstance(node, yaml.MappingNode):
         seen = set()
         for k, v in node.value:
@@ -442,33 +450,65 @@ def _line_index(node, path=(), out=None, file=None):
                 raise ConfigError("duplicate key", key=key, line=k.start_mark.line + 1, file=file)
             seen.add(key)
             out[key] = k.start_mark.line + 1
-            _line_index(v, p, out, file)
+            _line_index(v, p, out, file, seen_nodes)
     elif isinstance(node, yaml.SequenceNode):
         for i, v in enumerate(node.value):
             p = path + (str(i),)
             out[".".join(p)] = v.start_mark.line + 1
-            _line_index(v, p, out, file)
+            _line_index(v, p, out, file, seen_nodes)
     return out
+
+
+MAX_VALUES = 100_000  # values (after alias expansion) in one YAML file; configs and studies hold hundreds
+
+
+def _small(data, limit) -> bool:
+    """Whether nested lists/dicts hold at most `limit` values, counting shared (aliased) ones each time."""
+    stack, n = [data], 0
+    while stack:
+        v = stack.pop()
+        n += 1
+        if n > limit:
+            return False
+        if isinstance(v, dict):
+            stack.extend(v.keys())
+            stack.extend(v.values())
+        elif isinstance(v, list):
+            stack.extend(v)
+    return True
 
 
 def read_yaml(path) -> tuple[dict, dict]:
     """Return (data, line index) of a YAML file; ConfigError for a missing, empty or non-YAML file."""
     path = Path(path)
-    if not path.exists():
+    try:  # (exists() raises for a name too long: tests/test_fuzz.py)
+        found, is_file = path.exists(), path.is_file()
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"cannot read the file: {e}") from None
+    if not found:
         raise ConfigError(f"config file not found: {path}")
-    if not path.is_file():
+    if not is_file:
         raise ConfigError(f"not a file: {path}")
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"cannot read the file: {e}", file=path) from None
-    try:
-        node = yaml.compose(text)
-        data = yaml.safe_load(text)
+    loader = None
+    try:  # parse once: the node tree gives the lines, the same tree gives the data (what yaml.safe_load does)
+        loader = yaml.SafeLoader(text)
+        node = loader.get_single_node()
+        data = loader.construct_document(node) if node is not None else None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         problem = getattr(e, "problem", None) or str(e)
         raise ConfigError(f"not valid YAML: {problem}", file=path, line=mark.line + 1 if mark else None) from None
+    except RecursionError:  # the parser recurses per nesting level (found by tests/test_fuzz.py)
+        raise ConfigError("not valid YAML: nested too deeply", file=path) from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+    if not _small(data, MAX_VALUES):  # aliases (&a / *a) can expand a short file to billions of values
+        raise ConfigError(f"the file expands to more than {MAX_VALUES} values (through YAML aliases?)", file=path)
     if data is None:
         raise ConfigError("the file is empty (expected a YAML mapping of keys)", file=path)
     if not isinstance(data, dict):
@@ -493,6 +533,9 @@ def _walk(data, loc, missing: bool):
     whether a tag was skipped."""
     out, node, skipped = [], data, []
     for i, item in enumerate(loc):
+        if isinstance(node, dict) and item not in node and not isinstance(item, (list, dict)):
+            # pydantic names a key that is not text (null, 1.5) by its str() (found by tests/test_fuzz.py)
+            item = next((k for k in node if str(k) == str(item)), item)
         if isinstance(node, dict) and item in node:
             node = node[item]
         elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
@@ -513,7 +556,9 @@ def _describe(err, data) -> tuple[str, str]:
         return ".".join(p for p in (key, ctx_err.key) if p), str(ctx_err)
     kind, msg = err["type"], err["msg"]
     if kind == "extra_forbidden":
-        return key, "unknown key"
+        return key, "unknown key" + (" '' (an empty name)" if err["loc"][-1] == "" else "")
+    if kind == "invalid_key" or "[key]" in err["loc"]:
+        return key, "keys must be text (a key here is a number, a boolean or null)"
     if kind == "missing":
         return key, "required key is missing"
     if kind == "union_tag_invalid":
@@ -522,7 +567,7 @@ def _describe(err, data) -> tuple[str, str]:
     if kind == "union_tag_not_found":
         return key, f"a shape needs a 'type' (one of {', '.join(SHAPE_TYPES)})"
     if any(s not in SHAPE_TYPES for s in skipped):  # a number-or-list union: one message for both branches
-        return key, f"must be a number or a list of numbers (got {value!r})"
+        return key, f"must be a number or a list of numbers (got {_brief(value)})"
     if kind == "value_error":
         return key, msg[len("Value error, "):] if msg.startswith("Value error, ") else msg
     if kind == "too_short":
@@ -530,8 +575,13 @@ def _describe(err, data) -> tuple[str, str]:
         return key, f"needs at least {n} item{'s' if n != 1 else ''}"
     msg = msg.replace("Input should be", "must be")
     if "input" in err and not isinstance(err["input"], dict):
-        msg += f" (got {err['input']!r})"
+        msg += f" (got {_brief(err['input'])})"
     return key, msg
+
+
+_short = reprlib.Repr()  # a bad value in a message, cut short (it may be huge, or aliased YAML)
+_short.maxlevel, _short.maxlist, _short.maxdict, _short.maxstring, _short.maxother = 3, 6, 6, 60, 60
+_brief = _short.repr
 
 
 def _from_override(key: str, overrides: dict | None):
@@ -580,9 +630,11 @@ def load_config(source, overrides: dict[str, Any] | None = None) -> Config:
         source = source.to_dict()
     if isinstance(source, dict):
         data = source
-    else:
+    elif isinstance(source, (str, os.PathLike)):
         data, lines = read_yaml(source)
         file = Path(source)
+    else:  # None, a list, a number (found by tests/test_fuzz.py): not a config
+        raise ConfigError(f"a config must be a mapping of keys (name, dim, domain, ...), got a {type(source).__name__}")
     data = apply_overrides(data, overrides)
     cfg = validate(data, lines, file, overrides)
     cfg._source = str(file) if file else None

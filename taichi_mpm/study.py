@@ -1,35 +1,20 @@
-"""Speed/accuracy studies: sweep dotted config keys over a base config or an analytic problem.
+"""Speed/accuracy studies: sweep dotted config keys over a base config or a built-in problem.
 
-A study file (see DESIGN.md, "Study contract")::
+The study file, its checks, the allowed problems (`--allow-problem`), the metrics and the output folder are
+described in docs/study.md. In short::
 
-    study: bases_vs_resolution        # required; output goes to studies/NAME/ unless out= is given
-    base: ../mms_1d.yaml              # a config file (relative to the study file), or
-    problem: {type: mms_axis_aligned, dim: 1, amplitude: 0.05}
-    vary:                             # dotted keys -> values; the cases are the full grid
-      solver.basis: [linear, quadratic]
-      domain.dx: [0.05, 0.025]
-    cases:                            # and/or listed cases (each combined with every grid point)
-      - {solver.transfer: pic}
-    set: {arch: cpu}                  # overrides applied to every case
-    repeats: 1
-    metric: error_rms                 # the error column for the Pareto and convergence plots
-    time_metric: step_time            # wall_time | step_time | compile_time (Pareto x axis)
-    convergence_key: domain.dx
-    energy_limit: null                # a finished case whose mechanical energy grew past this
-                                      # factor is recorded as unstable ("undetected energy growth")
-    timeout: null                     # seconds per case
-    samples: 20                       # energy samples per case
+    study: bases_vs_resolution        # required; names the output folder studies/NAME (--out overrides)
+    problem: {type: mms_axis_aligned, dim: 1, amplitude: 0.05}     # or base: a config file
+    vary: {solver.basis: [linear, quadratic], domain.dx: [0.05, 0.025]}
+    cases: [{solver.transfer: pic}]   # each combined with every grid point
 
-Keys starting with `problem.` change the problem spec (`problem.amplitude: [0.01, 0.05]`); the
-others are config overrides (`solver.basis`, `bodies.0.velocity`, ...).
-
-Each case runs in its own Python process (`python -m taichi_mpm.study --case CASE.json --result
-OUT.json`), so Taichi state is isolated and a crash or hang of one case is recorded as its outcome
-without stopping the study. Cases run on a local thread pool (`jobs`) that launches those
-processes, or on a Dask distributed cluster (`scheduler`), whose workers launch the same process.
-Each finished case is written to `OUT/cases/ID.json`; `results.csv`, the plots and `summary.md`
-are rebuilt from those files, and `resume=True` reruns only the cases without a result (and those
-that ended in `error`).
+`load_study` checks everything before anything runs and imports nothing outside the project unless allowed.
+Each case runs in its own Python process (`python -m taichi_mpm.study --case CASE.json --result OUT.json`), so
+Taichi state is isolated and a crash or hang of one case is recorded as its outcome without stopping the study.
+Cases run on a local thread pool (`jobs`) that launches those processes, or on a Dask distributed cluster
+(`scheduler`), whose workers launch the same process. Each finished case is written to `OUT/cases/ID.json`;
+`results.csv`, the plots and `summary.md` are rebuilt from those files, and `resume=True` reruns only the
+cases without a result (and those that ended in `error`).
 """
 
 import argparse
@@ -41,6 +26,8 @@ import itertools
 import json
 import math
 import os
+import re
+import reprlib
 import resource
 import subprocess
 import sys
@@ -56,12 +43,28 @@ import yaml
 from .config import ConfigError, load_config, read_yaml
 
 STUDY_KEYS = {"study", "description", "base", "problem", "vary", "cases", "set", "repeats", "metric",
-              "time_metric", "convergence_key", "energy_limit", "timeout", "samples"}
+              "time_metric", "convergence_key", "energy_limit", "timeout", "samples", "jobs"}
 TIME_METRICS = ("wall_time", "step_time", "compile_time")
 OUTCOMES = ("ok", "unstable", "error")
 RECORD_COLUMNS = ["outcome", "cause", "wall_time", "setup_time", "compile_time", "step_time", "steps",
                   "particles", "particle_steps_per_s", "peak_memory_mb", "sim_time", "energy_ratio_max",
                   "energy_ratio_end", "message"]
+# metrics (error columns for the plots) every case has, and those each project problem adds (its errors() keys;
+# tests/test_study.py checks that every analytic problem and stability scenario is listed)
+COMMON_METRICS = ("energy_drift", "energy_ratio_max", "energy_ratio_end")
+PROBLEM_METRICS = {
+    "vibrating_bar": ("error_rms", "error_max", "error_com_velocity"),
+    "mms_axis_aligned": ("error_rms", "error_max"),
+    "generalized_vortex": ("error_rms", "error_max"),
+    "colliding_disks": ("error_energy", "energy_ratio_min"),
+    "hertz": ("error_contact_time", "contact_time", "contact_time_hertz"),
+    **{s: ("j_min", "j_max", "speed_over_c") for s in ("impact", "compression", "rotation", "thin", "edge")},
+}
+STUDY_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")   # a plain folder name: no separator, no leading dot
+MAX_CASES = 10_000      # a study expanding to more cases is almost surely a typo (and would take ages to list)
+MAX_SAMPLES = 10_000
+# what a study writes into its output folder; an existing one of these marks a folder holding results
+OUTPUTS = ("study.yaml", "cases", "results.csv", "summary.md", "pareto.png", "convergence.png")
 
 
 # ---------------------------------------------------------------- study file
@@ -82,6 +85,9 @@ class Study:
     energy_limit: Optional[float] = None
     timeout: Optional[float] = None
     samples: int = 20
+    jobs: int = 1
+    allow_problems: tuple = ()             # `module:factory` problems the user opted in to
+    lines: dict = field(default_factory=dict, repr=False)   # dotted key -> line in the study file
 
     @property
     def varied(self) -> list[str]:
@@ -111,8 +117,6 @@ class Study:
         overrides = dict(self.set)
         for k, v in params.items():
             if k.startswith("problem."):
-                if problem is None:
-                    raise ConfigError("a problem.* key needs a `problem:` section", key=k, file=self.path)
                 _set_dotted(problem, k[len("problem."):], v)
             else:
                 overrides[k] = v
@@ -121,7 +125,8 @@ class Study:
         digest = hashlib.sha1(ident.encode()).hexdigest()[:10]
         return dict(id=f"{index:04d}_{digest}", digest=digest, index=index, repeat=repeat, params=params,
                     problem=problem, base=self.base, base_data=self.base_data, overrides=overrides,
-                    energy_limit=self.energy_limit, samples=self.samples)
+                    energy_limit=self.energy_limit, samples=self.samples,
+                    allow_problems=list(self.allow_problems))
 
 
 def _set_dotted(data: dict, dotted: str, value):
@@ -129,30 +134,86 @@ def _set_dotted(data: dict, dotted: str, value):
     parts = dotted.split(".")
     for p in parts[:-1]:
         node = node.setdefault(p, {})
+        if not isinstance(node, dict):
+            raise ConfigError(f"problem.{dotted}: cannot set a key inside the value {node!r}")
     node[parts[-1]] = value
 
 
-def load_study(source) -> Study:
-    """A study from a YAML path or a dict; ConfigError (naming the key and file line) when invalid."""
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+_repr = reprlib.Repr()  # values in messages, cut short
+_repr.maxlevel, _repr.maxlist, _repr.maxdict, _repr.maxstring, _repr.maxother = 3, 6, 6, 60, 60
+
+
+def _what(v) -> str:
+    """How a wrong value is named in a message; a YAML 1.1 pitfall gets a hint."""
+    if isinstance(v, str):
+        try:
+            float(v)
+            return f"the text {_repr.repr(v)} (YAML reads 1e3 as text: write 1.0e3)"
+        except ValueError:
+            return f"the text {_repr.repr(v)}"
+    return "null" if v is None else str(v).lower() if isinstance(v, bool) else _repr.repr(v)
+
+
+def _non_text_key(data, path=""):
+    """(dotted path of the mapping, key) of the first key that is not text (a number, a boolean, null), or None."""
+    stack = [(path, data)]
+    while stack:
+        where, v = stack.pop()
+        items = v.items() if isinstance(v, dict) else enumerate(v) if isinstance(v, list) else ()
+        for k, child in items:
+            if isinstance(v, dict) and not isinstance(k, str):
+                return where, k
+            stack.append((f"{where}.{k}" if where else str(k), child))
+    return None
+
+
+def _dotted_ok(k) -> bool:
+    return isinstance(k, str) and bool(k) and all(k.split("."))
+
+
+def load_study(source, allow_problems=()) -> Study:
+    """A study from a YAML path or a dict; ConfigError (naming the key and file line) when invalid.
+
+    Nothing outside the project runs while loading: a `module:factory` problem is imported (and called, to
+    validate its cases) only when it is in `allow_problems`; any other problem type is refused before that."""
     if isinstance(source, dict):
         data, lines, path = copy.deepcopy(source), {}, None
     else:
         path = Path(source)
         data, lines = read_yaml(path)
+    allow = tuple(allow_problems or ())
 
     def fail(msg, key=None):
-        raise ConfigError(msg, key=key, line=lines.get(key) if key else None, file=path)
+        line = None
+        if key is not None:   # the key's own line, or its nearest enclosing key's
+            parts = str(key).split(".")
+            while parts and line is None:
+                line = lines.get(".".join(parts))
+                parts.pop()
+        raise ConfigError(msg, key=key, line=line, file=path)
 
+    bad_key = _non_text_key(data)
+    if bad_key is not None:
+        fail(f"keys must be text, got the key {_what(bad_key[1])}", bad_key[0] or None)
     unknown = [k for k in data if k not in STUDY_KEYS]
     if unknown:
         fail(f"unknown key (study keys: {', '.join(sorted(STUDY_KEYS))})", unknown[0])
     name = data.get("study")
-    if not isinstance(name, str) or not name or "/" in name:
-        fail("required: a study name without '/'", "study")
+    if not isinstance(name, str) or not STUDY_NAME.fullmatch(name):
+        fail(f"required: a study name of at most 100 letters, digits, '_', '.' or '-', not starting with '.' "
+             f"(it names the output folder studies/NAME), got {_what(name)}", "study")
+    if "description" in data and not isinstance(data["description"], str):
+        fail("must be text", "description")
     if ("base" in data) == ("problem" in data):
         fail("give exactly one of `base` (a config file) or `problem` (an analytic problem spec)", "base" if "base" in data else "study")
-    st = Study(name=name, path=path)
+    st = Study(name=name, path=path, allow_problems=allow, lines=lines)
     if "base" in data:
+        if not isinstance(data["base"], str) or not data["base"] or "\0" in data["base"]:
+            fail(f"must be the path of a config file, got {_what(data['base'])}", "base")
         base = Path(data["base"])
         if not base.is_absolute():
             base = (path.parent if path else Path.cwd()) / base
@@ -161,52 +222,137 @@ def load_study(source) -> Study:
         st.base = str(base.resolve())
         st.base_data, _ = read_yaml(base)
     else:
-        if not isinstance(data["problem"], dict) or "type" not in data["problem"]:
+        problem = data["problem"]
+        if not isinstance(problem, dict) or "type" not in problem or not all(isinstance(k, str) for k in problem):
             fail("must be a mapping with a `type` (e.g. {type: mms_axis_aligned, dim: 1})", "problem")
-        st.problem = data["problem"]
+        st.problem = problem
+
     vary = data.get("vary") or {}
     if not isinstance(vary, dict):
         fail("must map dotted keys to lists of values", "vary")
     for k, v in vary.items():
+        if not _dotted_ok(k):
+            fail(f"must map dotted keys (e.g. solver.basis) to lists of values, got the key {_what(k)}", "vary")
         if not isinstance(v, list) or not v:
-            fail("must be a non-empty list of values", f"vary.{k}")
+            fail(f"must be a non-empty list of values, got {_what(v)}", f"vary.{k}")
     st.vary = vary
     cases = data.get("cases") or []
-    if not isinstance(cases, list) or not all(isinstance(c, dict) for c in cases):
+    if not isinstance(cases, list):
         fail("must be a list of mappings of dotted keys to values", "cases")
+    for i, c in enumerate(cases):
+        if not isinstance(c, dict) or not c or not all(_dotted_ok(k) for k in c):
+            fail(f"must be a mapping of dotted keys to values, got {_what(c)}", f"cases.{i}")
     st.cases = cases
     st.set = data.get("set") or {}
-    if not isinstance(st.set, dict):
+    if not isinstance(st.set, dict) or not all(_dotted_ok(k) for k in st.set):
         fail("must map dotted keys to values", "set")
-    st.repeats = data.get("repeats", 1)
-    if not isinstance(st.repeats, int) or st.repeats < 1:
-        fail("must be a positive integer", "repeats")
-    st.metric = data.get("metric")
+    for k in st.set:
+        if k.startswith("problem."):
+            fail("`set` holds config overrides; put problem parameters in `problem:`", f"set.{k}")
+    if st.problem is None:
+        for k in st.varied:
+            if k.startswith("problem."):
+                fail("a problem.* key needs a `problem:` section (this study has a `base`)",
+                     f"vary.{k}" if k in st.vary else "cases")
+
+    def count(key, default, limit=None):
+        v = data.get(key, default)
+        if not isinstance(v, int) or isinstance(v, bool) or v < 1 or (limit and v > limit):
+            fail(f"must be a whole number from 1{f' to {limit}' if limit else ''}, got {_what(v)}", key)
+        return v
+
+    def positive(key):
+        v = data.get(key)
+        if v is not None and (not _is_number(v) or v <= 0):
+            fail(f"must be a positive number or null, got {_what(v)}", key)
+        return v
+
+    st.repeats = count("repeats", 1)
+    st.samples = count("samples", 20, MAX_SAMPLES)
+    st.jobs = count("jobs", 1)
+    st.energy_limit = positive("energy_limit")
+    st.timeout = positive("timeout")
     st.time_metric = data.get("time_metric", "step_time")
     if st.time_metric not in TIME_METRICS:
-        fail(f"must be one of {', '.join(TIME_METRICS)}", "time_metric")
+        fail(f"must be one of {', '.join(TIME_METRICS)}, got {_what(st.time_metric)}", "time_metric")
     st.convergence_key = data.get("convergence_key", "domain.dx")
-    st.energy_limit = data.get("energy_limit")
-    st.timeout = data.get("timeout")
-    st.samples = int(data.get("samples", 20))
-    if st.samples < 1:
-        fail("must be at least 1", "samples")
+    if not _dotted_ok(st.convergence_key):
+        fail(f"must be a dotted key (e.g. domain.dx), got {_what(st.convergence_key)}", "convergence_key")
     if not st.vary and not st.cases:
         fail("a study needs `vary` or `cases`", "study")
+    n_cases = math.prod(len(v) for v in st.vary.values()) * max(1, len(st.cases)) * st.repeats
+    if n_cases > MAX_CASES:
+        fail(f"expands to {n_cases} cases (at most {MAX_CASES}: split the study)", "vary" if st.vary else "cases")
+
+    # problem types: the project's own, or opted-in `module:factory`; checked before anything is imported
+    types = []
+    if st.problem is not None:
+        types.append(("problem.type", st.problem["type"]))
+        types += [(f"vary.problem.type.{j}", t) for j, t in enumerate(st.vary.get("problem.type", []))]
+        types += [(f"cases.{i}.problem.type", c["problem.type"]) for i, c in enumerate(st.cases) if "problem.type" in c]
+    for key, kind in types:
+        why = problem_refused(kind, allow)
+        if why:
+            fail(why, key)
+    st.metric = data.get("metric")
+    if st.metric is not None:
+        if not isinstance(st.metric, str):
+            fail(f"must be the name of a metric, got {_what(st.metric)}", "metric")
+        known = known_metrics([t for _, t in types] if types else [None])
+        if known is not None and st.metric not in known:
+            fail(f"unknown metric {st.metric!r} for this study (known: {', '.join(known)})", "metric")
+
     # validate every case's config here, so a typo fails the study before anything runs
-    for case in st.expand():
+    try:
+        cases = st.expand()
+    except ConfigError as e:
+        fail(str(e), "vary" if st.vary else "cases")
+    for case in cases:
         try:
+            why = problem_refused((case["problem"] or {}).get("type"), allow) if case["problem"] is not None else None
+            if why:   # e.g. a problem.type.x key that turned the type into a mapping
+                raise ConfigError(why)
             case_config(case)
         except ConfigError as e:
-            fail(f"case {case['params']}: {e}", "vary" if st.vary else "cases")
-        except (ImportError, AttributeError, KeyError, ValueError, TypeError) as e:
-            fail(f"case {case['params']}: invalid problem {case['problem']}: {type(e).__name__}: {e}", "problem")
+            fail(f"case {_repr.repr(case['params'])}: {e}", "vary" if st.vary else "cases")
+        except Exception as e:  # noqa: BLE001 - a project (or opted-in) problem refusing its parameters
+            fail(f"case {_repr.repr(case['params'])}: invalid problem {_repr.repr(case['problem'])}: "
+                 f"{type(e).__name__}: {e}", "problem")
     return st
+
+
+def problem_refused(kind, allow=()) -> Optional[str]:
+    """Why a problem type may not run from a study file (None when it may): the project's analytic problems and
+    stability scenarios always may; a `module:factory` only when the user allowed it (--allow-problem)."""
+    from . import analytic, stability
+    if not isinstance(kind, str):
+        return f"a problem type must be a name (e.g. mms_axis_aligned), got {_what(kind)}"
+    if kind in analytic.PROBLEMS or kind in stability.SCENARIOS:
+        return None
+    if ":" in kind:
+        if kind in allow:
+            return None
+        return (f"problem {kind!r} is not one of the project's problems: a study file cannot run other code unless "
+                f"you allow it on the command line (taichi-mpm study STUDY.yaml --allow-problem {kind})")
+    return (f"unknown problem {kind!r} (analytic problems: {', '.join(analytic.PROBLEMS)}; "
+            f"stability scenarios: {', '.join(stability.SCENARIOS)})")
+
+
+def known_metrics(types) -> Optional[list[str]]:
+    """Metrics every case of these problem types reports (None for a base config: type None), or None when an
+    opted-in `module:factory` problem is among them (its metrics are its own)."""
+    out = None
+    for kind in types:
+        if isinstance(kind, str) and ":" in kind:
+            return None
+        have = list(COMMON_METRICS) + list(PROBLEM_METRICS.get(kind, ()))
+        out = have if out is None else [m for m in out if m in have]
+    return out
 
 
 def case_config(case: dict):
     """(problem or None, validated Config) of a case."""
-    problem = resolve_problem(case["problem"]) if case.get("problem") else None
+    problem = resolve_problem(case["problem"], case.get("allow_problems", ())) if case.get("problem") else None
     if problem is not None:
         return problem, load_config(problem.config(), case["overrides"])
     if case.get("base") and Path(case["base"]).is_file():
@@ -215,18 +361,22 @@ def case_config(case: dict):
 
 
 # ---------------------------------------------------------------- one case (inside its own process)
-def resolve_problem(spec: dict):
-    """A problem object from a spec: a stability scenario, an analytic problem, or `module:factory`."""
-    kind = spec.get("type", "")
-    if ":" in kind:
-        import importlib
-        module, attr = kind.split(":", 1)
-        return getattr(importlib.import_module(module), attr)(spec)
+def resolve_problem(spec: dict, allow=()):
+    """A problem object from a spec: a stability scenario, an analytic problem, or an allowed `module:factory`.
+    Raises ConfigError, importing nothing, for any other type."""
+    kind = spec.get("type")
+    why = problem_refused(kind, allow)
+    if why:
+        raise ConfigError(why, key="problem.type")
     from . import stability
     if kind in stability.SCENARIOS:
         return stability.make_scenario(spec)
     from . import analytic
-    return analytic.make_problem(spec)
+    if kind in analytic.PROBLEMS:
+        return analytic.make_problem(spec)
+    import importlib
+    module, attr = kind.split(":", 1)
+    return getattr(importlib.import_module(module), attr)(spec)
 
 
 def run_case_inline(case: dict) -> dict:
@@ -372,31 +522,44 @@ def execute_case(case: dict, timeout: Optional[float] = None, threads: Optional[
 
 
 # ---------------------------------------------------------------- the study
-def run_study(study_path, out=None, jobs: int = 1, scheduler: Optional[str] = None, resume: bool = False,
-              progress=None) -> Path:
-    """Run every case of a study (skipping finished ones with resume) and write the reports; returns the output dir."""
-    st = load_study(study_path)
-    out = Path(out) if out is not None else Path("studies") / st.name
-    case_dir = out / "cases"
-    if case_dir.is_dir() and not resume:
-        for f in case_dir.glob("*.json"):
-            f.unlink()
-    case_dir.mkdir(parents=True, exist_ok=True)
+def run_study(study_path, out=None, jobs: Optional[int] = None, scheduler: Optional[str] = None, resume: bool = False,
+              progress=None, overwrite: bool = False, allow_problems=(), dry_run: bool = False) -> Optional[Path]:
+    """Run every case of a study (skipping finished ones with resume) and write the reports; returns the output dir.
+
+    `allow_problems`: the `module:factory` problem types allowed to run (the project's own always may).
+    An output folder that already holds results is refused unless `resume` (continue them) or `overwrite`
+    (replace them); nothing outside it is written or deleted. `progress(i, n, case, record)` is called as
+    each case finishes (`print_progress` prints one line to stderr). `dry_run` lists the cases on stdout
+    and returns None without running or writing anything."""
+    if resume and overwrite:
+        raise ConfigError("--resume continues a study's results and --overwrite replaces them: give one")
+    if jobs is not None and (not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1):
+        raise ConfigError(f"must be a whole number from 1, got {_what(jobs)}", key="jobs")
+    st = load_study(study_path, allow_problems)
+    jobs = jobs or st.jobs
     cases = st.expand()
+    out = Path(out) if out is not None else Path("studies") / st.name
+    if dry_run:
+        for c in cases:
+            print(f"{c['id']}  {json.dumps(c['params'], default=str)}" + (f"  repeat {c['repeat']}" if st.repeats > 1 else ""))
+        print(f"{len(cases)} cases; results would go to {out}")
+        return None
+    case_dir = _prepare_out(st, out, named=out == Path("studies") / st.name, resume=resume, overwrite=overwrite)
     done = _finished(case_dir) if resume else {}
     todo = [c for c in cases if done.get(c["digest"], {}).get("outcome") not in ("ok", "unstable")]
     (out / "study.yaml").write_text(yaml.safe_dump(_study_dump(st), sort_keys=False))
+    finished = [0]
 
     def store(case, rec):
         rec["digest"] = case["digest"]
         (case_dir / f"{case['id']}.json").write_text(json.dumps(rec, indent=1, default=str))
+        finished[0] += 1
         if progress:
-            progress(case, rec)
+            progress(finished[0], len(todo), case, rec)
 
     if scheduler:
         _run_dask(todo, scheduler, st.timeout, store)
     else:
-        jobs = max(1, int(jobs or 1))
         threads = max(1, (os.cpu_count() or 1) // jobs) if jobs > 1 else None
         with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
             futures = {pool.submit(execute_case, c, st.timeout, threads, _user_paths()): c for c in todo}
@@ -404,6 +567,47 @@ def run_study(study_path, out=None, jobs: int = 1, scheduler: Optional[str] = No
                 store(futures[fut], fut.result())
     write_reports(st, out)
     return out
+
+
+def _prepare_out(st: Study, out: Path, named: bool, resume: bool, overwrite: bool) -> Path:
+    """Check the output folder (refusing to overwrite results unasked) and return its cases/ folder."""
+    def refuse(msg):
+        raise ConfigError(msg, key="study" if named else None, line=st.lines.get("study") if named else None,
+                          file=st.path if named else None)
+
+    if out.exists() and not out.is_dir():
+        refuse(f"the output folder {out} exists and is not a folder")
+    links = [n for n in OUTPUTS if (out / n).is_symlink()]
+    if links:
+        refuse(f"{out / links[0]} is a symbolic link: a study writes only into its own folder")
+    held = [n for n in OUTPUTS if (out / n).exists()]
+    if held and not (resume or overwrite):
+        refuse(f"{out} already holds study results ({', '.join(held)}): add --resume to continue them "
+               f"or --overwrite to replace them")
+    case_dir = out / "cases"
+    if case_dir.exists() and not case_dir.is_dir():
+        refuse(f"{case_dir} exists and is not a folder")
+    try:
+        if overwrite:   # only what a study writes, by name, inside its folder
+            for f in case_dir.glob("*.json") if case_dir.is_dir() else ():
+                f.unlink()
+            for n in OUTPUTS:
+                if n != "cases" and (out / n).is_file():
+                    (out / n).unlink()
+        case_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        refuse(f"cannot write the study outputs in {out}: {e}")
+    return case_dir
+
+
+def print_progress(i: int, n: int, case: dict, rec: dict):
+    """One line per finished case on stderr: case i/N, its parameters, outcome (and cause) and wall time."""
+    params = ", ".join(f"{k}={_short(v)}" for k, v in case["params"].items())
+    status = rec.get("outcome", "?") + (f" ({rec['cause']})" if rec.get("cause") else "")
+    wall = rec.get("wall_time")
+    took = f" {float(wall):.1f} s" if _finite(wall) else ""
+    rep = f" repeat {case['repeat']}" if case.get("repeat") else ""
+    print(f"case {i}/{n} [{params}]{rep}: {status}{took}", file=sys.stderr, flush=True)
 
 
 def _run_dask(cases, scheduler, timeout, store):
@@ -484,12 +688,12 @@ def write_reports(st: Study, out: Path) -> list[dict]:
         w.writeheader()
         for r in records:
             w.writerow({k: _cell(r.get(k, "")) for k in columns})
-    metric = st.metric or (error_cols[0] if "error_rms" not in error_cols and error_cols else "error_rms")
-    if metric not in error_cols and not any(metric in r for r in records):
-        metric = "energy_drift"
-        for r in records:
-            if r.get("outcome") == "ok" and _finite(r.get("energy_ratio_end")):
-                r["energy_drift"] = abs(float(r["energy_ratio_end"]) - 1.0)
+    for r in records:   # |1 - E(end)/E(0)| of every finished case: the metric of studies without an exact solution
+        if r.get("outcome") == "ok" and _finite(r.get("energy_ratio_end")):
+            r["energy_drift"] = abs(float(r["energy_ratio_end"]) - 1.0)
+    # the study's metric (checked against the known ones when it was loaded), else error_rms, another error
+    # column, or the energy drift
+    metric = st.metric or ("error_rms" if "error_rms" in error_cols else error_cols[0] if error_cols else "energy_drift")
     points = _aggregate(records, varied, metric, st.time_metric)
     group_keys = [k for k in varied if k != st.convergence_key]
     front = pareto_front(points)
@@ -669,29 +873,19 @@ def _md(v) -> str:
 
 # ---------------------------------------------------------------- entry point of a case process
 def main(argv=None):
+    """`python -m taichi_mpm.study --case CASE.json --result OUT.json`: run one case (internal); with a study
+    file instead, the same as `taichi-mpm study`."""
     ap = argparse.ArgumentParser(prog="python -m taichi_mpm.study", description="run one study case (internal) or a study")
     ap.add_argument("study", nargs="?", help="a study YAML file (runs the whole study)")
     ap.add_argument("--case", help="case JSON file (internal: run one case in this process)")
     ap.add_argument("--result", help="where to write the case record (with --case)")
-    ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--scheduler")
-    ap.add_argument("--out")
-    ap.add_argument("--resume", action="store_true")
-    args = ap.parse_args(argv)
+    args, rest = ap.parse_known_args(argv)
     if args.case:
         rec = run_case_inline(json.loads(Path(args.case).read_text()))
         Path(args.result).write_text(json.dumps(rec, default=str))
         return 0
-    if not args.study:
-        ap.error("give a study file or --case")
-    try:
-        out = run_study(args.study, out=args.out, jobs=args.jobs, scheduler=args.scheduler, resume=args.resume,
-                        progress=lambda c, r: print(f"{c['id']}: {r.get('outcome')} {r.get('cause', '')}", flush=True))
-    except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(out)
-    return 0
+    from .cli import main as cli_main
+    return cli_main(["study", *([args.study] if args.study else []), *rest])
 
 
 if __name__ == "__main__":

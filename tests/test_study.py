@@ -2,17 +2,20 @@
 import csv
 import json
 import math
+import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
+from taichi_mpm.cli import main
 from taichi_mpm.config import ConfigError
 from taichi_mpm.study import convergence_rates, load_study, pareto_front, run_study
 
 HERE = Path(__file__).parent
 MMS_1D = {"type": "mms_axis_aligned", "dim": 1, "amplitude": 0.001}   # taichi_mpm.analytic
 PROBLEM = {"type": "study_problems:mms1d", "amplitude": 0.01}        # a cheaper stand-in, tests/study_problems.py
+ALLOW = ["study_problems:mms1d", "study_problems:broken"]            # outside the project: opted in (--allow-problem)
 
 
 def _write(tmp_path, study) -> Path:
@@ -82,15 +85,15 @@ def test_resume_skips_finished_cases(small_study, tmp_path):
 def test_unstable_case_is_recorded_and_others_finish(tmp_path):
     path = _write(tmp_path, dict(study="blowup", problem=PROBLEM, set={"domain.dx": 0.0625}, samples=2,
                                  cases=[{"solver.dt": 1.0e-4}, {"solver.dt": 0.05}, {"solver.basis": "no_such_basis"}]))
-    with pytest.raises(ConfigError):  # an invalid case config fails the whole study before it runs
-        load_study(path)
+    with pytest.raises(ConfigError, match="no_such_basis"):  # an invalid case config fails the study before it runs
+        load_study(path, allow_problems=ALLOW)
     # dt = 1e-3 is CFL 1.6 here: J <= 0 within a few steps; dt = 5e-3 (CFL 8) reaches the end time in two
     # steps with the energy grown ~460 x and no solver error: the energy limit must catch that garbage
     path = _write(tmp_path, dict(study="blowup", problem=PROBLEM, set={"domain.dx": 0.0625}, samples=2,
                                  energy_limit=10.0,
                                  cases=[{"solver.dt": 1.0e-4}, {"solver.dt": 1.0e-3},
                                         {"problem.type": "study_problems:broken"}, {"solver.dt": 5.0e-3}]))
-    out = run_study(path, out=tmp_path / "out", jobs=1)
+    out = run_study(path, out=tmp_path / "out", jobs=1, allow_problems=ALLOW)
     rows = _rows(out)
     assert [r["outcome"] for r in rows] == ["ok", "unstable", "error", "unstable"]
     assert rows[3]["cause"].startswith("undetected: mechanical energy grew")
@@ -106,9 +109,9 @@ def test_unstable_case_is_recorded_and_others_finish(tmp_path):
 
 def test_study_file_errors_name_the_key(tmp_path):
     with pytest.raises(ConfigError, match="vary.solver.basis"):
-        load_study(_write(tmp_path, dict(study="x", problem=PROBLEM, vary={"solver.basis": "quadratic"})))
+        load_study(_write(tmp_path, dict(study="x", problem=PROBLEM, vary={"solver.basis": "quadratic"})), ALLOW)
     with pytest.raises(ConfigError, match="bogus"):
-        load_study(_write(tmp_path, dict(study="x", problem=PROBLEM, vary={"domain.dx": [0.1]}, bogus=1)))
+        load_study(_write(tmp_path, dict(study="x", problem=PROBLEM, vary={"domain.dx": [0.1]}, bogus=1)), ALLOW)
     with pytest.raises(ConfigError, match="exactly one"):
         load_study(_write(tmp_path, dict(study="x", vary={"domain.dx": [0.1]})))
 
@@ -116,7 +119,7 @@ def test_study_file_errors_name_the_key(tmp_path):
 def test_grid_and_cases_expand(tmp_path):
     st = load_study(_write(tmp_path, dict(study="x", problem=PROBLEM, repeats=2,
                                           vary={"solver.basis": ["linear", "cubic"], "domain.dx": [0.1, 0.05, 0.025]},
-                                          cases=[{"solver.transfer": "pic"}, {"solver.transfer": "flip"}])))
+                                          cases=[{"solver.transfer": "pic"}, {"solver.transfer": "flip"}])), ALLOW)
     cases = st.expand()
     assert len(cases) == 2 * 3 * 2 * 2
     assert len({c["digest"] for c in cases}) == len(cases)
@@ -141,7 +144,7 @@ def test_two_cases_on_a_local_dask_cluster(tmp_path):
                                  vary={"solver.basis": ["quadratic", "gimp"]}))
     with distributed.LocalCluster(processes=True, n_workers=1, threads_per_worker=2, host="127.0.0.1",
                                   dashboard_address=None) as cluster:
-        out = run_study(path, out=tmp_path / "out", scheduler=cluster.scheduler_address)
+        out = run_study(path, out=tmp_path / "out", scheduler=cluster.scheduler_address, allow_problems=ALLOW)
     rows = _rows(out)
     assert [r["solver.basis"] for r in rows] == ["quadratic", "gimp"]
     assert [r["outcome"] for r in rows] == ["ok", "ok"], [r["message"] for r in rows]
@@ -169,3 +172,154 @@ def test_study_over_a_base_config_file(tmp_path):
     assert "energy_drift" in (out / "summary.md").read_text()
     with pytest.raises(ConfigError, match="base config not found"):
         load_study(_write(tmp_path, dict(study="x", base="nope.yaml", vary={"domain.dx": [0.1]})))
+
+
+# ---------------------------------------------------------------- study files run no code of their own
+EVIL = '''import pathlib
+pathlib.Path(__file__).with_name("imported.txt").write_text("imported")
+def make(spec):
+    pathlib.Path(__file__).with_name("called.txt").write_text("called")
+    raise RuntimeError("a study file called me")
+'''
+
+
+@pytest.mark.parametrize("where", ["problem", "cases", "vary"])
+@pytest.mark.parametrize("kind", ["os:system", "subprocess:run", "evil_problem:make"])
+def test_study_file_cannot_import_or_call_other_code(tmp_path, monkeypatch, capsys, where, kind):
+    (tmp_path / "evil_problem.py").write_text(EVIL)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    called = []
+    monkeypatch.setattr("os.system", lambda *a: called.append(a))
+    monkeypatch.setattr("subprocess.run", lambda *a, **k: called.append(a))
+    study = dict(study="evil", problem=dict(MMS_1D), vary={"domain.dx": [0.0625]})
+    key = {"problem": "problem.type", "cases": "cases.0.problem.type", "vary": "vary.problem.type.1"}[where]
+    if where == "problem":
+        study["problem"]["type"] = kind
+    elif where == "cases":
+        study["cases"] = [{"problem.type": kind}]
+    else:
+        study["vary"]["problem.type"] = ["mms_axis_aligned", kind]
+    path = _write(tmp_path, study)
+    line = next(i + 1 for i, l in enumerate(path.read_text().splitlines()) if kind in l)
+    with pytest.raises(ConfigError, match="--allow-problem") as err:
+        load_study(path)
+    assert err.value.key == key and err.value.line == line
+    monkeypatch.chdir(tmp_path)
+    assert main(["study", str(path)]) == 2
+    msg = capsys.readouterr().err
+    assert f"study.yaml:{line}" in msg and key in msg and "Traceback" not in msg
+    assert not called and "evil_problem" not in sys.modules
+    assert not (tmp_path / "imported.txt").exists() and not (tmp_path / "called.txt").exists()
+    assert not (tmp_path / "studies").exists()
+
+
+def test_allow_problem_opts_in(tmp_path, monkeypatch, capsys):
+    """With --allow-problem the factory is imported and called (to validate its cases); others stay refused."""
+    (tmp_path / "evil_problem.py").write_text(EVIL)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    path = _write(tmp_path, dict(study="evil", problem={"type": "evil_problem:make"}, vary={"domain.dx": [0.1]}))
+    assert main(["study", str(path), "--allow-problem", "study_problems:mms1d", "--dry-run"]) == 2
+    assert not (tmp_path / "imported.txt").exists()
+    capsys.readouterr()
+    assert main(["study", str(path), "--allow-problem", "evil_problem:make", "--dry-run"]) == 2
+    assert (tmp_path / "called.txt").exists()      # called, and its failure is reported as invalid input
+    assert "a study file called me" in capsys.readouterr().err
+    path = _write(tmp_path, dict(study="ok", problem=PROBLEM, vary={"domain.dx": [0.0625, 0.03125]}))
+    assert main(["study", str(path), "--dry-run", *(f"--allow-problem={a}" for a in ALLOW)]) == 0
+    out = capsys.readouterr().out
+    assert "2 cases" in out and '"domain.dx": 0.03125' in out
+    assert not (tmp_path / "studies").exists()     # a dry run writes nothing
+
+
+def test_metrics_table_covers_every_project_problem():
+    from taichi_mpm import analytic, stability
+    from taichi_mpm.study import PROBLEM_METRICS
+    assert set(PROBLEM_METRICS) == set(analytic.PROBLEMS) | set(stability.SCENARIOS)
+
+
+# ---------------------------------------------------------------- names, options: refused up front, key and line
+@pytest.mark.parametrize("name", ["..", ".", "a/b", "a\\b", "a\x00b", ".hidden", "", "x" * 101, 12, None, ["a"]])
+def test_study_names_that_are_not_plain_folder_names_are_refused(tmp_path, monkeypatch, capsys, name):
+    path = _write(tmp_path, dict(study=name, problem=MMS_1D, vary={"domain.dx": [0.0625]}))
+    with pytest.raises(ConfigError, match="study name") as err:
+        load_study(path)
+    assert err.value.key == "study" and err.value.line == 1
+    monkeypatch.chdir(tmp_path)
+    assert main(["study", str(path)]) == 2
+    assert "key 'study'" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["study.yaml"]
+
+
+BAD_OPTIONS = [
+    ("samples", 0), ("samples", 2.5), ("samples", "ten"), ("samples", True), ("samples", 10**6),
+    ("repeats", 0), ("repeats", True), ("repeats", -1), ("jobs", 0), ("jobs", "2"),
+    ("timeout", 0), ("timeout", -5), ("timeout", "1e3"), ("timeout", float("inf")), ("timeout", True),
+    ("energy_limit", 0), ("energy_limit", float("nan")), ("energy_limit", [2]),
+    ("metric", "error_typo"), ("metric", "error_energy"), ("metric", 3), ("time_metric", "cpu_time"),
+    ("convergence_key", 1), ("convergence_key", "a..b"), ("description", {"a": 1}),
+    ("vary.domain.dx", []), ("vary.domain.dx", 0.1), ("vary.domain.dx", {"a": 1}), ("set", [1]),
+    ("cases", {"a": 1}), ("cases", [{}]), ("cases", ["solver.basis=cubic"]), ("bogus", 1), ("problem", "mms"),
+]
+
+
+@pytest.mark.parametrize("key,value", BAD_OPTIONS, ids=[f"{k}={v!r}" for k, v in BAD_OPTIONS])
+def test_bad_study_options_name_key_and_line(tmp_path, key, value):
+    study = dict(study="opts", problem=MMS_1D, vary={"domain.dx": [0.0625]}, samples=3)
+    if key.startswith("vary."):
+        study["vary"] = {key[5:]: value}
+    else:
+        study[key] = value
+    path = _write(tmp_path, study)
+    with pytest.raises(ConfigError) as err:
+        load_study(path)
+    assert err.value.key is not None and err.value.key.split(".")[0] == key.split(".")[0], str(err.value)
+    assert err.value.line is not None, str(err.value)
+
+
+def test_metric_known_for_the_problem(tmp_path):
+    assert load_study(_write(tmp_path, dict(study="m", problem=MMS_1D, vary={"domain.dx": [0.0625]},
+                                            metric="error_max"))).metric == "error_max"
+    with pytest.raises(ConfigError, match="known: energy_drift, energy_ratio_max, energy_ratio_end, error_rms"):
+        load_study(_write(tmp_path, dict(study="m", problem=MMS_1D, vary={"domain.dx": [0.0625]}, metric="error_energy")))
+
+
+def test_too_many_cases_is_refused_before_expanding(tmp_path):
+    vary = {f"k{i}": list(range(10)) for i in range(12)}   # 10^12 cases: must not be listed
+    with pytest.raises(ConfigError, match="cases"):
+        load_study(_write(tmp_path, dict(study="big", problem=MMS_1D, vary=vary)))
+
+
+# ---------------------------------------------------------------- the output folder
+def _fake_case(case, timeout=None, threads=None, paths=None):
+    return dict(case=case["id"], repeat=case["repeat"], **case["params"], outcome="ok", cause="", wall_time=0.25,
+                step_time=0.1, energy_ratio_end=1.0, error_rms=float(case["params"]["domain.dx"]) ** 2)
+
+
+def test_output_folder_is_not_overwritten_unasked(tmp_path, monkeypatch, capsys):
+    """Cases are stubbed (no simulation): this checks the folder rules and the progress lines only."""
+    import taichi_mpm.study as study_mod
+    monkeypatch.setattr(study_mod, "execute_case", _fake_case)
+    monkeypatch.chdir(tmp_path)
+    path = _write(tmp_path, dict(study="folder", problem=MMS_1D, vary={"domain.dx": [0.0625, 0.03125]}))
+    assert main(["study", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "case 1/2 [domain.dx=0.0625]: ok 0.2 s" in err and "case 2/2 [domain.dx=0.03125]: ok 0.2 s" in err
+    out = tmp_path / "studies" / "folder"
+    assert len(_rows(out)) == 2
+    (out / "notes.txt").write_text("mine")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert main(["study", str(path)]) == 2                      # results there: refused, nothing touched
+    err = capsys.readouterr().err
+    assert "--resume" in err and "--overwrite" in err and "key 'study'" in err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert main(["study", str(path), "--resume", "--overwrite"]) == 2
+    assert main(["study", str(path), "--resume"]) == 0          # nothing left to run
+    assert "case " not in capsys.readouterr().err
+    (out / "cases" / "stale.json").write_text("{}")
+    assert main(["study", str(path), "--overwrite"]) == 0
+    assert not (out / "cases" / "stale.json").exists() and (out / "notes.txt").read_text() == "mine"
+    assert len(list((out / "cases").glob("*.json"))) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["studies", "study.yaml"]
+    with pytest.raises(ConfigError, match="jobs"):
+        run_study(path, out=tmp_path / "o2", jobs=0)
