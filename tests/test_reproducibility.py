@@ -46,17 +46,17 @@ def test_deterministic_runs_and_resumed_runs_are_bit_identical(dim, tmp_path):
     assert threads == 1 and not ti.lang.impl.current_cfg().fast_math
     sim.advance_to(end)
     first = state(sim)
-    assert first["n_steps"] > 20
+    assert first["n_steps"] >= 10
     second = tm.Simulation(cfg)
     second.advance_to(end)
     assert_identical(first, state(second))
-    # stopped between two steps (as by Ctrl-C: solver.max_steps stops the same loop after 12 of its steps),
+    # stopped between two steps (as by Ctrl-C: solver.max_steps stops the same loop half way),
     # written to a checkpoint file, resumed in a new Simulation
     cut = copy.deepcopy(cfg)
-    cut["solver"]["max_steps"] = 12
+    cut["solver"]["max_steps"] = first["n_steps"] // 2
     part = tm.Simulation(cut)
     part.advance_to(end)
-    assert part.n_steps == 12 and part.time < end
+    assert part.n_steps == first["n_steps"] // 2 and part.time < end
     io.save_checkpoint(tmp_path / "checkpoint.npz", part.get_state(), {})
     resumed = tm.Simulation(cfg)
     resumed.set_state(io.load_checkpoint(tmp_path / "checkpoint.npz")[0])
