@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -52,7 +52,6 @@ class Estimate:
     outputs: float
     limit_bytes: float | None
     limit_source: str
-    notes: list[str] = field(default_factory=list)
 
     @property
     def particle_bytes(self) -> int:
@@ -154,21 +153,21 @@ def _active_blocks(cfg: Config, layout: dict, base_dir) -> tuple[int, int]:
     return min(leaves, math.prod(layout["blocks"])), min(tops, math.prod(layout["levels"][0]))
 
 
-def _grid_bytes(cfg: Config, base_dir) -> tuple[int, str, list[int], int]:
+def _grid_bytes(cfg: Config, base_dir) -> tuple[int, str, list[int]]:
     d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
     layout = grid_layout(cfg)
     vectors = 1 + (cfg.solver.transfer == "flip") + (cfg.solver.update == "musl") + (d if cfg.crack else 0)
     node_bytes = size * (1 + d * vectors)
     nodes = math.prod(layout["nodes"])
     if not cfg.domain.sparse:
-        return nodes * node_bytes, f"dense, {nodes:.3g} nodes", layout["cells"], nodes
+        return nodes * node_bytes, f"dense, {nodes:.3g} nodes", layout["cells"]
     leaves, tops = _active_blocks(cfg, layout, base_dir)
     grids = 2 if cfg.crack is not None else 1  # the crack finder keeps node normals on a second sparse grid
     top_slots = math.prod(layout["levels"][0])
     pointers = top_slots + (tops * layout["mid"] ** d if len(layout["levels"]) > 1 else 0)
     leaf_nodes = leaves * layout["leaf"] ** d
     total = grids * pointers * POINTER_SLOT_BYTES + leaf_nodes * (node_bytes + (size * (1 + d) if grids > 1 else 0))
-    return total, f"sparse, {top_slots:.3g} top pointers, ~{leaves:,} active blocks", layout["cells"], top_slots
+    return total, f"sparse, {top_slots:.3g} top pointers, ~{leaves:,} active blocks", layout["cells"]
 
 
 def _time_step(cfg: Config, base_dir) -> tuple[float, str]:
@@ -198,7 +197,7 @@ def estimate(cfg: Config, body_force: bool = False) -> Estimate:
         per_body.append(int(round(shape_volume(b.shape, d, base_dir, key) / h**d)))
         lo, hi = shape_bounds(b.shape, d, base_dir, key)
         lattice = max(lattice, math.prod(int(math.ceil(e / h)) + 1 for e in hi - lo) * d * 8 * 3)
-    grid_bytes, grid_detail, cells, _ = _grid_bytes(cfg, base_dir)
+    grid_bytes, grid_detail, cells = _grid_bytes(cfg, base_dir)
     dt, dt_source = _time_step(cfg, base_dir)
     steps = cfg.solver.end_time / dt
     if cfg.solver.max_steps is not None and cfg.solver.max_steps < steps:

@@ -9,6 +9,7 @@ import contextlib
 import io
 import warnings
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -155,7 +156,7 @@ class Outline:
             out[idx] = (len(xc) - np.searchsorted(xc, pts[idx, 0], side="right")) % 2 == 1
         return out
 
-    @property
+    @cached_property
     def volume(self) -> float:
         """Area by the even-odd rule: between two consecutive vertex heights the inside length is linear in y
         (edges do not cross), so the midpoint rule is exact."""
