@@ -94,6 +94,8 @@ def _add_config_options(p, run=True):
         p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
         p.add_argument("--resume", action="store_true", help="continue from checkpoint.npz in the output directory")
     p.add_argument("--arch", choices=["auto", "cpu", "cuda", "vulkan", "metal"], help="override the config's arch")
+    p.add_argument("--allow-large", dest="overrides", action="append_const", const="limits.allow_large=true",
+                   help="run even when the size estimate exceeds limits.memory_gb / limits.particles")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -247,11 +249,12 @@ def cmd_run(args) -> int:
 def cmd_validate(args) -> int:
     import yaml
 
-    from . import io
+    from . import budget, io
     from .scene import build_scene
 
     cfg = _load(args.config, args)
     try:
+        estimate = budget.check(cfg)  # before the scene: an absurd size is refused, not generated
         scene = build_scene(cfg)
     except ConfigError as e:
         raise locate(e, cfg) from None
@@ -259,6 +262,7 @@ def cmd_validate(args) -> int:
     counts = [round((u - l) / cfg.domain.dx) for l, u in zip(cfg.domain.lower, cfg.domain.upper)]
     print(f"valid: {scene.n} particles in {len(cfg.bodies)} bod{'y' if len(cfg.bodies) == 1 else 'ies'}, "
           f"grid {'x'.join(map(str, counts))} cells", file=sys.stderr)
+    print(estimate.summary(), file=sys.stderr)
     return EXIT_OK
 
 

@@ -183,6 +183,8 @@ class Solver(Strict):
     # volumetric locking: standard (each particle's own J) or fbar (the step's volume change averaged over the
     # grid, for nearly incompressible solids and fluids; see docs/accuracy.md, "Volumetric locking")
     volumetric: Literal["standard", "fbar"] = "standard"
+    # bit-identical runs regardless of thread count and load (CPU: one thread, no fast math); see docs/reliability.md
+    deterministic: bool = False
 
 
 class Crack(Strict):
@@ -240,6 +242,8 @@ class Body(Strict):
     angular_velocity: Optional[Union[Real, Vec]] = None
     interface: bool = False
     damage_regions: list[DamageRegion] = []
+    # particles of this body inside an earlier body's shape: error, skip (leave them out), allow (keep both)
+    overlap: Literal["error", "skip", "allow"] = "error"
 
 
 class Render(Strict):
@@ -267,6 +271,13 @@ class Output(Strict):
     render: Render = Render()
 
 
+class Limits(Strict):
+    """Resource limits checked before anything is allocated (taichi_mpm/budget.py)."""
+    memory_gb: Optional[PositiveFloat] = None        # default: half of this machine's physical memory
+    particles: Optional[Annotated[int, Field(gt=0)]] = None  # default: only the memory limit
+    allow_large: bool = False                        # --allow-large: run anyway (the estimate still prints)
+
+
 class Config(Strict):
     name: str
     dim: Literal[1, 2, 3] = 3
@@ -278,6 +289,7 @@ class Config(Strict):
     materials: dict[str, Material]
     bodies: Annotated[list[Body], Field(min_length=1)]
     output: Output = Output()
+    limits: Limits = Limits()
     _source: Optional[str] = PrivateAttr(None)  # the YAML file it came from, for relative paths
     _lines: dict = PrivateAttr(default_factory=dict)  # dotted key -> line in _source
     _overrides: dict = PrivateAttr(default_factory=dict)  # the --set overrides applied

@@ -26,7 +26,7 @@ from .errors import InstabilityError
 from .solver import Simulation as _Simulation
 
 # keys that may differ between a checkpoint and the config it resumes with
-RESUMABLE_CHANGES = ("name", "arch", "solver.end_time", "solver.max_steps", "output")
+RESUMABLE_CHANGES = ("name", "arch", "solver.end_time", "solver.max_steps", "output", "limits")
 
 
 class Interrupted(KeyboardInterrupt):

@@ -5,7 +5,11 @@ spacing dx/ppc aligned with the grid, so bodies placed on cell boundaries fill c
 """
 from __future__ import annotations
 
+import contextlib
+import io
+import warnings
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -45,16 +49,16 @@ def _rotation(rot, d):
     return Rz @ Ry @ Rx
 
 
-def shape_center(shape, d) -> np.ndarray:
+def shape_center(shape, d, base_dir=None, key="shape") -> np.ndarray:
     if isinstance(shape, Box):
         return 0.5 * (np.asarray(shape.lower) + np.asarray(shape.upper))
     if isinstance(shape, Mesh):
-        lo, hi = shape_bounds(shape, d, None)
+        lo, hi = shape_bounds(shape, d, base_dir, key)
         return 0.5 * (lo + hi)
     return np.asarray(shape.center, dtype=float)
 
 
-def shape_bounds(shape, d, base_dir) -> tuple[np.ndarray, np.ndarray]:
+def shape_bounds(shape, d, base_dir=None, key="shape") -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned bounding box of a shape (rotations included)."""
     if isinstance(shape, Box):
         lo, hi = np.asarray(shape.lower, float), np.asarray(shape.upper, float)
@@ -73,32 +77,28 @@ def shape_bounds(shape, d, base_dir) -> tuple[np.ndarray, np.ndarray]:
         ext = np.sqrt(shape.radius**2 + (shape.height / 2) ** 2)
         return c - ext, c + ext
     if isinstance(shape, Mesh):
-        pts = _mesh_surface(shape, base_dir).points[:, :d]
-        return pts.min(0), pts.max(0)
+        m = load_mesh(shape, d, base_dir, key)
+        return m.lower, m.upper
     raise TypeError(shape)
 
 
-def _mesh_surface(shape: Mesh, base_dir):
-    import meshio
-    import pyvista as pv
-
-    path = Path(shape.file)
-    if not path.is_absolute() and base_dir is not None:
-        path = Path(base_dir) / path
-    if not path.is_file():
-        raise ConfigError(f"mesh file not found: {path}", key="shape.file")
-    try:
-        m = meshio.read(path)
-    except Exception as e:  # meshio raises many types for unreadable files
-        raise ConfigError(f"meshio cannot read {path}: {e}", key="shape.file")
-    grid = pv.from_meshio(m)
-    surf = grid.extract_surface(algorithm=None).triangulate()
-    scale = np.broadcast_to(np.asarray(shape.scale, float), (3,))
-    surf.points = surf.points * scale + np.pad(np.asarray(shape.translate or [0, 0, 0], float), (0, 3))[:3]
-    return surf
+def shape_volume(shape, d, base_dir=None, key="shape") -> float:
+    """Length, area or volume of a shape in `d` dimensions (what its particles fill)."""
+    ball = {1: 2.0, 2: np.pi, 3: 4.0 / 3.0 * np.pi}[d]  # volume of the unit ball
+    if isinstance(shape, Box):
+        return float(np.prod(np.asarray(shape.upper, float) - np.asarray(shape.lower, float)))
+    if isinstance(shape, Sphere):
+        return ball * shape.radius**d
+    if isinstance(shape, Ring):
+        return ball * (shape.outer_radius**d - shape.inner_radius**d)
+    if isinstance(shape, Cylinder):
+        return np.pi * shape.radius**2 * shape.height
+    if isinstance(shape, Mesh):
+        return load_mesh(shape, d, base_dir, key).volume
+    raise TypeError(shape)
 
 
-def inside(shape, pts: np.ndarray, base_dir=None) -> np.ndarray:
+def inside(shape, pts: np.ndarray, base_dir=None, key="shape") -> np.ndarray:
     """Boolean mask of the points (N, d) that lie inside the shape."""
     d = pts.shape[1]
     if isinstance(shape, Box):
@@ -118,15 +118,267 @@ def inside(shape, pts: np.ndarray, base_dir=None) -> np.ndarray:
         radial = np.delete(local, a, axis=1)
         return (np.sum(radial**2, axis=1) <= shape.radius**2) & (np.abs(local[:, a]) <= shape.height / 2)
     if isinstance(shape, Mesh):
+        return load_mesh(shape, d, base_dir, key).inside(pts)
+    raise TypeError(shape)
+
+
+# ---------------------------------------------------------------- meshes
+@dataclass
+class Outline:
+    """A 2D mesh as the boundary of the area it covers: edges (E, 2, 2) of its cells' boundary, or its
+    closed line loops. Membership by the even-odd rule, so holes and several pieces need no orientation."""
+    edges: np.ndarray
+
+    @property
+    def lower(self):
+        return self.edges.reshape(-1, 2).min(0)
+
+    @property
+    def upper(self):
+        return self.edges.reshape(-1, 2).max(0)
+
+    def _crossings(self, y: float) -> np.ndarray:
+        """Sorted x where the boundary crosses the line at height y (half-open in y: a vertex counts once)."""
+        a, b = self.edges[:, 0], self.edges[:, 1]
+        hit = (a[:, 1] <= y) != (b[:, 1] <= y)
+        a, b = a[hit], b[hit]
+        return np.sort(a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1]))
+
+    def inside(self, pts: np.ndarray) -> np.ndarray:
+        """Odd number of crossings to the right of the point: inside. One pass per distinct y (a lattice has few)."""
+        ys, row = np.unique(pts[:, 1], return_inverse=True)
+        out = np.zeros(len(pts), bool)
+        order = np.argsort(row, kind="stable")
+        starts = np.searchsorted(row[order], np.arange(len(ys) + 1))
+        for i, y in enumerate(ys):
+            idx = order[starts[i]:starts[i + 1]]
+            xc = self._crossings(y)
+            out[idx] = (len(xc) - np.searchsorted(xc, pts[idx, 0], side="right")) % 2 == 1
+        return out
+
+    @cached_property
+    def volume(self) -> float:
+        """Area by the even-odd rule: between two consecutive vertex heights the inside length is linear in y
+        (edges do not cross), so the midpoint rule is exact."""
+        ys = np.unique(self.edges[:, :, 1])
+        area = 0.0
+        for y0, y1 in zip(ys[:-1], ys[1:]):
+            xc = self._crossings(0.5 * (y0 + y1))
+            area += (y1 - y0) * float(np.sum(xc[1::2] - xc[0::2]))
+        return area
+
+
+@dataclass
+class Surface:
+    """A 3D mesh as a closed, outward-oriented triangle surface (pyvista.PolyData)."""
+    surf: object
+    volume: float
+
+    @property
+    def lower(self):
+        return np.asarray(self.surf.bounds, float).reshape(3, 2)[:, 0]
+
+    @property
+    def upper(self):
+        return np.asarray(self.surf.bounds, float).reshape(3, 2)[:, 1]
+
+    def inside(self, pts: np.ndarray) -> np.ndarray:
         import pyvista as pv
 
-        surf = _mesh_surface(shape, base_dir)
-        p3 = np.pad(pts, ((0, 0), (0, 3 - d)))
-        sel = pv.PolyData(p3).select_interior_points(surf, check_surface=False) if hasattr(pv.PolyData, "select_interior_points") \
-            else pv.PolyData(p3).select_enclosed_points(surf, check_surface=False)
+        # vtkSelectEnclosedPoints: correct only for a closed surface with outward normals (checked in load_mesh);
+        # an inverted one selects the complement
+        cloud = pv.PolyData(np.asarray(pts, float))
+        select = getattr(cloud, "select_interior_points", None) or cloud.select_enclosed_points
+        sel = select(self.surf, check_surface=False)
         key = "selected_points" if "selected_points" in sel.point_data else "SelectedPoints"
         return np.asarray(sel.point_data[key], bool)
-    raise TypeError(shape)
+
+
+_MESHES: dict = {}  # (file, mtime, size, dim, scale, translate) -> Outline | Surface
+
+
+def load_mesh(shape: Mesh, d: int, base_dir=None, key="shape"):
+    """The mesh of a `mesh` shape, scaled and translated: an Outline in 2D, a closed Surface in 3D.
+    Read once per file and placement; any problem is a ConfigError naming `key.file` and the file."""
+    path = Path(shape.file)
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    if not path.is_file():
+        raise ConfigError(f"mesh file not found: {path}", key=f"{key}.file")
+    scale = np.asarray(shape.scale, float)
+    scale = np.full(3, scale) if scale.ndim == 0 else np.pad(scale, (0, 3 - len(scale)), constant_values=1.0)
+    shift = np.pad(np.asarray(shape.translate or [], float), (0, 3 - len(shape.translate or [])))
+    st = path.stat()
+    cache_key = (str(path.resolve()), st.st_mtime_ns, st.st_size, d, tuple(scale), tuple(shift))
+    if cache_key not in _MESHES:
+        mesh = _read_mesh(path, key)
+        points = np.pad(np.asarray(mesh.points, float), ((0, 0), (0, max(0, 3 - mesh.points.shape[1]))))[:, :3]
+        points = points * scale + shift
+        if len(_MESHES) > 16:
+            _MESHES.clear()
+        _MESHES[cache_key] = (_outline if d == 2 else _surface)(mesh, points, path, f"{key}.file")
+    return _MESHES[cache_key]
+
+
+def _read_mesh(path: Path, key: str):
+    import meshio
+
+    said = io.StringIO()
+    try:  # some readers print their complaint and call sys.exit; numpy may warn on binary garbage
+        with warnings.catch_warnings(), contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            warnings.simplefilter("ignore")
+            mesh = meshio.read(path)
+    except (Exception, SystemExit) as e:
+        detail = " ".join(said.getvalue().split()) if isinstance(e, SystemExit) else str(e)
+        raise ConfigError(f"meshio cannot read {path}: {detail or type(e).__name__}", key=f"{key}.file") from None
+    if len(mesh.points) == 0 or not mesh.cells:
+        raise ConfigError(f"the mesh {path} has no points or no cells", key=f"{key}.file")
+    return mesh
+
+
+def _outline(mesh, points, path, key) -> Outline:
+    """Boundary edges of the area cells (edges used by one cell), else the line cells, which must close."""
+    span = np.ptp(points, axis=0)
+    if span[2] > 1e-9 * max(span[0], span[1], 1e-300):
+        raise ConfigError(f"a 2D scene needs a mesh in a plane z = const; {path} spans {span[2]:g} in z", key=key)
+    faces, lines = [], []
+    for block in mesh.cells:
+        t, cells = block.type, np.asarray(block.data)
+        if t.startswith("triangle"):
+            faces.append(cells[:, :3])
+        elif t.startswith("quad"):
+            faces.append(cells[:, :4])
+        elif t.startswith("polygon"):
+            faces.append(cells)
+        elif t.startswith("line"):
+            lines.append(cells[:, :2])
+    if faces:
+        edges = np.concatenate([np.stack([f, np.roll(f, -1, axis=1)], axis=-1).reshape(-1, 2) for f in faces])
+        pairs, counts = np.unique(np.sort(edges, axis=1), axis=0, return_counts=True)
+        edges = pairs[counts == 1]  # shared edges are interior
+    elif lines:
+        edges = np.concatenate(lines)
+        ends = np.bincount(edges.ravel(), minlength=len(points))
+        if np.any(ends % 2):
+            raise ConfigError(f"the line cells in {path} do not form closed polygons: {int(np.sum(ends % 2))} open "
+                              "ends (a 2D mesh body needs triangles, quads, polygons or closed line loops)", key=key)
+    else:
+        kinds = ", ".join(sorted({b.type for b in mesh.cells}))
+        raise ConfigError(f"{path} holds no 2D cells (found: {kinds}); a 2D mesh body needs triangles, quads, "
+                          "polygons or closed line loops", key=key)
+    outline = Outline(points[edges][:, :, :2])
+    if len(outline.edges) == 0 or outline.volume <= 0:
+        raise ConfigError(f"the mesh {path} encloses no area", key=key)
+    return outline
+
+
+def _surface(mesh, points, path, key) -> Surface:
+    """The closed triangle surface of a surface or volume mesh, oriented outward (see Surface.inside)."""
+    import meshio
+    import pyvista as pv
+
+    try:
+        grid = pv.from_meshio(meshio.Mesh(points, mesh.cells))
+        surf = grid.extract_surface(algorithm=None).triangulate().clean()
+    except Exception as e:
+        raise ConfigError(f"cannot extract a surface from {path}: {e}", key=key) from None
+    tri = _triangles(surf)
+    if len(tri) == 0:
+        raise ConfigError(f"{path} holds no surface (a 3D mesh body needs a closed surface or a volume mesh)", key=key)
+    boundary, non_manifold = _open_edges(tri)
+    if boundary or non_manifold:
+        extra = f" and {non_manifold} edges shared by more than two faces" if non_manifold else ""
+        raise ConfigError(f"the surface in {path} is not closed: {boundary} boundary edges (edges of only one "
+                          f"face){extra}; a mesh body needs a closed surface (every edge shared by exactly two faces)",
+                          key=key)
+    p = np.asarray(surf.points, float)
+    oriented, volume, fixes = _orient(p, tri, path, key)
+    if fixes:
+        warnings.warn(f"key '{key}': the surface in {path} was {' and '.join(fixes)}; particles fill the corrected, "
+                      "outward-facing surface", MeshWarning, stacklevel=2)
+        surf = _polydata(p, oriented)
+    return Surface(surf, volume)
+
+
+def _polydata(p, tri):
+    import pyvista as pv
+
+    return pv.PolyData(p, np.hstack([np.full((len(tri), 1), 3), tri]).ravel())
+
+
+def _open_edges(tri: np.ndarray) -> tuple[int, int]:
+    """(edges of one face, edges of more than two faces): a closed surface has every edge in exactly two."""
+    _, counts = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1),
+                          axis=0, return_counts=True)
+    return int(np.sum(counts == 1)), int(np.sum(counts > 2))
+
+
+def _orient(p, tri, path, key):
+    """Orient a closed surface for vtkSelectEnclosedPoints, which selects the complement of an inverted one:
+    within each closed piece every edge runs once each way (faces flipped to agree with their neighbours), and
+    each piece faces outward, or inward for a cavity (a piece inside an odd number of others).
+    Returns (triangles, enclosed volume, descriptions of what was changed)."""
+    F = len(tri)
+    directed = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])  # row r belongs to face r % F
+    _, edge = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True)
+    order = np.argsort(edge.ravel(), kind="stable")
+    a, b = order[0::2], order[1::2]  # the two faces of each edge (closed: exactly two)
+    same = directed[a, 0] == directed[b, 0]  # both run the edge the same way: one of them must flip
+    side, other, rel = np.concatenate([a % F, b % F]), np.concatenate([b % F, a % F]), np.concatenate([same, same])
+    by_face = np.argsort(side, kind="stable")  # three neighbours per triangle
+    nbs, rels = other[by_face].reshape(F, 3).tolist(), rel[by_face].reshape(F, 3).tolist()
+    flip, piece = [0] * F, [-1] * F
+    n_pieces = 0
+    for seed in range(F):  # breadth-first over shared edges: flip parity relative to each piece's first face
+        if piece[seed] >= 0:
+            continue
+        piece[seed], todo = n_pieces, [seed]
+        while todo:
+            f = todo.pop()
+            for g, r in zip(nbs[f], rels[f]):
+                want = flip[f] ^ r
+                if piece[g] < 0:
+                    piece[g], flip[g] = n_pieces, want
+                    todo.append(g)
+                elif flip[g] != want:
+                    raise ConfigError(f"the faces of the surface in {path} cannot be oriented consistently "
+                                      "(a non-orientable or self-intersecting surface)", key=key)
+        n_pieces += 1
+    flip, piece = np.array(flip, bool), np.array(piece)
+    tri = np.where(flip[:, None], tri[:, ::-1], tri)
+    signed = np.einsum("ij,ij->i", p[tri[:, 0]], np.cross(p[tri[:, 1]], p[tri[:, 2]])) / 6.0
+    volumes = np.bincount(piece, weights=signed, minlength=n_pieces)
+    depth = np.zeros(n_pieces, int)
+    if n_pieces > 1:  # nesting: is a vertex of piece i inside piece j (oriented outward for the test)?
+        probes = p[tri[np.unique(piece, return_index=True)[1], 0]]  # a vertex of each piece
+        for j in range(n_pieces):
+            tj = tri[piece == j] if volumes[j] > 0 else tri[piece == j][:, ::-1]
+            others = np.arange(n_pieces) != j
+            depth[others] += Surface(_polydata(p, tj), 0.0).inside(probes[others])
+    wrong = (volumes > 0) != (depth % 2 == 0)
+    flip ^= wrong[piece]
+    tri = np.where(wrong[piece][:, None], tri[:, ::-1], tri)
+    fixes = []
+    changed = np.bincount(piece, weights=flip, minlength=n_pieces)
+    sizes = np.bincount(piece, minlength=n_pieces)
+    if np.any((changed > 0) & (changed < sizes)):
+        fixes.append(f"inconsistently oriented ({int(changed[changed < sizes].sum())} of {F} faces disagreed with "
+                     "their neighbours)")
+    if np.any(changed == sizes):
+        fixes.append("inverted (its faces pointed inward)" if n_pieces == 1 else
+                     f"inverted in {int(np.sum(changed == sizes))} of its {n_pieces} closed pieces")
+    return tri, float(np.abs(volumes).dot(np.where(depth % 2 == 0, 1.0, -1.0))), fixes
+
+
+class MeshWarning(UserWarning):
+    """A mesh that was corrected on loading (its orientation)."""
+
+
+def _triangles(surf) -> np.ndarray:
+    faces = np.asarray(surf.faces)
+    if len(faces) == 0:
+        return np.zeros((0, 3), np.int64)
+    return faces.reshape(-1, 4)[:, 1:].astype(np.int64)
 
 
 def _lattice(lo, hi, origin, h, jitter, rng):
@@ -155,6 +407,35 @@ def _surface_flags(pts, h):
     return flags
 
 
+def _label(bi, body) -> str:
+    return f"bodies.{bi}" + (f" ({body.name!r})" if body.name else "")
+
+
+def _overlap_free(cfg, bi, body, pts, base_dir) -> np.ndarray:
+    """Mask of the particles to keep: a particle inside an earlier body's shape would double the mass there.
+    Touching bodies keep all: their particles sit inside their own shapes, not on the shared face."""
+    keep = np.ones(len(pts), bool)
+    if body.overlap == "allow":
+        return keep
+    for bj, other in enumerate(cfg.bodies[:bi]):
+        okey = f"bodies.{bj}.shape"
+        lo, hi = shape_bounds(other.shape, cfg.dim, base_dir, okey)
+        near = keep & np.all((pts >= lo - 1e-9) & (pts <= hi + 1e-9), axis=1)
+        if not near.any():
+            continue
+        hit = np.zeros(len(pts), bool)
+        hit[near] = inside(other.shape, pts[near], base_dir, okey)
+        if not hit.any():
+            continue
+        if body.overlap == "error":
+            raise ConfigError(f"{_label(bi, body)} overlaps {_label(bj, other)}: {int(hit.sum())} of its {len(pts)} "
+                              f"particles lie inside bodies.{bj}'s shape, which would double the mass there; set "
+                              f"bodies.{bi}.overlap: skip to leave them out, or allow to keep both (e.g. a mixture)",
+                              key=f"bodies.{bi}.shape")
+        keep &= ~hit
+    return keep
+
+
 def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     """Particle arrays of one body."""
     d, dx = cfg.dim, cfg.domain.dx
@@ -162,15 +443,19 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     dlo, dhi = origin, np.asarray(cfg.domain.upper, float)
     key = f"bodies.{bi}"
     h = dx / body.particles_per_cell
-    lo, hi = shape_bounds(body.shape, d, base_dir)
+    lo, hi = shape_bounds(body.shape, d, base_dir, f"{key}.shape")
     if np.any(lo < dlo - 1e-9) or np.any(hi > dhi + 1e-9):
         raise ConfigError(f"body lies outside the domain (body bounds {lo.tolist()}..{hi.tolist()}, "
                           f"domain {dlo.tolist()}..{dhi.tolist()})", key=f"{key}.shape")
     pts = _lattice(lo, hi, origin, h, 0.0, rng)
-    pts = pts[inside(body.shape, pts, base_dir)]
+    pts = pts[inside(body.shape, pts, base_dir, f"{key}.shape")]
     if len(pts) == 0:
         raise ConfigError("shape holds no particle at this resolution (make it larger or refine domain.dx / particles_per_cell)",
                           key=f"{key}.shape")
+    pts = pts[_overlap_free(cfg, bi, body, pts, base_dir)]
+    if len(pts) == 0:
+        raise ConfigError("every particle of this body lies inside earlier bodies (overlap: skip left none)",
+                          key=f"{key}.overlap")
     iface = _surface_flags(pts, h) if body.interface else np.zeros(len(pts), np.int32)
     if body.placement == "jittered":
         pts = pts + rng.uniform(-0.25 * h, 0.25 * h, pts.shape)
@@ -181,29 +466,32 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     if body.velocity is not None:
         v += np.asarray(body.velocity, float)
     if body.angular_velocity is not None:
-        r = pts - shape_center(body.shape, d)
+        r = pts - shape_center(body.shape, d, base_dir, f"{key}.shape")
         w = body.angular_velocity
         v += np.stack([-w * r[:, 1], w * r[:, 0]], axis=1) if d == 2 else np.cross(np.asarray(w, float), r)
     dmg = np.zeros(len(pts))
-    for region in body.damage_regions:
-        m = inside(region.shape, pts, base_dir)
+    for j, region in enumerate(body.damage_regions):
+        m = inside(region.shape, pts, base_dir, f"{key}.damage_regions.{j}.shape")
         dmg[m] = np.maximum(dmg[m], region.value)
     return dict(x=pts, v=v, volume=vol, mass=vol * mat.density, body=np.full(len(pts), bi, np.int32),
                 material=np.full(len(pts), mat_names.index(body.material), np.int32),
                 damage=dmg, interface=iface, spacing=np.full(len(pts), h))
 
 
+def base_dir_of(cfg: Config):
+    """The folder relative mesh paths start from: the config file's."""
+    return Path(cfg._source).parent if getattr(cfg, "_source", None) else None
+
+
 def build_scene(cfg: Config, seed: int = 0) -> Scene:
-    base_dir = Path(cfg._source).parent if getattr(cfg, "_source", None) else None
+    """Particles of all bodies, in body order. The size is checked first (budget.check), so an absurd
+    resolution is refused before any particle is generated."""
+    from .budget import check
+
+    check(cfg, warn=False)
+    base_dir = base_dir_of(cfg)
     rng = np.random.default_rng(seed)
     mat_names = list(dict.fromkeys(b.material for b in cfg.bodies))
-    parts = []
-    for bi, body in enumerate(cfg.bodies):
-        try:
-            parts.append(_body_particles(cfg, bi, body, mat_names, base_dir, rng))
-        except ConfigError as e:
-            if e.key is None or not e.key.startswith("shape"):
-                raise
-            raise ConfigError(e.message, key=f"bodies.{bi}.{e.key}") from None  # mesh errors: name the body
+    parts = [_body_particles(cfg, bi, body, mat_names, base_dir, rng) for bi, body in enumerate(cfg.bodies)]
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     return Scene(materials=mat_names, **cat)

@@ -14,11 +14,13 @@ Physics code only: no CLI, rendering or file I/O here.
 
 import itertools
 import math
+import warnings
 from typing import Callable, Optional
 
 import numpy as np
 import taichi as ti
 
+from . import budget
 from .basis import make_basis
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
@@ -37,27 +39,50 @@ ENERGY_CHECK_EVERY = 20  # steps between energy-growth checks
 _live = {"id": 0, "key": None}
 
 
-def resolve_arch(arch: str) -> str:
-    """`auto` -> the first of cuda, vulkan, metal that Taichi finds, else cpu.
+GPU_ARCHS = ("cuda", "vulkan", "metal")
 
-    Taichi's own `ti.gpu` list also probes OpenGL/GLES, which crashes the process (segmentation
-    fault) on headless machines without a GL driver, so those are never probed here."""
-    if arch != "auto":
-        return arch
+
+def available_archs() -> list[str]:
+    """cpu and the GPU backends Taichi finds. Taichi's own `ti.gpu` list also probes OpenGL/GLES, which crashes
+    the process (segmentation fault) on headless machines without a GL driver, so those are never probed."""
     from taichi.lang.misc import is_arch_supported
 
     ti.set_logging_level(ti.ERROR)  # no "libcuda.so not found" warning on machines without CUDA
-    for name in ("cuda", "vulkan", "metal"):
-        if is_arch_supported(getattr(ti, name)):
-            return name
-    return "cpu"
+    return [name for name in GPU_ARCHS if is_arch_supported(getattr(ti, name))] + ["cpu"]
 
 
-def init_taichi(arch: str, precision: str):
-    """(Re)start Taichi for a new simulation; only the newest Simulation stays live."""
+def resolve_arch(arch: str) -> str:
+    """`auto` -> the first of cuda, vulkan, metal that Taichi finds, else cpu. An arch named explicitly that
+    this machine lacks is a ConfigError (Taichi itself would fall back to the CPU without a word)."""
+    if arch == "cpu":
+        return arch
+    found = available_archs()
+    if arch == "auto":
+        return found[0]
+    if arch not in found:
+        raise ConfigError(f"arch {arch} is not available on this machine (available: {', '.join(found)}); "
+                          "use arch: auto or cpu", key="arch")
+    return arch
+
+
+def init_taichi(arch: str, precision: str, deterministic: bool = False):
+    """(Re)start Taichi for a new simulation; only the newest Simulation stays live.
+
+    deterministic: one CPU thread (atomic adds in P2G and the reductions then run in one fixed order) and no fast
+    math, so runs are bit-identical whatever the thread count or load. GPU float atomics have no fixed order:
+    there `deterministic` cannot hold and a warning says so (docs/reliability.md)."""
     fp = ti.f64 if precision == "f64" else ti.f32
-    ti.init(arch=getattr(ti, resolve_arch(arch)), default_fp=fp, default_ip=ti.i32, offline_cache=True,
-            log_level=ti.ERROR, random_seed=0)
+    name = resolve_arch(arch)
+    options = {}
+    if deterministic:
+        if name == "cpu":
+            options = dict(cpu_max_num_threads=1, fast_math=False)
+        else:
+            warnings.warn(f"solver.deterministic: on {name} float atomic adds are not ordered, so runs may differ "
+                          "in the last digits; use arch: cpu for bit-identical runs", RuntimeWarning, stacklevel=3)
+            options = dict(fast_math=False)
+    ti.init(arch=getattr(ti, name), default_fp=fp, default_ip=ti.i32, offline_cache=True,
+            log_level=ti.ERROR, random_seed=0, **options)
     _live["id"] += 1
     return _live["id"]
 
@@ -73,9 +98,10 @@ class Simulation:
         self.lower = np.asarray(c.domain.lower, float)
         self.upper = np.asarray(c.domain.upper, float)
         self.n_cells = _cell_counts(self.lower, self.upper, self.dx)
+        budget.check(c, body_force=body_force is not None)  # refuse absurd sizes before allocating anything
         self.scene = scene if scene is not None else build_scene(c)
         self.n = self.scene.n
-        self._id = init_taichi(c.arch, c.precision)
+        self._id = init_taichi(c.arch, c.precision, c.solver.deterministic)
         self.basis = make_basis(c.solver.basis)
         self._materials = [c.materials[name] for name in self.scene.materials]
         self.wave_speed = max(wave_speed(m) for m in self._materials)

@@ -101,19 +101,25 @@ def _reference_run(dim, crack):
 
 
 @pytest.mark.parametrize("dim", [2, 3])
-def test_scene_without_crack_is_bit_for_bit_unchanged(dim):
+def test_scene_without_crack_is_unchanged(dim):
     ref = np.load(DATA / "no_crack_reference.npz")
     sim = _reference_run(dim, crack=False)
     assert sim.crack is None and "A0" not in sim.grid.vec          # nothing allocated
     p = sim.particles()
     assert "damage" not in p
-    assert np.array_equal(p["x"], ref[f"x{dim}"]) and np.array_equal(p["v"], ref[f"v{dim}"])
+    # The reference was stored on another CPU: LLVM's instruction selection (FMA contraction, vector width) and the
+    # order of P2G's atomic adds across threads change the last bits (seen: 5.6e-17). Equal up to rounding means
+    # within 1e-12 of the field's scale: f64 rounding (1e-16) grown over 20 steps stays far below that, while any
+    # change of the numerics (a weight, a force term, a transfer) moves positions by >= dt^2 |a| ~ 1e-5.
+    for name in ("x", "v"):
+        want = ref[f"{name}{dim}"]
+        assert np.abs(p[name] - want).max() <= 1e-12 * np.abs(want).max(), name
     plain_bytes = sim.bytes_per_particle
     # with a crack section but nothing damaged, every particle keeps its standard functions: the same
     # result up to rounding (the crack branch changes how LLVM contracts multiply-adds; seen: 6e-17 in 3D)
     sim = _reference_run(dim, crack=True)
     assert sim.bytes_per_particle > plain_bytes
-    assert np.abs(sim.particles()["x"] - ref[f"x{dim}"]).max() < 1e-14
+    assert np.abs(sim.particles()["x"] - ref[f"x{dim}"]).max() <= 1e-12 * np.abs(ref[f"x{dim}"]).max()
 
 
 # ---------------------------------------------------------------- two blocks pulled apart

@@ -1,0 +1,268 @@
+"""The size of a run, estimated from the config alone before anything is allocated or generated.
+
+`estimate(cfg)` counts particles (shape volume x (particles_per_cell / dx)^dim per body), their memory (the
+solver's fields, as in `Simulation._bytes_per_particle`, plus the scene's host arrays), the grid's memory (dense:
+every node; sparse: the pointer arrays, which are dense, plus the leaf blocks around the bodies), the steps
+(end_time / dt, dt from the CFL rule unless solver.dt is given) and the outputs (end_time / output.every).
+`check(cfg)` refuses a run that does not fit (ConfigError, exit 2) and warns about absurd step or output counts,
+which are usually a unit slip (E in Pa given as GPa x 1e9 twice, dt = 1e-12, output.every = 1e-9).
+See docs/reliability.md.
+"""
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from .basis import make_basis
+from .config import Config, ConfigError
+from .grid import LEAF, MAX_TOP_POINTERS, _pow2
+from .materials import wave_speed
+from .scene import base_dir_of, shape_bounds, shape_volume
+
+MEMORY_FRACTION = 0.5      # default limit: this share of the machine's physical memory (also on GPUs)
+MAX_STEPS = 1e7            # warn above: a unit slip, or a run of days
+MAX_OUTPUTS = 1e4          # warn above: tens of thousands of files
+MAX_ELEMENTS = 2**31 - 1   # Taichi indexes fields with i32: not overridable
+POINTER_SLOT_BYTES = 16    # a Taichi pointer SNode keeps a pointer and a lock per slot (measured 16.5 B/slot, CPU)
+HOST_FLOATS, HOST_INTS = 4, 5  # scene arrays per particle besides x and v: volume, mass, damage, spacing (f64);
+#                                body, material, interface (i32) and the solver's sort permutation (i64)
+
+
+class SizeWarning(UserWarning):
+    """A run that fits but looks wrong: absurdly many steps or outputs, or a refused size run anyway."""
+
+
+@dataclass
+class Estimate:
+    particles: int                 # all bodies
+    per_body: list[int]
+    device_bytes_per_particle: int  # the solver's particle fields
+    host_bytes_per_particle: int    # the scene's numpy arrays
+    grid_cells: list[int]
+    grid_bytes: int
+    grid_detail: str
+    lattice_bytes: int             # transient: the largest body's bounding-box lattice while its particles are made
+    dt: float
+    dt_source: str
+    steps: float
+    outputs: float
+    limit_bytes: float | None
+    limit_source: str
+
+    @property
+    def particle_bytes(self) -> int:
+        return self.particles * (self.device_bytes_per_particle + self.host_bytes_per_particle)
+
+    @property
+    def total_bytes(self) -> int:
+        """Peak: the scene's arrays plus either the lattice being filled or the solver's fields and grid."""
+        host = self.particles * self.host_bytes_per_particle
+        return host + max(self.lattice_bytes, self.particles * self.device_bytes_per_particle + self.grid_bytes)
+
+    def summary(self) -> str:
+        limit = f" of {_gb(self.limit_bytes)} allowed ({self.limit_source})" if self.limit_bytes else ""
+        return (f"estimate: {self.particles:,} particles ({_gb(self.particle_bytes)}), grid "
+                f"{'x'.join(map(str, self.grid_cells))} cells {self.grid_detail} ({_gb(self.grid_bytes)}); "
+                f"memory {_gb(self.total_bytes)}{limit}; {self.steps:.3g} steps (dt {self.dt:.3g} {self.dt_source}), "
+                f"{self.outputs:.3g} outputs")
+
+
+def _gb(n) -> str:
+    return f"{n / 1e9:.3g} GB" if n >= 1e8 else f"{n / 1e6:.3g} MB"
+
+
+def physical_memory() -> float | None:
+    """Bytes of physical memory (os.sysconf), or None where the platform does not say."""
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def _limit(cfg: Config) -> tuple[float | None, str]:
+    if cfg.limits.memory_gb is not None:
+        return cfg.limits.memory_gb * 1e9, "limits.memory_gb"
+    phys = physical_memory()
+    if phys is None:
+        return None, "no limit: physical memory unknown"
+    return MEMORY_FRACTION * phys, f"{MEMORY_FRACTION:.0%} of this machine's {phys / 1e9:.3g} GB"
+
+
+def _used_materials(cfg: Config) -> list:
+    return [cfg.materials[name] for name in dict.fromkeys(b.material for b in cfg.bodies)]
+
+
+def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
+    """The solver's particle fields (mirrors Simulation._bytes_per_particle and CrackFinder.bytes_per_particle;
+    tests/test_budget.py holds them equal)."""
+    d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
+    mats = _used_materials(cfg)
+    apic = cfg.solver.transfer == "apic"
+    viscous = any(m.model == "fluid" and m.viscosity > 0 for m in mats)
+    spacings = {cfg.domain.dx / b.particles_per_cell for b in cfg.bodies}
+    floats = 2 * d + d * d + 1                                   # x, v, F, vol0
+    floats += d * d if apic or viscous else 0                    # C (APIC's B_p or C_p, or grad v)
+    floats += d if body_force else 0
+    floats += 1 if cfg.solver.basis == "gimp" and len(spacings) > 1 else 0
+    n = floats * size + (1 if len(mats) > 1 else 0)
+    if cfg.crack is not None:
+        has_law = any(m.tensile_strength is not None and m.model != "fluid" for m in mats)
+        stencil_nodes = make_basis(cfg.solver.basis).stencil ** d
+        floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0)
+        n += floats * size + 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4
+    return n
+
+
+def grid_layout(cfg: Config) -> dict:
+    """Nodes per axis and, for a sparse grid, the pointer levels as `grid.Grid` builds them."""
+    d = cfg.dim
+    basis = make_basis(cfg.solver.basis)
+    cells = [round((u - l) / cfg.domain.dx) for l, u in zip(cfg.domain.lower, cfg.domain.upper)]
+    nodes = [basis.nodes(c) for c in cells]
+    out = dict(cells=cells, nodes=nodes, stencil=basis.stencil)
+    if cfg.domain.sparse:
+        leaf = LEAF[d]
+        blocks = [_pow2(math.ceil(s / leaf)) for s in nodes]
+        if math.prod(blocks) <= MAX_TOP_POINTERS:
+            out.update(levels=[blocks], mid=1)
+        else:
+            mid = 8 if d == 3 else 64  # grid.Grid's second level
+            out.update(levels=[[_pow2(math.ceil(b / mid)) for b in blocks], [mid] * d], mid=mid)
+        out.update(leaf=leaf, blocks=blocks)
+    return out
+
+
+def _active_blocks(cfg: Config, layout: dict, base_dir) -> tuple[int, int]:
+    """(leaf blocks, top pointer slots) the bodies' stencils touch, each body's bounding box grown by a stencil."""
+    d, dx, leaf = cfg.dim, cfg.domain.dx, layout["leaf"]
+    lower = np.asarray(cfg.domain.lower, float)
+    reach = layout["stencil"]
+    leaves = tops = 0
+    for i, b in enumerate(cfg.bodies):
+        lo, hi = shape_bounds(b.shape, d, base_dir, f"bodies.{i}.shape")
+        n0 = np.floor((lo - lower) / dx) - reach
+        n1 = np.ceil((hi - lower) / dx) + reach
+        per_axis = [min(nb, int(v1 // leaf) - int(max(v0, 0) // leaf) + 1)
+                    for v0, v1, nb in zip(n0, n1, layout["blocks"])]
+        leaves += math.prod(per_axis)
+        tops += math.prod(math.ceil(n / layout["mid"]) + 1 for n in per_axis)
+    return min(leaves, math.prod(layout["blocks"])), min(tops, math.prod(layout["levels"][0]))
+
+
+def _grid_bytes(cfg: Config, base_dir) -> tuple[int, str, list[int]]:
+    d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
+    layout = grid_layout(cfg)
+    vectors = 1 + (cfg.solver.transfer == "flip") + (cfg.solver.update == "musl") + (d if cfg.crack else 0)
+    node_bytes = size * (1 + d * vectors)
+    nodes = math.prod(layout["nodes"])
+    if not cfg.domain.sparse:
+        return nodes * node_bytes, f"dense, {nodes:.3g} nodes", layout["cells"]
+    leaves, tops = _active_blocks(cfg, layout, base_dir)
+    grids = 2 if cfg.crack is not None else 1  # the crack finder keeps node normals on a second sparse grid
+    top_slots = math.prod(layout["levels"][0])
+    pointers = top_slots + (tops * layout["mid"] ** d if len(layout["levels"]) > 1 else 0)
+    leaf_nodes = leaves * layout["leaf"] ** d
+    total = grids * pointers * POINTER_SLOT_BYTES + leaf_nodes * (node_bytes + (size * (1 + d) if grids > 1 else 0))
+    return total, f"sparse, {top_slots:.3g} top pointers, ~{leaves:,} active blocks", layout["cells"]
+
+
+def _time_step(cfg: Config, base_dir) -> tuple[float, str]:
+    s = cfg.solver
+    if s.dt is not None:
+        return s.dt, "from solver.dt"
+    c, which = max((wave_speed(cfg.materials[b.material]), b.material) for b in cfg.bodies)
+    vmax = 0.0
+    for i, b in enumerate(cfg.bodies):
+        v = float(np.linalg.norm(b.velocity)) if b.velocity is not None else 0.0
+        if b.angular_velocity is not None:
+            lo, hi = shape_bounds(b.shape, cfg.dim, base_dir, f"bodies.{i}.shape")
+            v += float(np.linalg.norm(np.atleast_1d(b.angular_velocity))) * 0.5 * float(np.linalg.norm(hi - lo))
+        vmax = max(vmax, v)
+    dt = s.cfl * cfg.domain.dx / (c + vmax)
+    return dt, f"from the CFL rule: wave speed {c:.3g} m/s of material '{which}'"
+
+
+def estimate(cfg: Config, body_force: bool = False) -> Estimate:
+    """Sizes of a run from its config; reads mesh files (cached) but allocates and generates nothing."""
+    d, dx = cfg.dim, cfg.domain.dx
+    base_dir = base_dir_of(cfg)
+    per_body, lattice = [], 0
+    for i, b in enumerate(cfg.bodies):
+        key = f"bodies.{i}.shape"
+        h = dx / b.particles_per_cell
+        per_body.append(int(round(shape_volume(b.shape, d, base_dir, key) / h**d)))
+        lo, hi = shape_bounds(b.shape, d, base_dir, key)
+        lattice = max(lattice, math.prod(int(math.ceil(e / h)) + 1 for e in hi - lo) * d * 8 * 3)
+    grid_bytes, grid_detail, cells = _grid_bytes(cfg, base_dir)
+    dt, dt_source = _time_step(cfg, base_dir)
+    steps = cfg.solver.end_time / dt
+    if cfg.solver.max_steps is not None and cfg.solver.max_steps < steps:
+        steps, dt_source = float(cfg.solver.max_steps), dt_source + "; capped by solver.max_steps"
+    limit, source = _limit(cfg)
+    return Estimate(particles=sum(per_body), per_body=per_body,
+                    device_bytes_per_particle=device_bytes_per_particle(cfg, body_force),
+                    host_bytes_per_particle=16 * d + 8 * HOST_FLOATS + 4 * HOST_INTS + 8,
+                    grid_cells=cells, grid_bytes=grid_bytes, grid_detail=grid_detail, lattice_bytes=lattice,
+                    dt=dt, dt_source=dt_source, steps=steps,
+                    outputs=math.floor(cfg.solver.end_time / cfg.output.every) + 1.0,
+                    limit_bytes=limit, limit_source=source)
+
+
+def check(cfg: Config, body_force: bool = False, warn: bool = True) -> Estimate:
+    """Refuse a run that does not fit (ConfigError naming the key that drives its size and the override);
+    with `warn`, SizeWarning for absurdly many steps or outputs. Returns the estimate."""
+    est = estimate(cfg, body_force)
+    big = int(np.argmax(est.per_body))
+    ppc_key = f"bodies.{big}.particles_per_cell"
+    sizes = (f"particles: {est.particles:.3g} ({_gb(est.particle_bytes)}); grid: {_gb(est.grid_bytes)}, "
+             f"{est.grid_detail}")
+    drivers = (f"the size follows domain.dx = {cfg.domain.dx:g}, domain.sparse = {str(cfg.domain.sparse).lower()} "
+               f"and {ppc_key} = {cfg.bodies[big].particles_per_cell}")
+
+    def fix(grid_led: bool) -> str:
+        if grid_led:
+            return "a coarser domain.dx" + (" or domain.sparse: true" if not cfg.domain.sparse else "")
+        return f"fewer {ppc_key}, a coarser domain.dx or smaller bodies"
+
+    layout = grid_layout(cfg)
+    top = math.prod(layout["levels"][0] if cfg.domain.sparse else layout["nodes"])
+    if est.particles > MAX_ELEMENTS or top > MAX_ELEMENTS:
+        grid_led = top > MAX_ELEMENTS
+        raise ConfigError(f"{'the grid' if grid_led else 'the particles'} would need more than 2^31 elements in one "
+                          f"field, more than Taichi can index ({sizes}); {drivers}: use {fix(grid_led)}",
+                          key="domain.dx" if grid_led else ppc_key)
+    grid_led = est.grid_bytes >= est.particles * est.device_bytes_per_particle
+    key = "domain.dx" if grid_led else ppc_key
+    problems = []
+    if est.limit_bytes is not None and est.total_bytes > est.limit_bytes:
+        problems.append(f"the run needs about {_gb(est.total_bytes)} of memory ({sizes}), more than the limit of "
+                        f"{_gb(est.limit_bytes)} ({est.limit_source})")
+    if cfg.limits.particles is not None and est.particles > cfg.limits.particles:
+        problems.append(f"about {est.particles:,} particles, more than limits.particles = {cfg.limits.particles:,}")
+    for message in problems:
+        if not cfg.limits.allow_large:
+            raise ConfigError(f"{message}; {drivers}: use {fix(grid_led)}, raise limits.memory_gb / limits.particles, or pass "
+                              "--allow-large (limits.allow_large: true) to run anyway", key=key)
+        if warn:
+            warnings.warn(f"key '{key}': {message}; running anyway (limits.allow_large)", SizeWarning, stacklevel=2)
+    if warn:
+        for message in size_warnings(cfg, est):
+            warnings.warn(message, SizeWarning, stacklevel=2)
+    return est
+
+
+def size_warnings(cfg: Config, est: Estimate) -> list[str]:
+    """Messages for runs that fit but are probably not what was meant."""
+    out = []
+    if est.steps > MAX_STEPS:
+        out.append(f"about {est.steps:.3g} steps to solver.end_time = {cfg.solver.end_time:g} (dt {est.dt:.3g} "
+                   f"{est.dt_source}, domain.dx = {cfg.domain.dx:g}): check the units of solver.dt, solver.end_time "
+                   "and the materials' E/K and density; solver.max_steps caps a run")
+    if est.outputs > MAX_OUTPUTS:
+        out.append(f"output.every = {cfg.output.every:g} with solver.end_time = {cfg.solver.end_time:g} writes about "
+                   f"{est.outputs:.3g} outputs (files for each of output.formats {', '.join(cfg.output.formats)})")
+    return out

@@ -1,0 +1,163 @@
+"""Resource estimate (issue 9): absurd grids and particle counts are refused from the config alone, before
+anything is allocated; the estimate matches what the solver and the scene builder then make."""
+import copy
+import warnings
+
+import pytest
+import yaml
+
+import taichi_mpm as tm
+from conftest import make_cfg
+from taichi_mpm import budget
+from taichi_mpm.cli import demos, main
+from taichi_mpm.scene import build_scene
+
+
+def cube(dx, sparse=True, ppc=2, **limits):
+    """A 3D block [0.25, 0.75]^3 in the unit cube: (0.5 / dx * ppc)^3 particles."""
+    cfg = make_cfg(3, dx=dx, lower=[0.25] * 3, upper=[0.75] * 3, precision="f32")
+    cfg["domain"]["sparse"] = sparse
+    cfg["bodies"][0]["particles_per_cell"] = ppc
+    if limits:
+        cfg["limits"] = limits
+    return tm.load_config(cfg)
+
+
+# ---------------------------------------------------------------- the estimate is right
+@pytest.mark.parametrize("name", sorted(demos()))
+def test_particle_estimate_matches_the_scene(name):
+    """Shape volume x (ppc / dx)^dim against the particles the builder places: within 1.5 % (the lattice's
+    boundary layer; measured at most 0.6 %, colliding disks)."""
+    cfg = tm.load_config(demos()[name])
+    assert budget.estimate(cfg).particles == pytest.approx(build_scene(cfg).n, rel=0.015)
+
+
+SOLVER_CASES = {
+    "2d apic f64": (make_cfg(2), {}),
+    "3d flip musl gimp, two spacings and materials": (
+        make_cfg(3, transfer="flip", update="musl", basis="gimp", precision="f32", dx=0.1),
+        {"second_body": dict(ppc=3, model="fixed_corotated")}),
+    "2d crack with a damage law": (make_cfg(2, dx=0.05), {"crack": True}),
+    "3d two pointer levels": (make_cfg(3, extent=16.0, dx=0.125, lower=[1.0] * 3, upper=[1.5] * 3), {}),
+}
+
+
+@pytest.mark.parametrize("case", SOLVER_CASES)
+def test_estimate_mirrors_the_solver(case):
+    """Per-particle bytes equal Simulation.bytes_per_particle, and the sparse grid's top pointer level has the
+    shape the estimate assumes (grid.Grid builds it), for each feature combination that changes them."""
+    data, extra = copy.deepcopy(SOLVER_CASES[case])
+    if "second_body" in extra:
+        b = extra["second_body"]
+        data["materials"]["n"] = dict(model=b["model"], density=500.0, E=1e4, nu=0.3)
+        d = data["dim"]
+        data["bodies"].append(dict(shape=dict(type="box", lower=[0.7] * d, upper=[0.9] * d), material="n",
+                                   particles_per_cell=b["ppc"]))
+    if extra.get("crack"):
+        data["crack"] = {}
+        data["materials"]["m"]["tensile_strength"] = 100.0
+    cfg = tm.load_config(data)
+    sim = tm.Simulation(cfg)
+    assert budget.device_bytes_per_particle(cfg) == sim.bytes_per_particle
+    layout = budget.grid_layout(cfg)
+    assert tuple(sim.grid.levels[0].shape) == tuple(layout["levels"][0])
+    assert len(sim.grid.levels) == len(layout["levels"])
+    assert sim.n == pytest.approx(budget.estimate(cfg).particles, rel=0.05)
+
+
+def test_dense_grid_bytes():
+    """Dense quadratic grid: (cells + 2)^3 nodes x (mass + velocity) x 4 bytes."""
+    est = budget.estimate(cube(0.01, sparse=False))
+    assert est.grid_bytes == 102**3 * 4 * 4
+
+
+# ---------------------------------------------------------------- refusals
+def test_dense_fine_3d_grid_is_refused_naming_dx_sparse_and_the_override():
+    # 1002^3 nodes x 16 B = 16 GB of grid, more than the 1.25e8 particles' 12.5 GB of solver fields
+    cfg = cube(1e-3, sparse=False, ppc=1, memory_gb=32)
+    with pytest.raises(tm.ConfigError) as e:
+        budget.check(cfg)
+    msg = str(e.value)
+    assert e.value.key == "domain.dx"
+    for word in ("domain.dx = 0.001", "domain.sparse = false", "domain.sparse: true", "limits.memory_gb",
+                 "--allow-large", "bodies.0.particles_per_cell"):
+        assert word in msg
+    # sparse: only the blocks around the body (1/8 of the domain: ~2.1 GB) and the pointers
+    assert budget.check(cube(1e-3, sparse=True, ppc=1, memory_gb=32)).grid_bytes < 2.5e9
+
+
+def test_refused_before_anything_is_allocated():
+    """Simulation refuses before building the scene or starting Taichi (a 1e9-particle body: no time to make it)."""
+    cfg = cube(1e-3, ppc=4, memory_gb=64)  # (500 * 4)^3 = 8e9 ... -> more than 2^31: refused outright
+    with pytest.raises(tm.ConfigError, match="2\\^31") as e:
+        tm.Simulation(cfg)
+    assert e.value.key == "bodies.0.particles_per_cell"
+    cfg = cube(1e-3, ppc=2, memory_gb=64)  # 1e9 particles, ~200 GB
+    with pytest.raises(tm.ConfigError, match="more than the limit of 64 GB") as e:
+        tm.Simulation(cfg)
+    assert e.value.key == "bodies.0.particles_per_cell"
+
+
+def test_sparse_micro_dx_is_refused():
+    with pytest.raises(tm.ConfigError, match="the grid would need more than 2\\^31") as e:
+        budget.check(cube(1e-6, memory_gb=64))
+    assert e.value.key == "domain.dx"
+    cfg = make_cfg(2, dx=1e-6)
+    with pytest.raises(tm.ConfigError):
+        budget.check(tm.load_config(cfg))
+
+
+def test_default_limit_is_a_share_of_physical_memory(monkeypatch):
+    monkeypatch.setattr(budget, "physical_memory", lambda: 8e9)
+    est = budget.check(cube(0.02))  # ~1e5 particles: fits in 4 GB
+    assert est.limit_bytes == 4e9 and "50% of this machine's 8 GB" in est.limit_source
+    with pytest.raises(tm.ConfigError, match="4 GB"):
+        budget.check(cube(2.5e-3))  # 6.4e7 particles x 208 B = 13 GB
+
+
+def test_particle_limit_and_allow_large():
+    with pytest.raises(tm.ConfigError, match="limits.particles"):
+        budget.check(cube(0.05, particles=100))
+    with pytest.warns(budget.SizeWarning, match="running anyway"):
+        est = budget.check(cube(0.05, particles=100, allow_large=True))
+    assert est.particles == 20**3
+
+
+# ---------------------------------------------------------------- warnings
+def test_absurd_step_and_output_counts_warn():
+    cfg = make_cfg(2, end_time=1.0)
+    cfg["materials"]["m"]["E"] = 1e16  # GPa given as Pa twice: wave speed 3e6 m/s -> 1e7+ steps
+    with pytest.warns(budget.SizeWarning, match="steps"):
+        budget.check(tm.load_config(cfg))
+    cfg = make_cfg(2, end_time=1.0, dt=1e-12)
+    with pytest.warns(budget.SizeWarning, match="1e\\+12 steps"):
+        budget.check(tm.load_config(cfg))
+    cfg = make_cfg(2, end_time=1.0, max_steps=100, dt=1e-12)  # capped: fine
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert budget.check(tm.load_config(cfg)).steps == 100
+    cfg = make_cfg(2, end_time=1.0)
+    cfg["output"] = dict(every=1e-9)
+    with pytest.warns(budget.SizeWarning, match="outputs"):
+        budget.check(tm.load_config(cfg))
+
+
+@pytest.mark.parametrize("name", sorted(demos()))
+def test_bundled_configs_fit_without_warnings(name):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        budget.check(tm.load_config(demos()[name]))
+
+
+# ---------------------------------------------------------------- CLI
+def test_validate_prints_the_estimate_refuses_and_allow_large_overrides(tmp_path, capsys):
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(make_cfg(2)))
+    assert main(["validate", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "estimate: 36 particles" in err and "steps" in err  # [0.3, 0.6]^2 at 0.05 spacing
+    assert main(["validate", str(path), "--set", "limits.memory_gb=1e-6"]) == 2
+    err = capsys.readouterr().err
+    assert "more than the limit" in err and "--allow-large" in err and "Traceback" not in err
+    with pytest.warns(budget.SizeWarning):
+        assert main(["validate", str(path), "--set", "limits.memory_gb=1e-6", "--allow-large"]) == 0
