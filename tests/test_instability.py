@@ -74,7 +74,7 @@ def test_energy_growth_past_the_cfl_limit_is_caught():
     the energy check stops it (measured: +88 % of the peak mechanical energy at step 40)."""
     with pytest.raises(tm.InstabilityError, match="energy growth") as err:
         _vibrating_block(1.2, 0.5).advance(0.8)
-    assert err.value.step % 20 == 0 and err.value.particle is not None
+    assert err.value.particle is not None
 
 
 def test_without_the_energy_check_the_same_run_ends_silently_wrong():
