@@ -177,9 +177,10 @@ class Solver(Strict):
     # unroll the stencil loop: faster steps, slower first compile (3D quadratic: ~20 % faster, 29 s against 3 s
     # cold); auto unrolls stencils of at most 16 nodes (all 1D and 2D bases)
     unroll: Union[Literal["auto"], bool] = "auto"
-    # stop when total energy rises by more than this fraction of the peak kinetic + strain energy (checked every
-    # 20 steps; skipped with a body force, whose work is not tracked); null turns the check off
-    energy_growth_limit: Optional[PositiveFloat] = 0.5
+    # energy balance: stop when total energy exceeds its initial value + body-force work - viscous dissipation by
+    # more than this fraction of the largest kinetic + strain energy (checked every few steps and after every
+    # advance, see docs/accuracy.md); null turns the check off
+    energy_growth_limit: Optional[PositiveFloat] = 0.1
     # volumetric locking: standard (each particle's own J) or fbar (the step's volume change averaged over the
     # grid, for nearly incompressible solids and fluids; see docs/accuracy.md, "Volumetric locking")
     volumetric: Literal["standard", "fbar"] = "standard"
@@ -347,7 +348,20 @@ class Config(Strict):
         return self.solver.gravity or [0.0] * self.dim
 
     def to_dict(self) -> dict:
-        return self.model_dump(mode="json", exclude_none=True)
+        """Plain dict that loads back to the same config: unset optional keys are left out, but an explicit
+        null whose default is not null (solver.energy_growth_limit: null) is kept, or reloading would turn
+        the default back on."""
+        return _keep_explicit_nulls(self, self.model_dump(mode="json", exclude_none=True))
+
+
+def _keep_explicit_nulls(model: BaseModel, out: dict) -> dict:
+    for name, field in type(model).model_fields.items():
+        value = getattr(model, name)
+        if value is None and field.default is not None and name in model.model_fields_set:
+            out[name] = None
+        elif isinstance(value, BaseModel) and isinstance(out.get(name), dict):
+            _keep_explicit_nulls(value, out[name])
+    return out
 
 
 class _Located(ValueError):

@@ -457,6 +457,26 @@ class CrackFinder:
             return out
 
         @ti.func
+        def degrade_energy(p, Fp, psi, tau):
+            """Strain energy the damaged particle still stores: psi scaled by tau_d : eps / tau : eps with the
+            Hencky strain eps = ln(V) (coaxial with tau for isotropic models). Isotropic damage gives (1 - d) psi,
+            closed cracks (all principal stresses compressive) keep psi, matching `degrade`'s split; the rest was
+            released by the damage law (a loss, which the solver's energy balance allows)."""
+            out = psi
+            if d_f[p] > 0:
+                ev, Q = sym_eig(Fp @ Fp.transpose())
+                eps = ti.Matrix.zero(float, dim, dim)
+                for k in ti.static(range(dim)):
+                    q = ti.Vector([Q[a, k] for a in ti.static(range(dim))])
+                    eps += 0.5 * ti.log(ti.max(ev[k], 1e-30)) * q.outer_product(q)
+                full = (tau * eps).sum()
+                share = 1.0 - d_f[p]
+                if full > 0:
+                    share = ti.min(ti.max((degrade_tension(tau, d_f[p]) * eps).sum() / full, 0.0), 1.0)
+                out = psi * share
+            return out
+
+        @ti.func
         def family(p):
             """A modified particle's mask, contact flag and sums, read once per particle."""
             Gt = ti.Vector([gsum[p][0, a] for a in ti.static(range(dim))])
@@ -642,7 +662,7 @@ class CrackFinder:
         self._k = dict(prepare=prepare, particle_normals=particle_normals, band_normals=band_normals, node_normals=node_normals,
                        particle_masks=particle_masks, grid_update=grid_update, grid_remap=grid_remap,
                        partition_check=partition_check)
-        self.modified, self.degrade = modified, degrade
+        self.modified, self.degrade, self.degrade_energy = modified, degrade, degrade_energy
         self.p2g, self.p2g_momentum, self.g2p = p2g, p2g_momentum, g2p
         return self
 

@@ -32,9 +32,25 @@ from .scene import Scene, build_scene
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                2: "non-finite value (NaN or infinity) in velocity or deformation",
-               3: "particle left the domain"}
+               3: "particle left the domain",
+               4: "fluid volume collapse"}
+ENERGY_GROWTH = "energy growth beyond the work done on the system"
+NUMERICAL_FRACTURE = "numerical fracture (a body tore apart on the grid)"
+CAUSES = (*FAIL_CAUSES.values(), ENERGY_GROWTH, NUMERICAL_FRACTURE)  # every InstabilityError.cause the solver raises
 _NO_FAIL = 2**31 - 1
-ENERGY_CHECK_EVERY = 20  # steps between energy-growth checks
+_CODES = 8  # fail flag = solver slot * _CODES + code
+DT_LIMITS = ("elastic", "speed", "gravity", "body_force", "viscosity", "fixed")  # Simulation.dt_limit
+ENERGY_CHECK_EVERY = 4      # steps between energy-balance checks (every step while the energy is above the balance)
+FLUID_J_MIN = 0.2           # a weakly compressible fluid squeezed below this volume ratio has collapsed
+FRACTURE_SPREAD = 1.3       # body spread / spread its particles' F accounts for, past which the body tore on the grid
+# explicit viscous diffusion: dt <= cfl rho dx^2 / (VISCOUS_DIFFUSION d mu), the finite-difference bound
+# dx^2 / (2 d nu). Measured (2D, dx 0.05, APIC, fixed dt, 100 steps): blow-up above 0.25-0.35 rho dx^2 / mu
+# for linear and 0.35-0.5 for quadratic, against 0.25 here at cfl 1 (0.1 at the default cfl 0.4)
+VISCOUS_DIFFUSION = 2.0
+
+
+class StabilityWarning(UserWarning):
+    """A scene that is likely to go wrong numerically (e.g. a weakly compressible fluid that is too soft)."""
 
 _live = {"id": 0, "key": None}
 
@@ -106,11 +122,15 @@ class Simulation:
         self._materials = [c.materials[name] for name in self.scene.materials]
         self.wave_speed = max(wave_speed(m) for m in self._materials)
         self.time, self.n_steps, self.dt = 0.0, 0, 0.0
-        self._energy_ref = None  # (total energy at the reference time, peak kinetic + strain energy since)
+        self.dt_limit = None  # which rate limited the last CFL-rule dt (one of DT_LIMITS)
+        self._balance = None  # energy balance reference (see _check_energy_balance)
+        self._body_acc_time, self._body_acc_max = None, 0.0
         self._allocate()
         self._build_kernels()
         self._upload()
         self._vmax = _max_speed(self.scene.v)
+        self._shape_ref = None  # per-body spread reference (see _check_fracture)
+        self._warn_weak_fluids()
 
     # ------------------------------------------------------------------ fields
     def _features(self):
@@ -149,6 +169,10 @@ class Simulation:
         self.fail = ti.field(ti.i32, ())
         self.vmax2 = ti.field(float, ())
         self.diag = ti.field(ti.f64, 8)  # reduction slots for energies and momenta
+        self.work = ti.field(ti.f64, 2)  # accumulated per step: body-force work, viscous dissipation
+        self.body_id = ti.field(ti.i32, n) if self.scene.body.max(initial=0) > 0 else None
+        self.n_bodies = int(self.scene.body.max(initial=0)) + 1
+        self.moments = ti.field(ti.f64, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
         self.bytes_per_particle = self._bytes_per_particle()
         if self.crack is not None:
             self.bytes_per_particle += self.crack.bytes_per_particle()
@@ -198,6 +222,8 @@ class Simulation:
             self.mat.from_numpy(self._to_solver(s.material).astype(np.uint8))
         if self.half_width is not None:
             self.half_width.from_numpy(self._to_solver(0.5 * s.spacing / self.dx))
+        if self.body_id is not None:
+            self.body_id.from_numpy(self._to_solver(s.body).astype(np.int32))
         if self.crack is not None:
             self.crack.upload()
 
@@ -223,6 +249,12 @@ class Simulation:
         gv_old = grid.vec.get("v_old")
         gv2 = grid.vec.get("v2")
         fail, vmax2 = self.fail, self.vmax2
+        work, body_id, moments = self.work, self.body_id, self.moments
+        has_body_id = body_id is not None
+        d_min = (1e-5 if self.cfg.precision == "f32" else 1e-10) * dx * dx  # smallest D_p entry inverted
+        n_codes = _CODES
+        out_tol = 1e-6 * dx  # a particle on a wall that round-off moves a hair beyond it has not left the domain
+        fluid_j_min = FLUID_J_MIN
         walls = self.cfg.domain.boundaries
         faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(dim)]
         wall = make_wall_condition(dim, n_cells, faces, basis, [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)])
@@ -283,16 +315,31 @@ class Simulation:
             return psi
 
         @ti.func
+        def viscous_power(p, Fp):
+            """Viscous dissipation per reference volume, tau_visc : L = J mu (L + L^T) : L (Fluid.kirchhoff)."""
+            Lp = velocity_gradient(p)
+            P = 0.0
+            for k in ti.static(range(len(mats))):
+                if ti.static(mats[k][0].fluid and mats[k][3] > 0):
+                    if ti.static(len(mats) == 1):
+                        P = Fp.determinant() * mats[k][3] * ((Lp + Lp.transpose()) * Lp).sum()
+                    elif mat[p] == k:
+                        P = Fp.determinant() * mats[k][3] * ((Lp + Lp.transpose()) * Lp).sum()
+            return P
+
+        @ti.func
         def is_fluid(p):
-            res = False
+            # an int, set inside static branches: `res = False; res = ti.static(True)` stays False in Taichi 1.7,
+            # which had left fluids keeping their shear F
+            res = 0
             if ti.static(len(mats) == 1):
-                if ti.static(mats[0][0].fluid):  # (`res = ti.static(...)` would bind a new, block-local name)
-                    res = True
+                if ti.static(mats[0][0].fluid):
+                    res = 1
             else:
                 for k in ti.static(range(len(mats))):
                     if ti.static(mats[k][0].fluid):
                         if mat[p] == k:
-                            res = True
+                            res = 1
             return res
 
         @ti.func
@@ -312,6 +359,9 @@ class Simulation:
                         lp = half_width[p]
                     if ti.static(gimp_deforming):
                         lp = ti.min(lp * ti.abs(F[p][a, a]), 0.5)
+                    # a particle's domain ends at the walls: otherwise interior nodes keep weight on a particle
+                    # at the wall and carry it through (sticky wall: out at step 1; slip floor at Mach 3)
+                    lp = ti.max(ti.min(lp, u[a], n_cells[a] - u[a]), 1e-6)
                 b, w, dw = basis.weights_1d(u[a], n_cells[a], lp)
                 base[a] = b
                 for k in ti.static(range(S)):
@@ -355,10 +405,13 @@ class Simulation:
 
         @ti.func
         def inertia_inverse(W, R):
+            """D_p^-1; zero along an axis where D_p vanishes (a B-spline particle exactly on a wall sits on
+            the wall's control point: D_p = 0 there and B_p = 0 too, so the affine part is zero, not 0/0)."""
             Dinv = ti.Matrix.zero(float, dim, dim)
             D = inertia(W, R)
             for a in ti.static(range(dim)):
-                Dinv[a, a] = 1.0 / D[a, a]
+                if D[a, a] > d_min:
+                    Dinv[a, a] = 1.0 / D[a, a]
             return Dinv
 
         @ti.func
@@ -410,6 +463,9 @@ class Simulation:
                 force_density = ti.Vector.zero(float, dim)
                 if ti.static(has_body_acc):
                     force_density = mp * body_acc[p]
+                    work[0] += 0.5 * dt * force_density.dot(vp)  # trapezoid: the other half in G2P
+                if ti.static(f["viscosity"]):
+                    work[1] += dt * vol0[p] * viscous_power(p, Fp)
                 if ti.static(crack):
                     if crk.modified(p):
                         crk.p2g(p, base, W, DW, R, mp, stress, vp, Ap, force_density, dt)
@@ -500,6 +556,8 @@ class Simulation:
                         v[p] = alpha * (v[p] + dv) + (1.0 - alpha) * v_pic
                     else:
                         v[p] = v_pic
+                    if ti.static(has_body_acc):
+                        work[0] += 0.5 * dt * density(p) * vol0[p] * body_acc[p].dot(v[p])
                     if ti.static(f["apic"]):
                         if ti.static(basis.apic_gradient):
                             C[p] = G
@@ -522,21 +580,47 @@ class Simulation:
                         code = 2
                     elif J <= 0:
                         code = 1
-                    elif (xp < lower).any() or (xp > upper).any():
+                    elif (xp < lower - out_tol).any() or (xp > upper + out_tol).any():
                         code = 3
+                    elif J < fluid_j_min:
+                        if is_fluid(p):
+                            code = 4
                     if code != 0:
-                        ti.atomic_min(fail[None], p * 4 + code)
+                        ti.atomic_min(fail[None], p * n_codes + code)
 
         # diagnostics ----------------------------------------------------
         acc = self.diag
 
+        g_norm = float(np.linalg.norm(self.cfg.gravity))
+
         @ti.kernel
         def energies():
+            """Kinetic, strain (degraded where damaged), gravity potential; slot 3: sum m |g| |x| (the
+            potential's round-off scale)."""
             for p in x:
                 mp = density(p) * vol0[p]
                 acc[0] += 0.5 * mp * v[p].norm_sqr()
-                acc[1] += vol0[p] * strain_energy(p, F[p])
+                psi = strain_energy(p, F[p])
+                if ti.static(crack):
+                    psi = crk.degrade_energy(p, F[p], psi, kirchhoff(p, F[p]))
+                acc[1] += vol0[p] * psi
                 acc[2] -= mp * gravity.dot(x[p])
+                acc[3] += mp * g_norm * x[p].norm()
+
+        @ti.kernel
+        def body_moments():
+            """Per body: mass, first and second moments of position, mass-weighted F (the fracture check)."""
+            for p in x:
+                b = 0
+                if ti.static(has_body_id):
+                    b = body_id[p]
+                mp = density(p) * vol0[p]
+                moments[b, 0] += mp
+                for a in ti.static(range(dim)):
+                    moments[b, 1 + a] += mp * x[p][a]
+                    for c in ti.static(range(dim)):
+                        moments[b, 1 + dim + a * dim + c] += mp * x[p][a] * x[p][c]
+                        moments[b, 1 + dim + dim * dim + a * dim + c] += mp * F[p][a, c]
 
         @ti.kernel
         def momenta():
@@ -575,8 +659,8 @@ class Simulation:
                 for a, b in ti.static(ti.ndrange(3, 3)):
                     out[p, a, b] = tau[a, b]
 
-        self._k = dict(p2g=p2g, grid_update=grid_update, g2p=g2p, p2g_momentum=p2g_momentum, grid_remap=grid_remap, energies=energies, momenta=momenta,
-                       cauchy_stress=cauchy_stress)
+        self._k = dict(p2g=p2g, grid_update=grid_update, g2p=g2p, p2g_momentum=p2g_momentum, grid_remap=grid_remap,
+                       energies=energies, momenta=momenta, cauchy_stress=cauchy_stress, body_moments=body_moments)
         if crack:
             self._k.update(crk.grid_kernels())
 
@@ -585,23 +669,65 @@ class Simulation:
         if _live["id"] != self._id:
             raise RuntimeError("this Simulation is no longer live: a newer Simulation restarted Taichi")
 
+    def dt_limits(self) -> dict:
+        """The time-step bound of every rate in the scene (seconds), by name (see DT_LIMITS):
+        elastic waves + particle speed: cfl dx / (c + |v|max), named `elastic` or `speed` by the larger;
+        acceleration: cfl sqrt(dx / |a|), |a| = |g| + max |b| (named `body_force` when b dominates);
+        viscosity: cfl rho dx^2 / (VISCOUS_DIFFUSION d mu) per viscous material."""
+        cfl, dx = self.cfg.solver.cfl, self.dx
+        c, v = self.wave_speed, self._vmax
+        out = {"elastic" if c >= v else "speed": cfl * dx / (c + v) if c + v > 0 else math.inf}
+        g = self._g_norm
+        b = self._body_acc_now()
+        if g + b > 0:
+            out["body_force" if b > g else "gravity"] = cfl * math.sqrt(dx / (g + b))
+        for m in self._materials:
+            if m.model == "fluid" and m.viscosity > 0:
+                dt_v = cfl * m.density * dx * dx / (VISCOUS_DIFFUSION * self.dim * m.viscosity)
+                out["viscosity"] = min(out.get("viscosity", math.inf), dt_v)
+        return out
+
     def stable_dt(self) -> float:
+        """solver.dt when fixed, else the smallest of dt_limits(); sets dt_limit to the limiting term."""
         s = self.cfg.solver
         if s.dt is not None:
+            self.dt_limit = "fixed"
             return s.dt
-        return s.cfl * self.dx / (self.wave_speed + self._vmax)
+        limits = self.dt_limits()
+        self.dt_limit = min(limits, key=limits.get)
+        return limits[self.dt_limit]
+
+    @property
+    def _g_norm(self) -> float:
+        return float(np.linalg.norm(self.cfg.gravity))
+
+    def _body_acc_now(self) -> float:
+        """Evaluate body_force at the current time (once per time), upload it; returns max |b|."""
+        if self.body_acc is None:
+            return 0.0
+        if self._body_acc_time != self.time:
+            acc = np.asarray(self.body_force(self.scene.x, self.time), dtype=np.float64)
+            if acc.shape != (self.n, self.dim):
+                raise ValueError(f"body_force must return an array of shape {(self.n, self.dim)}, got {acc.shape}")
+            if not np.isfinite(acc).all():
+                raise ValueError(f"body_force returned non-finite values at t={self.time:g}")
+            self.body_acc.from_numpy(self._to_solver(acc))
+            self._body_acc_time, self._body_acc_max = self.time, _max_speed(acc) if self.n else 0.0
+        return self._body_acc_max
 
     def step(self, dt: Optional[float] = None) -> float:
         """Advance one step (dt from the CFL rule unless given); returns dt."""
         self._check_live()
         k = self._k
-        dt = float(dt if dt is not None else self.stable_dt())
-        watch_energy = self.cfg.solver.energy_growth_limit is not None and self.body_acc is None
-        if watch_energy and self._energy_ref is None:
-            self._energy_ref = self._energy_reference()
-        if self.body_acc is not None:
-            acc = np.asarray(self.body_force(self.scene.x, self.time), dtype=np.float64)
-            self.body_acc.from_numpy(self._to_solver(acc))
+        if dt is None:
+            dt = self.stable_dt()
+        elif not (_is_real(dt) and math.isfinite(dt) and dt > 0):
+            raise ValueError(f"step(dt): dt must be a finite number > 0, got {dt!r}")
+        dt = float(dt)
+        watch = self.cfg.solver.energy_growth_limit is not None
+        if self._balance is None:  # the balance is kept (energy_balance()) even with the check off
+            self._balance = self._energy_balance_reference()
+        self._body_acc_now()
         self.grid.clear()
         if self.crack is not None:
             self.crack.update()
@@ -624,30 +750,175 @@ class Simulation:
         code = self.fail[None]
         self._vmax = math.sqrt(max(float(self.vmax2[None]), 0.0))
         if code != _NO_FAIL:
-            p, cause = int(self._perm[code // 4]), FAIL_CAUSES[code % 4]
-            raise InstabilityError(cause, self.n_steps, self.time, particle=p,
-                                   detail=f"dt={dt:.3g}, max speed={self._vmax:.3g}")
-        if watch_energy and self.n_steps % ENERGY_CHECK_EVERY == 0:
-            self._check_energy_growth()
+            self._raise_particle_failure(code, dt)
+        if watch and self._balance["due"] <= self.n_steps:
+            self._check_energy_balance()
         return dt
 
-    def _energy_reference(self):
-        e = self.energy()
-        return sum(e.values()), e["kinetic"] + e["strain"]
+    # ------------------------------------------------------------------ checks
+    def _hint(self, dt: float) -> str:
+        """Which rate limited dt and at what CFL number, for error messages."""
+        if self.dt_limit == "fixed":
+            return (f"solver.dt is fixed at {dt:.3g} s, {dt / self.stable_dt_rule():.2g} x the CFL-rule step "
+                    f"(cfl {self.cfg.solver.cfl:g})")
+        return (f"dt={dt:.3g} s limited by {self.dt_limit or 'the caller'}, CFL number {self.cfl_number():.2f} "
+                f"(solver.cfl {self.cfg.solver.cfl:g})")
 
-    def _check_energy_growth(self):
+    def stable_dt_rule(self) -> float:
+        limits = self.dt_limits()
+        return min(limits.values())
+
+    def _raise_particle_failure(self, code: int, dt: float):
+        p, kind = int(self._perm[code // _CODES]), code % _CODES
+        cause = FAIL_CAUSES[kind]
+        s = self.cfg.solver
+        detail = f"dt={dt:.3g}, max speed={self._vmax:.3g}; {self._hint(dt)}"
+        if kind == 1 and s.basis == "linear":
+            detail += ("; the linear basis inverts particles that cross a cell boundary under stress (the node "
+                       "they enter has a tiny mass and a full weight gradient): use basis quadratic or gimp, or "
+                       "solver.update: musl")
+        elif kind in (1, 2):
+            detail += f"; fix: lower solver.cfl (measured stable limits per basis and transfer: docs/accuracy.md)"
+        elif kind == 4:
+            detail += (f"; fluid J fell below {FLUID_J_MIN}: the bulk modulus K is too small for the pressure "
+                       f"(rule of thumb: K >= 100 rho g H, Mach < 0.1); raise K")
+        raise InstabilityError(cause, self.n_steps, self.time, particle=p, detail=detail)
+
+    def _energy_parts(self):
+        self.diag.fill(0)
+        self._k["energies"]()
+        e = self.diag.to_numpy()
+        w = self.work.to_numpy()
+        return e, w
+
+    def _energy_balance_reference(self) -> dict:
+        e, w = self._energy_parts()
+        floor = self._energy_floor(e[3])
+        return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1], scale=max(e[0] + e[1], floor),
+                    floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time)
+
+    def _energy_floor(self, potential_scale: float) -> float:
+        """Round-off scale of the balance: below it a 'growth' is precision noise, not physics."""
+        f32 = self.cfg.precision == "f32"
+        stiffness = float(np.sum(self.scene.volume * self._stiffness_per_particle()))
+        return (1e-8 if f32 else 1e-12) * stiffness + (1e-6 if f32 else 1e-12) * potential_scale + 1e-300
+
+    def _stiffness_per_particle(self) -> np.ndarray:
+        mod = np.array([m.lam + 2 * m.mu for m in self._materials])
+        return mod[self.scene.material] if len(mod) > 1 else np.full(self.n, mod[0])
+
+    def energy_balance(self) -> dict:
+        """The energy balance since its reference time (first step, or the last set_particles/set_state):
+        growth = E(t) + dissipated - E(ref) - work, with E = kinetic + strain + gravity potential, work the
+        body-force work, dissipated the viscous dissipation; scale = largest kinetic + strain energy seen.
+        Walls and PIC/APIC/FLIP transfers only remove energy, so growth > 0 is numerical."""
+        self._check_live()
+        ref = self._balance or self._energy_balance_reference()
+        e, w = self._energy_parts()
+        total = e[0] + e[1] + e[2]
+        work, dissipated = w[0] - ref["work"], w[1] - ref["dissipated"]
+        scale = max(ref["scale"], e[0] + e[1])
+        growth = total + dissipated - ref["total"] - work
+        return dict(growth=growth, ratio=growth / scale, scale=scale, work=work, dissipated=dissipated,
+                    total=total, initial=ref["total"])
+
+    def _check_energy_balance(self):
         """An explicit step past its stability limit can grow energy without any NaN or inverted particle."""
-        total, mech = self._energy_reference()
-        ref_total, peak = self._energy_ref
-        peak = max(peak, mech)
-        self._energy_ref = (ref_total, peak)
+        bal = self.energy_balance()
+        ref = self._balance
+        ref["scale"], ref["steps"] = bal["scale"], self.n_steps
         limit = self.cfg.solver.energy_growth_limit
-        if total - ref_total > limit * peak and peak > 0:
+        # every step while energy is above the balance at all: a blow-up (x1.5-2 per step at CFL 1.2) is then
+        # stopped within a step of crossing the limit
+        ref["due"] = self.n_steps + (1 if bal["ratio"] > 0 else ENERGY_CHECK_EVERY)
+        if self.crack is None:
+            self._check_fracture()
+        if bal["ratio"] > limit and bal["growth"] > ref["floor"]:
             speed = np.sum(self._read("v") ** 2, axis=1)
+            terms = ["gravity"] if self._g_norm > 0 else []
+            terms += ["body forces"] if self.body_acc is not None else []
+            terms += ["viscous dissipation"] if self.feat["viscosity"] else []
             raise InstabilityError(
-                f"energy growth: total energy rose by {(total - ref_total) / peak:.0%} of the peak kinetic + "
-                f"strain energy (limit {limit:.0%}); the time step is past its stability limit, lower solver.cfl",
-                self.n_steps, self.time, particle=int(np.argmax(speed)), detail="particle named: the fastest")
+                ENERGY_GROWTH, self.n_steps, self.time, particle=int(np.argmax(speed)),
+                detail=(f"total energy {bal['total']:.4g} exceeds initial {bal['initial']:.4g} + work "
+                        f"{bal['work']:.4g} - dissipated {bal['dissipated']:.4g} by {bal['ratio']:.0%} of the "
+                        f"largest kinetic + strain energy (limit {limit:.0%}; balance includes "
+                        f"{', '.join(terms) or 'no external work'}); particle named: the fastest. Likely cause: "
+                        f"the time step is past the stability limit of basis {self.cfg.solver.basis} with "
+                        f"{self.cfg.solver.transfer}: {self._hint(self.dt)}. Fix: lower solver.cfl (or solver.dt); "
+                        f"largest stable CFL per basis and transfer: docs/accuracy.md"))
+
+    def _check_fracture(self):
+        """Numerical fracture: a solid body whose particles spread apart further than their own F says (a body
+        stretched until its particles no longer share grid nodes breaks into clumps while each clump's F stays
+        near its old value). Compares the spread tr(M2) of each body with the spread its mean F predicts from
+        the reference state, M2_pred = A M2_ref A^T with A = mean F (mean F at the reference)^-1."""
+        shapes = self._body_shapes()
+        if self._shape_ref is None:
+            self._shape_ref = shapes
+            return
+        for b, (mass, M2, Fm, solid) in shapes.items():
+            if not solid or b not in self._shape_ref:
+                continue
+            _, M2r, Fr, _ = self._shape_ref[b]
+            try:
+                A = Fm @ np.linalg.inv(Fr)
+            except np.linalg.LinAlgError:
+                continue
+            pred = np.trace(A @ M2r @ A.T)
+            ratio = np.trace(M2) / pred if pred > 0 else 1.0
+            if ratio > FRACTURE_SPREAD ** 2:
+                raise InstabilityError(
+                    NUMERICAL_FRACTURE, self.n_steps, self.time, particle=int(np.flatnonzero(self.scene.body == b)[0]),
+                    detail=(f"body {b} spread {math.sqrt(ratio):.2f} x as far as its particles' deformation "
+                            f"gradients account for (mean F {np.array2string(Fm, precision=3)}): its particles "
+                            f"separated by more than a grid cell (stretched material that no longer shares grid "
+                            f"nodes stops feeling its own tension). Fix: a finer grid (smaller domain.dx) or more "
+                            f"particles_per_cell, basis gimp with solver.gimp_domain: deforming, or a crack section "
+                            f"if the body is meant to break"))
+
+    def _body_shapes(self) -> dict:
+        """body -> (mass, second moment of position about the centre, mass-mean F, solid?)."""
+        self.moments.fill(0)
+        self._k["body_moments"]()
+        m = self.moments.to_numpy()
+        d = self.dim
+        fluid = np.array([mm.model == "fluid" for mm in self._materials])
+        out = {}
+        for b in range(self.n_bodies):
+            mass = m[b, 0]
+            if mass <= 0:
+                continue
+            mean = m[b, 1:1 + d] / mass
+            M2 = m[b, 1 + d:1 + d + d * d].reshape(d, d) / mass - np.outer(mean, mean)
+            Fm = m[b, 1 + d + d * d:].reshape(d, d) / mass
+            mats = np.unique(self.scene.material[self.scene.body == b])
+            out[b] = (mass, M2, Fm, not fluid[mats].any())
+        return out
+
+    def _warn_weak_fluids(self):
+        """Weakly compressible fluids: K >= 100 rho g H (Mach < 0.1) keeps volume changes near 1 %."""
+        g = self._g_norm
+        c_speed = _max_speed(self.scene.v) if self.n else 0.0
+        for i, m in enumerate(self._materials):
+            if m.model != "fluid":
+                continue
+            sel = self.scene.material == i
+            if not sel.any():
+                continue
+            H = 0.0
+            if g > 0:
+                down = -np.asarray(self.cfg.gravity, float) / g
+                h = self.scene.x[sel] @ down
+                H = float(h.max() - h.min()) + float(np.min(self.scene.spacing))
+            c = math.sqrt(m.K / m.density)
+            if m.K < 100 * m.density * g * H or c_speed > 0.1 * c:
+                warnings.warn(
+                    f"fluid material {self.scene.materials[i]!r}: K = {m.K:g} Pa is too soft for this scene "
+                    f"(fluid height H = {H:.3g} m, rho g H = {m.density * g * H:.3g} Pa, initial speed "
+                    f"Mach {c_speed / c:.2f}); a weakly compressible fluid needs K >= 100 rho g H = "
+                    f"{100 * m.density * g * H:.3g} Pa and speeds below Mach 0.1, or its volume collapses (the run "
+                    f"stops when J < {FLUID_J_MIN})", StabilityWarning, stacklevel=3)
 
     @property
     def at_step_limit(self) -> bool:
@@ -658,20 +929,33 @@ class Simulation:
     def advance_to(self, target: float, on_step: Optional[Callable] = None) -> int:
         """Step until simulation time `target`, shortening the last step to land on it exactly; stop early at
         solver.max_steps. on_step(self) runs after every step. Returns the number of steps taken.
-        (Every stepping loop uses this one, so a resumed run takes exactly the steps of an uninterrupted one.)"""
+        (Every stepping loop uses this one, so a resumed run takes exactly the steps of an uninterrupted one.)
+        Every step obeys the CFL rule (dt_limits), whatever the duration; the energy balance is checked after
+        the last step too."""
+        if not _is_real(target) or not math.isfinite(target):
+            raise ValueError(f"advance_to(target): target must be a finite time, got {target!r}")
+        if target < self.time - 1e-12 * max(1.0, abs(self.time)):
+            raise ValueError(f"advance_to({target!r}) lies before the current time {self.time!r}: "
+                             "simulation time only moves forward")
         steps = 0
         while self.time < target - 1e-12 * max(1.0, abs(target)):
             if self.at_step_limit:
-                return steps
+                break
             self.step(min(self.stable_dt(), target - self.time))
             steps += 1
             if on_step is not None:
                 on_step(self)
-        self.time = target
+        else:
+            self.time = max(self.time, float(target))
+        if steps and self._balance is not None and self._balance["steps"] != self.n_steps \
+                and self.cfg.solver.energy_growth_limit is not None:
+            self._check_energy_balance()  # after the last step, whatever the check interval
         return steps
 
     def advance(self, duration: float, on_step: Optional[Callable] = None) -> int:
-        """Advance by `duration` of simulation time (see advance_to)."""
+        """Advance by `duration` (finite, >= 0) of simulation time (see advance_to)."""
+        if not _is_real(duration) or not math.isfinite(duration) or duration < 0:
+            raise ValueError(f"advance(duration): duration must be a finite number >= 0, got {duration!r}")
         return self.advance_to(self.time + duration, on_step)
 
     def run(self, on_output: Optional[Callable] = None, every: Optional[float] = None):
@@ -719,20 +1003,33 @@ class Simulation:
         """Set per-particle state (x, v, F, C) in creation order."""
         self._check_live()
         fields = self._state_fields()
+        checked = self._validated_particles(arrays)  # everything is checked before anything is written
+        for name, value in checked.items():
+            value = self._to_solver(value)
+            fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
+        self._balance = self._shape_ref = None  # a new state: the balance and body shapes are measured afresh
+        if self.fbar is not None and "F" in checked:
+            self.fbar.sync()  # F-bar's start-of-step J follows the new F
+        if "v" in checked:
+            self._vmax = _max_speed(checked["v"])
+
+    def _validated_particles(self, arrays: dict) -> dict:
+        fields = self._state_fields()
+        out = {}
         for name, value in arrays.items():
             if name not in fields:
                 raise ValueError(f"cannot set '{name}' (settable: {', '.join(fields)})")
-            value = np.asarray(value, dtype=np.float64)
+            try:
+                value = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"{name} must be a numeric array: {e}") from None
             want = (self.n, self.dim) if name in ("x", "v") else (self.n, self.dim, self.dim)
             if value.shape != want:
                 raise ValueError(f"{name} must have shape {want}, got {value.shape}")
-            value = self._to_solver(value)
-            fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
-        self._energy_ref = None  # a new state: energy is measured afresh
-        if self.fbar is not None and "F" in arrays:
-            self.fbar.sync()
-        if "v" in arrays:
-            self._vmax = _max_speed(arrays["v"])
+            if not np.isfinite(value).all():
+                raise ValueError(f"{name} holds non-finite values (NaN or infinity)")
+            out[name] = value
+        return out
 
     def get_state(self) -> dict:
         """Everything needed to continue bit for bit: particle fields (creation order), clock, CFL speed estimate."""
@@ -744,17 +1041,33 @@ class Simulation:
         return state
 
     def set_state(self, state: dict):
-        self.set_particles(**{k: state[k] for k in self._state_fields() if k in state})
-        self.time, self.n_steps = float(state["time"]), int(state["n_steps"])
-        self.dt, self._vmax = float(state["dt"]), float(state["vmax"])
+        """Restore a get_state() dict. Everything is validated first, so a bad state changes nothing."""
+        self._check_live()
+        missing = [k for k in ("time", "n_steps", "dt", "vmax") if k not in state]
+        if missing:
+            raise ValueError(f"state lacks {', '.join(missing)}")
+        try:
+            clock = dict(time=float(state["time"]), n_steps=int(state["n_steps"]), dt=float(state["dt"]),
+                         vmax=float(state["vmax"]))
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"state clock values must be numbers: {e}") from None
+        if not all(math.isfinite(clock[k]) for k in ("time", "dt", "vmax")) or clock["n_steps"] < 0 \
+                or clock["time"] < 0 or clock["dt"] < 0 or clock["vmax"] < 0:
+            raise ValueError(f"state clock must be finite and non-negative, got {clock}")
+        particles = self._validated_particles({k: state[k] for k in self._state_fields() if k in state})
+        if self.crack is not None:
+            for k in ("damage", "damage_kappa"):
+                if k in state and np.shape(state[k]) != (self.n,):
+                    raise ValueError(f"state {k} must have shape {(self.n,)}, got {np.shape(state[k])}")
+        self.set_particles(**particles)
+        self.time, self.n_steps, self.dt, self._vmax = clock["time"], clock["n_steps"], clock["dt"], clock["vmax"]
         if self.crack is not None:
             self.crack.set_state(state)
 
     def energy(self) -> dict:
+        """Kinetic, strain (the degraded energy where the crack finder damaged a particle), gravity potential."""
         self._check_live()
-        self.diag.fill(0)
-        self._k["energies"]()
-        e = self.diag.to_numpy()
+        e, _ = self._energy_parts()
         return {"kinetic": float(e[0]), "strain": float(e[1]), "gravity": float(e[2])}
 
     def momentum(self) -> dict:
@@ -770,6 +1083,10 @@ class Simulation:
 
     def cfl_number(self) -> float:
         return self.dt * (self.wave_speed + self._vmax) / self.dx
+
+
+def _is_real(x) -> bool:
+    return isinstance(x, (int, float, np.floating, np.integer)) and not isinstance(x, bool)
 
 
 def _max_speed(v) -> float:

@@ -7,13 +7,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from taichi_mpm.solver import FAIL_CAUSES
+from taichi_mpm.solver import CAUSES, NUMERICAL_FRACTURE
 from taichi_mpm.stability import SCENARIOS, largest_stable_cfl, make_scenario, plot_map
 from taichi_mpm.study import run_study
 
 ROOT = Path(__file__).resolve().parents[1]
 LIMIT = 1.1
-SOLVER_CAUSES = set(FAIL_CAUSES.values())
+SOLVER_CAUSES = set(CAUSES)
 
 # (case, expected outcome or None for "either", expected cause or None)
 FAST = [
@@ -22,7 +22,9 @@ FAST = [
     ({"problem.nu": 0.499}, "ok", None),
     ({"problem.mach": 0.5}, "ok", None),
     ({"solver.cfl": 1.5}, "unstable", None),
-    ({"problem.type": "compression", "problem.J": 0.05}, "ok", None),
+    # released from J = 0.05 the one-cell block's particles fly apart at ~3 c (spread 1.9 x what their F says):
+    # numerical fracture, which used to finish as "ok"
+    ({"problem.type": "compression", "problem.J": 0.05}, "unstable", NUMERICAL_FRACTURE),
     ({"problem.type": "rotation", "problem.mach": 0.5}, "ok", None),
     ({"problem.type": "thin", "problem.mach": 0.1}, "ok", None),
     ({"problem.type": "edge", "problem.boundary": "free"}, "unstable", "particle left the domain"),
@@ -77,8 +79,6 @@ def test_fast_map_physics(fast_map):
     assert abs(int(rows[0]["steps"]) - int(rows[1]["steps"])) <= 0.1 * int(rows[1]["steps"])
     # the impact at half the wave speed compresses the block far more than at 0.1 c
     assert float(rows[3]["j_min"]) < float(rows[0]["j_min"]) - 0.1
-    # released from J = 0.05 the block expands back past its stress-free volume
-    assert float(rows[5]["j_max"]) > 0.5
     # the spinning disk keeps spinning near its rim speed (APIC keeps angular momentum)
     assert 0.4 < float(rows[6]["speed_over_c"]) < 0.6
 
