@@ -44,15 +44,21 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.update": ("", "usl (update stress last) or musl (F from re-mapped velocities, Sulsky 1995)"),
     "solver.flip_blend": ("1", "FLIP fraction of the velocity update when transfer is flip (1: pure FLIP)"),
     "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa)"),
-    "solver.cfl": ("1", "adaptive time step dt = cfl dx / (elastic wave speed + max particle speed)"),
+    "solver.cfl": ("1", "adaptive time step: the smallest of cfl dx / (wave speed + max speed), cfl sqrt(dx / max "
+                        "acceleration) for gravity and body forces, cfl rho dx^2 / (2 d mu) for viscosity"),
     "solver.dt": ("s", "fixed time step instead of the CFL rule; null: adaptive"),
     "solver.end_time": ("s", "simulated time to run to"),
     "solver.gravity": ("m/s^2", "gravitational acceleration, one number per axis; null: none"),
     "solver.max_steps": ("", "stop after this many steps; null: no limit"),
     "solver.unroll": ("", "unroll the stencil loop (true / false); auto unrolls stencils of at most 16 nodes"),
-    "solver.energy_growth_limit": ("1", "stop with an instability when the total energy rises by more than this "
-                                        "fraction of the peak kinetic + strain energy (checked every 20 steps, not "
-                                        "with a body force); null: off"),
+    "solver.energy_growth_limit": ("1", "stop with an instability when total energy exceeds its initial value + "
+                                        "body-force work - viscous dissipation by more than this fraction of the "
+                                        "largest kinetic + strain energy (checked every few steps and after every "
+                                        "advance); null: off"),
+    "solver.volumetric": ("", "standard (each particle's own J) or fbar (the step's volume change averaged over the "
+                              "grid, against volumetric locking of nearly incompressible materials)"),
+    "solver.deterministic": ("", "bit-identical runs regardless of thread count and load (CPU: one thread, no fast "
+                                 "math); GPUs: float atomics stay unordered"),
     "crack": ("", "crack finder (damage gradients, opposite-side flags); absent or null: off, nothing compiled"),
     "crack.threshold": ("1", "epsilon_thresh: a node is across the crack from a particle when n_p . n_node < -threshold"),
     "crack.kernel_radius": ("1", "SPH support radius, in initial particle spacings"),
@@ -101,6 +107,12 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "bodies[].damage_regions": ("", "pre-cracks and notches: regions whose particles start damaged"),
     "bodies[].damage_regions[].shape": ("", "the region (a shape like bodies[].shape)"),
     "bodies[].damage_regions[].value": ("1", "initial damage of the particles inside"),
+    "bodies[].overlap": ("", "particles of this body inside an earlier body: error (refuse), skip (leave them out) "
+                             "or allow (keep both, doubling the mass there)"),
+    "limits": ("", "resource limits checked before anything is allocated"),
+    "limits.memory_gb": ("GB", "largest estimated memory of a run; null: half of this machine's physical memory"),
+    "limits.particles": ("", "largest particle count; null: only the memory limit"),
+    "limits.allow_large": ("", "run past the limits (the estimate still prints); same as --allow-large"),
     "output": ("", "what a run writes into its folder"),
     "output.dir": ("", "run folder; {name} is replaced by the scene name"),
     "output.every": ("s", "simulated time between outputs"),
