@@ -94,7 +94,6 @@ Shape = Annotated[Union[Box, Sphere, Ring, Cylinder, Mesh], Field(discriminator=
 # slip: no flow into the wall, may separate; roller: normal velocity zero both ways (bilateral);
 # sticky: velocity zero; free: nothing. Slip and roller faces may carry Coulomb friction.
 WALL_TYPES = ("slip", "roller", "sticky", "free")
-FACES = ("default", "x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
 
 class Face(Strict):

@@ -196,7 +196,8 @@ class Simulation:
         fail, vmax2 = self.fail, self.vmax2
         walls = self.cfg.domain.boundaries
         faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(dim)]
-        wall = make_wall_condition(dim, n_cells, faces, basis, [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)])
+        friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
+        wall = make_wall_condition(dim, n_cells, faces, basis, friction)
         span = [S] * dim
         # The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))`
         # with off = o + inner[k]. Unrolled, the outer range is a single point and `inner` lists every node, so
