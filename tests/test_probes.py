@@ -18,7 +18,7 @@ G = 10.0
 
 @pytest.fixture(scope="module")
 def resting_block(tmp_path_factory):
-    """A 0.4 x 0.3 block (80 kg per metre of depth) on a slip floor under gravity, 2D, 10 x 6 cells, PIC (whose
+    """A 0.4 x 0.3 block (120 kg per metre of depth) on a slip floor under gravity, 2D, 10 x 6 cells, PIC (whose
     damping lets it settle), sampled every 0.05 s to t = 1 s."""
     c = make_cfg(2, transfer="pic", dx=0.1, lower=[0.3, 0.0], upper=[0.7, 0.3], end_time=1.0, gravity=[0, -G])
     c["domain"]["upper"] = [1.0, 0.6]
@@ -45,7 +45,7 @@ def test_wall_reaction_equals_the_weight_of_a_resting_block(resting_block):
     dP = np.diff(M * body["vy [m/s]"])
     assert fy[1:] * dt - M * G * dt == pytest.approx(dP, abs=1e-9 * M * G * dt.max())
     assert np.all(floor["fx [N/m]"][1:] == 0.0)  # a frictionless slip floor pushes only along its normal
-    # Settled: the mean over the last half second is the weight M g = 800 N/m within 1 % (measured 0.1 %: what
+    # Settled: the mean over the last half second is the weight M g = 1200 N/m within 1 % (measured 0.1 %: what
     # is left is the block's momentum change over that half second, which PIC damps away).
     late = t[1:] > 0.5 + 1e-9
     mean = np.sum(fy[1:][late] * dt[late]) / np.sum(dt[late])
