@@ -260,12 +260,24 @@ PROBE_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]*$"  # becomes probes/NAME.csv: no path 
 PROBE_KEYS = {"point": ("point",), "body": ("body",), "region": ("region",), "wall": ("face",)}
 
 
+def _body_ref(v):
+    if v is None or isinstance(v, str) or (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+        return v
+    raise ValueError(f"must be a body's name or its index (an integer from 0), got {v!r}")
+
+
+def _probe_every(v):
+    if v is None or v == "step" or (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < float("inf")):
+        return v
+    raise ValueError(f"must be a time > 0 in seconds, step (every step) or null (every output), got {v!r}")
+
+
 class Probe(Strict):
     """A quantity sampled over time into probes/NAME.csv (taichi_mpm/probes.py)."""
     name: str
     type: Literal[PROBE_TYPES]
     point: Optional[Vec] = None                      # point: the particle nearest this point at t = 0
-    body: Optional[Union[Annotated[int, Field(ge=0)], str]] = None  # body: a body's name or index
+    body: Annotated[Optional[Union[int, str]], BeforeValidator(_body_ref)] = None  # body: a body's name or index
     region: Optional[Shape] = None                   # region: a box or sphere; the particles inside at t = 0
     face: Optional[Literal[FACES]] = None            # wall: the domain face
 
@@ -296,7 +308,7 @@ class Output(Strict):
     probes: list[Probe] = []
     # seconds between probe samples (at the first step on or after each multiple); `step`: every step;
     # null: at every output
-    probe_every: Optional[Union[PositiveFloat, Literal["step"]]] = None
+    probe_every: Annotated[Optional[Union[float, Literal["step"]]], BeforeValidator(_probe_every)] = None
 
 
 class Config(Strict):

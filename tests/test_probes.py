@@ -142,3 +142,49 @@ def test_plot_writes_pngs(resting_block, tmp_path, capsys):
     assert main(["plot", str(out), "--probe", "nope"]) == 2
     assert "no probe 'nope'" in capsys.readouterr().err
     assert main(["plot", str(tmp_path / "missing")]) == 2
+
+
+def test_bad_probe_every_and_body_values_are_config_errors():
+    for key, value, text in (("probe_every", "often", "a time > 0 in seconds, step"), ("probe_every", 0, "a time > 0"),
+                             ("probes", [dict(name="b", type="body", body=1.5)], "a body's name or its index")):
+        c = make_cfg(2)
+        c["output"] = {key: value}
+        with pytest.raises(ConfigError, match=text):
+            load_config(c)
+
+
+def _probe_run(out, max_steps=None, resume=False, every="step"):
+    c = make_cfg(2, E=1.0e6, velocity=[0.0, -1.0], end_time=0.02, max_steps=max_steps)  # about 20 steps
+    c["output"] = dict(formats=[], every=0.01, probe_every=every, probes=[
+        dict(name="tip", type="point", point=[0.45, 0.3]), dict(name="floor", type="wall", face="y_min")])
+    sim = Simulation(c)
+    Run(sim, out, resume=resume).execute()
+    return sim
+
+
+def test_sampling_every_step_and_resume_keeps_the_rows_up_to_the_checkpoint(tmp_path):
+    full = _probe_run(tmp_path / "full")
+    assert full.n_steps > 10
+    rows = read_probe(tmp_path / "full/probes/tip.csv")
+    assert list(rows["step"]) == list(range(full.n_steps + 1))  # t = 0, then every step, none twice
+    _probe_run(tmp_path / "part", max_steps=7)
+    path = tmp_path / "part/probes/tip.csv"
+    assert len(read_probe(path)["step"]) == 8
+    with open(path, "a") as f:  # a row written after the checkpoint (as before a crash): dropped on resume
+        f.write("1.0,99" + ",0.0" * 10 + "\n")
+    _probe_run(tmp_path / "part", resume=True)
+    resumed = read_probe(path)
+    assert list(resumed["step"]) == list(rows["step"])
+    for col in rows:
+        assert resumed[col] == pytest.approx(rows[col], rel=1e-9, abs=1e-12), col
+    floor = read_probe(tmp_path / "part/probes/floor.csv")
+    assert np.isnan(floor["fy [N/m]"][0]) and np.all(np.isfinite(floor["fy [N/m]"][1:]))
+
+
+def test_sampling_every_interval_takes_the_first_step_after_each_multiple(tmp_path):
+    sim = _probe_run(tmp_path, every=0.004)
+    t = read_probe(tmp_path / "probes/tip.csv")["time [s]"]
+    assert t[0] == 0.0 and t[-1] == pytest.approx(0.02)
+    k = np.floor(t[1:] / 0.004 + 1e-9)
+    assert np.all(np.diff(k) >= 1) and k[0] == 1  # one sample per interval
+    assert np.all(t[1:] - k * 0.004 < sim.stable_dt() * 1.01)  # within a step after the multiple
