@@ -7,6 +7,7 @@
     taichi-mpm gui CONFIG [--set KEY=VALUE]... [--arch ARCH] [--max-frames N] [--screenshot PNG]
     taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume | --overwrite]
                     [--allow-problem MODULE:FACTORY]... [--dry-run]
+    taichi-mpm plot RUN_DIR [--probe NAME] [--out PNG]
 
 Exit codes: 0 success; 2 invalid input (one message on stderr, no traceback); 3 numerical
 instability (the last good state is kept as checkpoint.npz); 130 stopped by Ctrl-C (checkpoint kept).
@@ -141,6 +142,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-problem", dest="allow_problems", action="append", default=[], metavar="MODULE:FACTORY",
                    help="let the study run this problem factory (Python code outside the project), repeatable")
     p.add_argument("--dry-run", action="store_true", help="check the study and list its cases; run and write nothing")
+
+    p = sub.add_parser("plot", help="plot a run's probes (probes/*.csv) and energies into RUN_DIR/plots/")
+    p.add_argument("run_dir", metavar="RUN_DIR")
+    p.add_argument("--probe", metavar="NAME", help="plot only this probe")
+    p.add_argument("--out", metavar="PNG", help="write the plot to this file (one plot: with --probe)")
     return parser
 
 
@@ -326,8 +332,23 @@ def cmd_study(args) -> int:
     return EXIT_OK
 
 
+def cmd_plot(args) -> int:
+    run_dir = Path(args.run_dir)
+    if not run_dir.is_dir():
+        raise _InputError(f"run directory not found: {run_dir}")
+    from .plots import plot_run
+
+    try:
+        written = plot_run(run_dir, probe=args.probe, out=args.out)
+    except (FileNotFoundError, ValueError) as e:
+        raise _InputError(str(e)) from None
+    print(f"wrote {len(written)} plot{'s' if len(written) != 1 else ''}: {', '.join(map(str, written))}",
+          file=sys.stderr)
+    return EXIT_OK
+
+
 COMMANDS = {"run": cmd_run, "validate": cmd_validate, "demo": cmd_demo, "render": cmd_render, "gui": cmd_gui,
-            "study": cmd_study}
+            "study": cmd_study, "plot": cmd_plot}
 
 
 def main(argv=None) -> int:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import copy
 import os
 import reprlib
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -96,7 +97,6 @@ Shape = Annotated[Union[Box, Sphere, Ring, Cylinder, Mesh], Field(discriminator=
 # slip: no flow into the wall, may separate; roller: normal velocity zero both ways (bilateral);
 # sticky: velocity zero; free: nothing. Slip and roller faces may carry Coulomb friction.
 WALL_TYPES = ("slip", "roller", "sticky", "free")
-FACES = ("default", "x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
 
 class Face(Strict):
@@ -264,12 +264,62 @@ class Render(Strict):
         return self
 
 
+PROBE_TYPES = ("point", "body", "region", "wall")
+FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+PROBE_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]*$"  # becomes probes/NAME.csv: no path characters
+# the keys each probe type needs (besides name and type); any other key is an error for that type
+PROBE_KEYS = {"point": ("point",), "body": ("body",), "region": ("region",), "wall": ("face",)}
+
+
+def _body_ref(v):
+    if v is None or isinstance(v, str) or (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+        return v
+    raise ValueError(f"must be a body's name or its index (an integer from 0), got {v!r}")
+
+
+def _probe_every(v):
+    if v is None or v == "step" or (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < float("inf")):
+        return v
+    raise ValueError(f"must be a time > 0 in seconds, step (every step) or null (every output), got {v!r}")
+
+
+class Probe(Strict):
+    """A quantity sampled over time into probes/NAME.csv (taichi_mpm/probes.py)."""
+    name: str
+    type: Literal[PROBE_TYPES]
+    point: Optional[Vec] = None                      # point: the particle nearest this point at t = 0
+    body: Annotated[Optional[Union[int, str]], BeforeValidator(_body_ref)] = None  # body: a body's name or index
+    region: Optional[Shape] = None                   # region: a box or sphere; the particles inside at t = 0
+    face: Optional[Literal[FACES]] = None            # wall: the domain face
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, v):
+        if not re.match(PROBE_NAME, v):
+            raise ValueError(f"a probe name is letters, digits, '_' and '-' (it names probes/NAME.csv), got {v!r}")
+        return v
+
+    @model_validator(mode="after")
+    def _keys_of_type(self):
+        for key in ("point", "body", "region", "face"):
+            wanted = key in PROBE_KEYS[self.type]
+            if wanted and getattr(self, key) is None:
+                raise _Located(key, f"a {self.type} probe needs '{key}'")
+            if not wanted and getattr(self, key) is not None:
+                raise _Located(key, f"a {self.type} probe has no '{key}' (it takes {', '.join(PROBE_KEYS[self.type])})")
+        return self
+
+
 class Output(Strict):
     dir: str = "runs/{name}"
     every: PositiveFloat = 0.01
     formats: list[Literal["vtu", "npz", "png", "mp4", "gif"]] = ["vtu", "png"]
     fields: list[Literal[FIELDS]] = ["velocity", "stress"]
     render: Render = Render()
+    probes: list[Probe] = []
+    # seconds between probe samples (at the first step on or after each multiple); `step`: every step;
+    # null: at every output
+    probe_every: Annotated[Optional[Union[float, Literal["step"]]], BeforeValidator(_probe_every)] = None
 
 
 class Limits(Strict):
@@ -338,9 +388,35 @@ class Config(Strict):
         if self.crack is not None and self.solver.volumetric == "fbar":
             raise _Located("solver.volumetric", "fbar cannot be combined with the crack finder (section 'crack'): "
                                                 "its modified shape functions are not averaged; use standard")
+        self._check_probes()
         if self.crack is None and any(b.interface or b.damage_regions for b in self.bodies):
             pass  # allowed: damage/interface flags are stored but only act with a crack section
         return self
+
+    def _check_probes(self):
+        d, names = self.dim, set()
+        body_names = [b.name for b in self.bodies]
+        for i, p in enumerate(self.output.probes):
+            key = f"output.probes.{i}"
+            if p.name in names:
+                raise _Located(f"{key}.name", f"a second probe named '{p.name}' (probe names must be unique)")
+            names.add(p.name)
+            if p.point is not None:
+                _need_len(f"{key}.point", p.point, d)
+            if p.region is not None:
+                if not isinstance(p.region, (Box, Sphere)):
+                    raise _Located(f"{key}.region.type", f"a probe region is a box or a sphere, not a {p.region.type}")
+                _check_shape(f"{key}.region", p.region, d)
+            if isinstance(p.body, int) and p.body >= len(self.bodies):
+                raise _Located(f"{key}.body", f"no body {p.body} (the scene has {len(self.bodies)}, numbered from 0)")
+            if isinstance(p.body, str) and p.body not in body_names:
+                known = ", ".join(n for n in body_names if n) or "none (give bodies a name, or use an index)"
+                raise _Located(f"{key}.body", f"unknown body '{p.body}' (named bodies: {known})")
+            if p.face is not None and "xyz".index(p.face[0]) >= d:
+                raise _Located(f"{key}.face", f"no face {p.face} in {d}D (faces: {', '.join(FACES[:2 * d])})")
+        if any(p.type == "wall" for p in self.output.probes) and self.crack is not None:
+            raise _Located("output.probes", "wall probes are not available with a crack section (the crack finder "
+                                            "has its own grid update)")
 
     # resolved values --------------------------------------------------
     @property

@@ -126,7 +126,35 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "output.render.point_size": ("px", "particle size on screen; null: from the particle spacing"),
     "output.render.colormap": ("", "matplotlib colormap name"),
     "output.render.clim": ("unit of the field", "fixed colour limits [min, max]; null: widened from the data"),
+    "output.probes": ("", "quantities over time, one CSV per probe in probes/NAME.csv (see Probes below)"),
+    "output.probes[].name": ("", "the probe's name, also its file probes/NAME.csv: letters, digits, _ and -; unique"),
+    "output.probes[].type": ("", "point: one particle; body: a body's means; region: the means over the particles "
+                                 "inside a shape at t = 0; wall: the reaction force of a domain face"),
+    "output.probes[].point": ("m", "point probe: the particle nearest this point at t = 0 is followed"),
+    "output.probes[].body": ("", "body probe: the body's name (bodies[].name) or index (from 0)"),
+    "output.probes[].region": ("", "region probe: a box or sphere; the particles inside it at t = 0"),
+    "output.probes[].face": ("", "wall probe: the domain face whose force on the material is recorded"),
+    "output.probe_every": ("s", "time between probe samples (taken at the first step on or after each multiple); "
+                                "step: after every step; null: at every output. t = 0 is always sampled"),
 }
+
+PROBES_DOC = """\
+Each probe writes `probes/NAME.csv` in the run folder: a header row of `column [unit]` names, then one row per
+sample, starting with `time [s]` and `step`. Vectors have one column per axis (`x`, `y`, `z` up to dim); the
+stress columns are the Cauchy stress (tension positive) of the full 3x3 tensor: the normal components `sxx`,
+`syy`, `szz` always (plane strain and uniaxial strain have out-of-plane stress), the shear components between
+the axes that exist (`sxy` in 2D; `sxy`, `sxz`, `syz` in 3D). In 2D forces and energies are per metre of depth
+(`N/m`, `J/m`), in 1D per m^2 of cross-section.
+
+| type | columns | meaning |
+| --- | --- | --- |
+| `point` | `x.. [m]`, `ux.. [m]`, `vx.. [m/s]`, stress `[Pa]` | the particle nearest `point` at t = 0 (the lowest index on a tie): position, displacement from t = 0, velocity, stress |
+| `body`, `region` | `ux.. [m]`, `vx.. [m/s]`, stress `[Pa]`, `kinetic [J]` | over the body's particles, or those inside `region` at t = 0: mass-weighted mean displacement and velocity (the centre of mass), volume-weighted mean stress over the current volumes, kinetic energy sum m v^2 / 2 (without APIC's affine part) |
+| `wall` | `fx.. [N]` | the force the face exerts on the material: the momentum its wall condition adds at the face's grid nodes, summed over the steps since the previous sample and divided by that time (a mean, not one step); nan in the t = 0 row. A corner node gives each face the change of that face's own condition. Not available with a crack section |
+
+The particles a probe follows are chosen from the positions at t = 0, so a resumed run follows the same ones;
+`--resume` keeps the rows up to the checkpoint's time. Rows are flushed as they are written, so after a stop or a
+numerical failure the files hold every sample taken. `taichi-mpm plot RUN_DIR` draws them."""
 
 # diagnostics.csv: one row per output; 2D and 3D have the angular momentum, momentum has one column per axis
 DIAGNOSTICS: dict[str, tuple[str, str]] = {
@@ -356,7 +384,8 @@ def render() -> str:
     for name, f in fields.REGISTRY.items():
         always = "yes" + (" (when present)" if name == "damage" else "") if name in fields.ALWAYS else ""
         out.append(f"| `{name}` | {_cell(f.unit)} | {f.kind} | {always} | {_cell(f.meaning)} |")
-    out += ["", "## diagnostics.csv", "",
+    out += ["", "## Probes", "", PROBES_DOC, "",
+            "## diagnostics.csv", "",
             "One row per output time, columns in this order (" + ", ".join(io.diagnostics_columns(3)) + " in 3D; "
             "1D and 2D have the momentum components up to dim, 1D no angular momentum). In 2D the energies and "
             "momenta are per metre of depth, in 1D per m^2 of cross-section.", "",

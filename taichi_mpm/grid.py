@@ -54,8 +54,14 @@ def _pow2(n: int) -> int:
     return 1 << max(0, (n - 1).bit_length())
 
 
-def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str]], basis, friction=None):
+def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str]], basis, friction=None,
+                        reaction=None):
     """@ti.func (I, v) -> v with each face's condition applied at nodes on or beyond that wall.
+
+    `reaction`: an optional dim-vector field of 2 dim entries (x_min, x_max, y_min, ...). `apply.measured(I, v, m)`
+    applies the same conditions and adds the impulse each face gives the node, m (v_after - v_before): summed over
+    the face's nodes and divided by the time, the force the wall exerts on the material. A node on two faces (a
+    corner) gives each face the change that face's own condition makes.
 
     faces[a] = (kind at the lower wall, kind at the upper wall) of axis a:
     sticky: v = 0; slip: no flow into the wall (may separate); roller: no normal velocity either way
@@ -70,6 +76,7 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     kind = {"free": 0, "sticky": 1, "slip": 2, "roller": 3}
     codes = [(kind[lo], kind[hi]) for lo, hi in faces]
     mus = [(float(lo), float(hi)) for lo, hi in (friction or [(0.0, 0.0)] * dim)]
+    measuring = reaction is not None
 
     @ti.func
     def coulomb(v, a: ti.template(), dv_n, mu: ti.template()):
@@ -94,19 +101,35 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
         return v
 
     @ti.func
-    def apply(I, v):
+    def conditions(I, v, m, measure: ti.template()):
         for a in ti.static(range(dim)):
             c = basis.coord(I[a], n_cells[a])
             if c <= 0.0:
+                before = v
                 if ti.static(codes[a][0] == 1):
                     v = ti.Vector.zero(float, dim)
                 elif ti.static(codes[a][0] >= 2):
                     v = contact(v, a, 1.0, codes[a][0], mus[a][0])
+                if ti.static(measure):
+                    reaction[2 * a] += m * (v - before)
             if c >= ti.static(float(n_cells[a])):
+                before = v
                 if ti.static(codes[a][1] == 1):
                     v = ti.Vector.zero(float, dim)
                 elif ti.static(codes[a][1] >= 2):
                     v = contact(v, a, -1.0, codes[a][1], mus[a][1])
+                if ti.static(measure):
+                    reaction[2 * a + 1] += m * (v - before)
         return v
 
+    @ti.func
+    def apply(I, v):
+        return conditions(I, v, 0.0, False)
+
+    @ti.func
+    def apply_measured(I, v, m):
+        """apply, adding the impulse m dv each face gives the node to reaction[2 axis + side]."""
+        return conditions(I, v, m, measuring)
+
+    apply.measured = apply_measured
     return apply

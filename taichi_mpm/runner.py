@@ -20,7 +20,7 @@ import threading
 from pathlib import Path
 from typing import Callable, Optional
 
-from . import io
+from . import io, probes
 from .config import Config, ConfigError
 from .errors import InstabilityError
 from .solver import Simulation as _Simulation
@@ -94,6 +94,7 @@ class Run:
         else:
             self._fresh()
         io.write_config(self.out_dir / io.CONFIG_NAME, self.cfg)
+        self.probes = probes.Probes(sim, self.out_dir, resume=resume)  # probes/NAME.csv (output.probes)
 
     # ------------------------------------------------------------ set-up
     def _fresh(self):
@@ -141,6 +142,7 @@ class Run:
             if self._frames:
                 self._render(p, sim.time)
         self.diagnostics.append(io.diagnostics_row(sim))
+        self.probes.on_output(sim)
         self._rows = self._rows + 1
         self.index += 1
         self.last_time = sim.time
@@ -172,6 +174,7 @@ class Run:
 
     def finish(self):
         """After the last output: movies from the frames, when asked."""
+        self.probes.close()
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
@@ -212,6 +215,7 @@ class Run:
                 self(sim)
 
             def after_step(s):
+                self.probes.on_step(s)
                 if on_step is not None:
                     on_step(s)
                 if self.stop_requested:

@@ -173,6 +173,9 @@ class Simulation:
         self.body_id = ti.field(ti.i32, n) if self.scene.body.max(initial=0) > 0 else None
         self.n_bodies = int(self.scene.body.max(initial=0)) + 1
         self.moments = ti.field(ti.f64, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
+        # wall impulses per face (x_min, x_max, y_min, ...), summed by the grid update; only for wall probes
+        wall_probes = any(p.type == "wall" for p in self.cfg.output.probes)
+        self.wall_reaction = ti.Vector.field(d, ti.f64, 2 * d) if wall_probes else None
         self.bytes_per_particle = self._bytes_per_particle()
         if self.crack is not None:
             self.bytes_per_particle += self.crack.bytes_per_particle()
@@ -257,7 +260,8 @@ class Simulation:
         fluid_j_min = FLUID_J_MIN
         walls = self.cfg.domain.boundaries
         faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(dim)]
-        wall = make_wall_condition(dim, n_cells, faces, basis, [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)])
+        friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
+        wall = make_wall_condition(dim, n_cells, faces, basis, friction, self.wall_reaction)
         span = [S] * dim
         # The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))`
         # with off = o + inner[k]. Unrolled, the outer range is a single point and `inner` lists every node, so
@@ -489,7 +493,7 @@ class Simulation:
                     vel = gv[I] / m
                     if ti.static(f["gravity"]):
                         vel += dt * gravity
-                    gv[I] = wall(I, vel)
+                    gv[I] = wall.measured(I, vel, m)  # adds m dv per face to wall_reaction (wall probes only)
                     if ti.static(f["flip"]):
                         gv_old[I] = gv_old[I] / m
 
@@ -1077,6 +1081,19 @@ class Simulation:
         self._k["momenta"]()
         m = self.diag.to_numpy()
         return {"linear": m[: self.dim], "angular": m[self.dim: self.dim + 3]}
+
+    def wall_impulse(self, reset: bool = True) -> np.ndarray:
+        """(2 dim, dim) impulse (N s; per metre of depth in 2D) each domain face (x_min, x_max, y_min, ...) gave
+        the material at its grid nodes since the last reset: the momentum the wall condition changed in the grid
+        update. Divided by the time since the reset it is the mean wall reaction force. Needs a wall probe in
+        output.probes (otherwise nothing is accumulated and this raises)."""
+        self._check_live()
+        if self.wall_reaction is None:
+            raise RuntimeError("no wall reaction is accumulated: the config has no wall probe in output.probes")
+        out = self.wall_reaction.to_numpy().reshape(2 * self.dim, self.dim)
+        if reset:
+            self.wall_reaction.fill(0)
+        return out
 
     def max_speed(self) -> float:
         return _max_speed(self._read("v"))

@@ -1,0 +1,192 @@
+"""Probes: quantities over time, one CSV per probe in RUN_DIR/probes/NAME.csv (config `output.probes`).
+
+Types (selection made once, from the particles' positions at t = 0, so a resumed run follows the same ones):
+- point:  the particle nearest `point` at t = 0: position, displacement, velocity, Cauchy stress components.
+- body:   all particles of a body (name or index); region: those inside a box or sphere at t = 0. Both give the
+          mass-weighted mean displacement and velocity (centre of mass), the volume-weighted mean Cauchy stress
+          (current volumes: the stress a homogeneous sample would carry) and the kinetic energy sum m v^2 / 2.
+- wall:   the force a domain face exerts on the material: the impulse its wall condition gives the grid nodes
+          (Simulation.wall_impulse), summed since the last sample and divided by that time, so a sample is the
+          mean force over the interval, not one noisy step. The t = 0 row has no interval yet: nan.
+
+Sampling (`output.probe_every`): null samples at every output, a number every that many seconds (at the first
+step on or after each multiple), `step` after every step; t = 0 is always sampled. Each row is flushed, so the
+files are complete up to a stop or a failure; `--resume` keeps the rows up to the checkpoint's time.
+
+No physics here: everything comes from the Simulation's public state (particles(), scene, wall_impulse()).
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .config import ConfigError
+from .scene import inside
+
+PROBES_DIR = "probes"
+AXES = "xyz"
+
+
+def _per_depth(unit: str, dim: int) -> str:
+    """2D quantities are per metre of depth, 1D per m^2 of cross-section."""
+    return {3: unit, 2: f"{unit}/m", 1: f"{unit}/m^2"}[dim]
+
+
+def stress_components(dim: int) -> list[tuple[int, int]]:
+    """The components of the full 3x3 stress that can be non-zero: normal ones always (plane strain and uniaxial
+    strain have out-of-plane normal stress), shear ones between the axes that exist."""
+    normal = [(a, a) for a in range(3)]
+    shear = [(a, b) for a in range(dim) for b in range(a + 1, dim)]
+    return normal + shear
+
+
+def _stress_columns(dim: int, prefix: str = "s") -> list[str]:
+    return [f"{prefix}{AXES[a]}{AXES[b]} [Pa]" for a, b in stress_components(dim)]
+
+
+class PointProbe:
+    needs_particles = True
+
+    def __init__(self, spec, sim, key):
+        x0 = sim.scene.x
+        self.index = int(np.argmin(np.sum((x0 - np.asarray(spec.point)) ** 2, axis=1)))
+        self.x0 = x0[self.index].copy()
+        d = sim.dim
+        self.columns = ([f"{AXES[a]} [m]" for a in range(d)] + [f"u{AXES[a]} [m]" for a in range(d)]
+                        + [f"v{AXES[a]} [m/s]" for a in range(d)] + _stress_columns(d))
+
+    def row(self, p, sim, impulse, elapsed):
+        i = self.index
+        s = p["stress3"][i]
+        return [*p["x"][i], *(p["x"][i] - self.x0), *p["v"][i], *(s[a, b] for a, b in stress_components(sim.dim))]
+
+
+class GroupProbe:
+    """Means over a fixed set of particles (a body, or a region at t = 0)."""
+    needs_particles = True
+
+    def __init__(self, spec, sim, key):
+        s = sim.scene
+        if spec.type == "body":
+            index = spec.body if isinstance(spec.body, int) else [b.name for b in sim.cfg.bodies].index(spec.body)
+            self.mask = s.body == index
+        else:
+            self.mask = inside(spec.region, s.x)
+        if not self.mask.any():
+            raise ConfigError(f"the probe '{spec.name}' selects no particle", key=f"{key}.{spec.type}")
+        self.x0 = s.x[self.mask]
+        d = sim.dim
+        self.columns = ([f"u{AXES[a]} [m]" for a in range(d)] + [f"v{AXES[a]} [m/s]" for a in range(d)]
+                        + _stress_columns(d) + [f"kinetic [{_per_depth('J', d)}]"])
+
+    def row(self, p, sim, impulse, elapsed):
+        m, vol = p["mass"][self.mask], p["volume"][self.mask]
+        u = p["x"][self.mask] - self.x0
+        v = p["v"][self.mask]
+        w = m / m.sum()
+        stress = np.einsum("n,nij->ij", vol / vol.sum(), p["stress3"][self.mask])
+        kinetic = 0.5 * float(np.sum(m * np.sum(v * v, axis=1)))
+        return [*(w @ u), *(w @ v), *(stress[a, b] for a, b in stress_components(sim.dim)), kinetic]
+
+
+class WallProbe:
+    needs_particles = False
+
+    def __init__(self, spec, sim, key):
+        self.slot = 2 * AXES.index(spec.face[0]) + (spec.face.endswith("max"))
+        d = sim.dim
+        self.columns = [f"f{AXES[a]} [{_per_depth('N', d)}]" for a in range(d)]
+
+    def row(self, p, sim, impulse, elapsed):
+        if elapsed <= 0:
+            return [math.nan] * sim.dim
+        return list(impulse[self.slot] / elapsed)
+
+
+KINDS = {"point": PointProbe, "body": GroupProbe, "region": GroupProbe, "wall": WallProbe}
+
+
+class Probes:
+    """The probes of a run: `on_step(sim)` after every step, `on_output(sim)` at every output, `close()`."""
+
+    def __init__(self, sim, out_dir, resume: bool = False):
+        out = sim.cfg.output
+        self.every = out.probe_every
+        self.dir = Path(out_dir) / PROBES_DIR
+        self.probes = []
+        for i, spec in enumerate(out.probes):
+            self.probes.append((spec.name, KINDS[spec.type](spec, sim, f"output.probes.{i}")))
+        if not resume and self.dir.is_dir():
+            for f in self.dir.glob("*.csv"):  # an earlier run's probes
+                f.unlink()
+        self._files = {}
+        if self.probes:
+            self.dir.mkdir(parents=True, exist_ok=True)
+        for name, probe in self.probes:
+            self._files[name] = self._open(self.dir / f"{name}.csv", ["time [s]", "step"] + probe.columns,
+                                           sim.time if resume else None)
+        self._particles = any(p.needs_particles for _, p in self.probes)
+        self._walls = any(isinstance(p, WallProbe) for _, p in self.probes)
+        self._since = sim.time                 # start of the interval the wall impulses cover
+        self._last_step = sim.n_steps if resume else None
+        self._next = self._next_time(sim.time)
+
+    @staticmethod
+    def _open(path: Path, header: list[str], keep_until):
+        """A fresh file with its header, or (resuming) the old rows up to the checkpoint's time."""
+        rows = []
+        if keep_until is not None and path.is_file():
+            with open(path, newline="") as f:
+                old = list(csv.reader(f))
+            if old and old[0] == header:
+                rows = [r for r in old[1:] if r and float(r[0]) <= keep_until * (1 + 1e-12)]
+        f = open(path, "w", newline="")
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(rows)
+        f.flush()
+        return f
+
+    def _next_time(self, t: float) -> float:
+        if not isinstance(self.every, float):
+            return math.inf
+        return (math.floor(t / self.every + 1e-9) + 1) * self.every
+
+    # ------------------------------------------------------------ sampling
+    def on_step(self, sim):
+        if self.every == "step" or sim.time >= self._next * (1 - 1e-12):
+            self.sample(sim)
+
+    def on_output(self, sim):
+        if self.every is None or self._last_step is None:
+            self.sample(sim)
+
+    def sample(self, sim):
+        """One row in every probe's file (once per step: a step sampled already is skipped)."""
+        if not self.probes or sim.n_steps == self._last_step:
+            return
+        p = sim.particles() if self._particles else None
+        impulse = sim.wall_impulse() if self._walls else None
+        elapsed = sim.time - self._since
+        for name, probe in self.probes:
+            values = probe.row(p, sim, impulse, elapsed)
+            f = self._files[name]
+            csv.writer(f).writerow([repr(float(sim.time)), sim.n_steps] + [repr(float(v)) for v in values])
+            f.flush()
+        self._since, self._last_step = sim.time, sim.n_steps
+        self._next = self._next_time(sim.time)
+
+    def close(self):
+        for f in self._files.values():
+            f.close()
+        self._files = {}
+
+
+def read_probe(path) -> dict[str, np.ndarray]:
+    """A probe CSV as {column header: values}."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    return {h: np.array([float(r[i]) for r in rows[1:]]) for i, h in enumerate(rows[0])} if rows else {}
