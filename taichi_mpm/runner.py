@@ -1,6 +1,6 @@
 """Running a simulation to its end time while writing outputs (the CLI's `run` and `sim.run()`).
 
-`Run(sim, out_dir)` owns an output directory (layout in DESIGN.md). Called with a Simulation it writes
+`Run(sim, out_dir)` owns an output directory (layout in docs/contract.md). Called with a Simulation it writes
 one output (snapshot, diagnostics row, frame, checkpoint), so it works as `sim.run(on_output=run)`;
 `run.execute()` drives the steps itself, which adds progress callbacks, a clean stop on Ctrl-C and
 bit-for-bit resumption from checkpoint.npz.
