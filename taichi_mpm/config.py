@@ -133,6 +133,8 @@ class Boundaries(Strict):
             return data
         out = dict(data)
         for k, v in data.items():
+            if not isinstance(k, str):
+                raise _Located(k, "keys must be text (a key here is a number, a boolean or null)")
             if isinstance(v, str):
                 if v not in WALL_TYPES:
                     raise _Located(k, f"must be one of {', '.join(WALL_TYPES)} or {{type: ..., friction: ...}} "
@@ -444,7 +446,7 @@ class _Located(ValueError):
     """A cross-field error that knows its key path."""
 
     def __init__(self, key, message):
-        self.key = key
+        self.key = str(key)  # a YAML key may be a number or a boolean
         super().__init__(message)
 
 
