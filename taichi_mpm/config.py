@@ -701,7 +701,11 @@ def validate(data: dict, lines: dict | None = None, file=None, overrides: dict |
     try:
         return Config.model_validate(data)
     except ValidationError as e:
-        key, msg = _describe(e.errors()[0], data)
+        try:
+            key, msg = _describe(e.errors()[0], data)
+        except Exception:  # formatting a strange input must never end in a traceback: fall back to pydantic's words
+            first = e.errors()[0]
+            key, msg = ".".join(str(p) for p in first["loc"]), str(first["msg"])
         n_more = len({str(err["loc"][:1]) + err["type"] for err in e.errors()[1:]})
         if n_more and not msg.startswith("must be a number or a list"):
             msg += f" (and {n_more} more problem{'s' if n_more > 1 else ''})"
