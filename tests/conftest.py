@@ -24,3 +24,10 @@ def make_cfg(dim=2, *, basis="quadratic", transfer="apic", precision="f64", dx=0
 @pytest.fixture
 def cfg_factory():
     return lambda *a, **k: copy.deepcopy(make_cfg(*a, **k))
+
+
+def fast_subset(cases, fast):
+    """Parameters for a test matrix: every case runs under `pytest -m slow`; the default run keeps only `fast`
+    (chosen so that each option still appears once). Each case compiles its own kernel set, and cold JIT time is
+    what makes the default suite slow."""
+    return [c if c in fast else pytest.param(*c, marks=pytest.mark.slow) for c in cases]

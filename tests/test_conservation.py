@@ -1,11 +1,13 @@
 """Conservation (issue 2, item 5), f64, no gravity, bodies away from the walls:
 linear momentum for every basis x transfer; APIC angular momentum of a spinning disk; energy drift of a
 free vibrating block."""
+import itertools
+
 import numpy as np
 import pytest
 
 import taichi_mpm as tm
-from conftest import make_cfg
+from conftest import fast_subset, make_cfg
 
 BASES = ["linear", "gimp", "quadratic", "cubic"]
 TRANSFERS = ["pic", "flip", "apic"]
@@ -36,8 +38,9 @@ def stressed_moving_block(dim, basis, transfer, sparse=True, steps=20):
     return P0, P1, scale
 
 
-@pytest.mark.parametrize("transfer", TRANSFERS)
-@pytest.mark.parametrize("basis", BASES)
+@pytest.mark.parametrize("basis, transfer", fast_subset(
+    list(itertools.product(BASES, TRANSFERS)),
+    {("linear", "flip"), ("gimp", "pic"), ("quadratic", "apic"), ("cubic", "apic")}))
 def test_linear_momentum_2d(basis, transfer):
     P0, P1, scale = stressed_moving_block(2, basis, transfer)
     assert np.abs(P1 - P0).max() < 1e-10 * scale
