@@ -40,7 +40,7 @@ def stressed_moving_block(dim, basis, transfer, sparse=True, steps=20):
 
 @pytest.mark.parametrize("basis, transfer", fast_subset(
     list(itertools.product(BASES, TRANSFERS)),
-    {("linear", "flip"), ("gimp", "pic"), ("quadratic", "apic"), ("cubic", "apic")}))
+    {("linear", "flip"), ("gimp", "pic"), ("quadratic", "apic"), ("cubic", "pic")}))
 def test_linear_momentum_2d(basis, transfer):
     P0, P1, scale = stressed_moving_block(2, basis, transfer)
     assert np.abs(P1 - P0).max() < 1e-10 * scale
@@ -70,7 +70,7 @@ def test_apic_angular_momentum_spinning_disk():
     assert abs(L1 - L0) < 1e-5 * abs(L0)
 
 
-@pytest.mark.parametrize("basis, update", [("gimp", "usl"), ("cubic", "musl")])
+@pytest.mark.parametrize("basis, update", [("gimp", "usl"), pytest.param("cubic", "musl", marks=pytest.mark.slow)])
 def test_apic_angular_momentum_exact_for_varying_inertia(basis, update):
     """GIMP's D_p varies with position; storing B_p keeps the affine part's angular momentum exact anyway
     (measured change ~1e-15 over 200 steps, both USL and MUSL)."""
