@@ -178,7 +178,9 @@ class _ProgressBar:
             TextColumn("left"), TimeRemainingColumn(),
             console=Console(stderr=True), transient=False)
         self.task = self.progress.add_task(sim.cfg.name, total=self.end, completed=sim.time, dt=0.0, rate=0.0)
-        self._t, self._steps, self._last = time.perf_counter(), sim.n_steps, 0.0
+        self.run = run
+        self._first = sim.n_steps  # the step count before the first (compiling) step
+        self._t, self._steps, self._last, self._out = time.perf_counter(), sim.n_steps, 0.0, run.output_seconds
 
     def __enter__(self):
         self.progress.__enter__()
@@ -194,11 +196,41 @@ class _ProgressBar:
             return
         sim = self.sim
         rate = self.progress.tasks[0].fields["rate"]
-        if sim.n_steps > self._steps and now > self._t:
-            rate = sim.n * (sim.n_steps - self._steps) / (now - self._t)
-            self._t, self._steps = now, sim.n_steps
+        # stepping rate only: the time spent writing outputs (VTU, frames) in the interval is left out, as in
+        # the summary, and the first step (which holds the JIT compile) starts the clock
+        stepping = now - self._t - (self.run.output_seconds - self._out)
+        if sim.n_steps > self._steps and stepping > 0 and self._steps > self._first:
+            rate = sim.n * (sim.n_steps - self._steps) / stepping
+        if sim.n_steps > self._steps:
+            self._t, self._steps, self._out = now, sim.n_steps, self.run.output_seconds
         self.progress.update(self.task, completed=min(sim.time, self.end), dt=sim.dt, rate=rate)
         self._last = now
+
+
+class _StepClock:
+    """Splits a run's wall time into the first step (which holds the JIT compile), stepping and writing
+    outputs, so that the summary's particle-steps/s is the stepping rate the progress bar shows."""
+
+    def __init__(self, sim, run):
+        self.sim, self.run = sim, run
+        self.t0, self.steps0, self.out0 = time.perf_counter(), sim.n_steps, run.output_seconds
+        self.first = None   # (time, output seconds) after the first step
+
+    def __call__(self, sim):
+        if self.first is None:
+            self.first = (time.perf_counter(), self.run.output_seconds)
+
+    def summary(self) -> str:
+        now, sim, run = time.perf_counter(), self.sim, self.run
+        steps = sim.n_steps - self.steps0
+        text = f"{steps} steps to t={sim.time:g} in {now - self.t0:.1f} s ({sim.n} particles"
+        if self.first is None:
+            return text + ")"
+        first = self.first[0] - self.t0 - (self.first[1] - self.out0)
+        stepping = now - self.first[0] - (run.output_seconds - self.first[1])
+        rate = f"{sim.n * (steps - 1) / stepping:.3g} particle-steps/s" if steps > 1 and stepping > 0 else "-"
+        return (text + f"): first step (JIT compile) {first:.1f} s, stepping {stepping:.1f} s at {rate}, "
+                f"outputs {run.output_seconds - self.out0:.1f} s")
 
 
 def _run_config(cfg, args) -> int:
@@ -222,14 +254,13 @@ def _run(cfg, args) -> int:
         if not args.quiet:
             print(f"nothing to do: {run.out_dir} is already at t={sim.time:g} = solver.end_time", file=sys.stderr)
         return EXIT_OK
-    t0 = time.perf_counter()
-    steps0 = sim.n_steps
+    clock = _StepClock(sim, run)
     try:
         if args.quiet:
-            run.execute()
+            run.execute(on_step=clock)
         else:
             with _ProgressBar(sim, run) as bar:
-                run.execute(on_step=bar.update)
+                run.execute(on_step=lambda s: (clock(s), bar.update(s)))
     except Interrupted as e:
         _err(f"interrupted: {e}")
         return EXIT_INTERRUPTED
@@ -239,11 +270,7 @@ def _run(cfg, args) -> int:
         _err(f"{e}\n  {kept}; outputs written so far are kept in {run.out_dir}")
         return EXIT_UNSTABLE
     if not args.quiet:
-        wall = time.perf_counter() - t0
-        steps = sim.n_steps - steps0
-        print(f"done: {steps} steps to t={sim.time:g} in {wall:.1f} s ({sim.n} particles, "
-              f"{sim.n * steps / max(wall, 1e-9):.3g} particle-steps/s); {run.index} outputs in {run.out_dir}",
-              file=sys.stderr)
+        print(f"done: {clock.summary()}; {run.index} outputs in {run.out_dir}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -373,6 +400,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         _err("interrupted")
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # `taichi-mpm demo --list | head`: the reader has what it wanted
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # so that the interpreter's final flush does not fail again
+        return EXIT_OK
 
 
 if __name__ == "__main__":
