@@ -8,6 +8,9 @@
     taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume | --overwrite]
                     [--allow-problem MODULE:FACTORY]... [--dry-run]
     taichi-mpm plot RUN_DIR [--probe NAME] [--out PNG]
+    taichi-mpm advise CONFIG | --problem SPEC  --observe Q --tolerance TOL [--reference REF] [--bases B,B]
+                    [--transfers T,T] [--ppc N,N] [--levels N] [--cost step_time|wall_time|work] [--set KEY=VALUE]...
+                    [--jobs N] [--out DIR] [--resume | --overwrite] [--allow-problem MODULE:FACTORY]...
 
 Exit codes: 0 success; 2 invalid input (one message on stderr, no traceback); 3 numerical
 instability (the last good state is kept as checkpoint.npz); 130 stopped by Ctrl-C (checkpoint kept).
@@ -142,6 +145,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-problem", dest="allow_problems", action="append", default=[], metavar="MODULE:FACTORY",
                    help="let the study run this problem factory (Python code outside the project), repeatable")
     p.add_argument("--dry-run", action="store_true", help="check the study and list its cases; run and write nothing")
+
+    p = sub.add_parser("advise", help="cheapest basis/transfer/resolution for a tolerance on one quantity (docs/study.md)")
+    p.add_argument("config", nargs="?", metavar="CONFIG", help="a config file (or give --problem)")
+    p.add_argument("--problem", metavar="SPEC", help="an analytic problem instead: NAME or '{type: NAME, key: value}'")
+    p.add_argument("--observe", required=True, metavar="Q",
+                   help="PROBE.COLUMN[@end|max|min|mean|maxabs], a function (kinetic_energy, ...) or a problem's error metric")
+    p.add_argument("--tolerance", required=True, metavar="TOL", help="the error allowed: 1%% or 0.01")
+    p.add_argument("--reference", metavar="REF", help="a number, exact, finest or richardson (default: richardson, "
+                   "or exact for a problem's error metric)")
+    p.add_argument("--bases", metavar="B,B", help="bases to try (default: linear,gimp,quadratic,cubic)")
+    p.add_argument("--transfers", metavar="T,T", help="transfers to try (default: flip,apic)")
+    p.add_argument("--ppc", metavar="N,N", help="particles per cell to try (default: the config's)")
+    p.add_argument("--levels", type=_positive_int, default=3, metavar="N",
+                   help="resolution levels: domain.dx, dx/2, ... (default 3)")
+    p.add_argument("--cost", choices=["step_time", "wall_time", "work"], default="step_time",
+                   help="what 'cheapest' means: stepping time without the JIT compile (default), wall time, or "
+                   "work = particle-steps x stencil nodes (the same on every machine)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value for every run, repeatable")
+    p.add_argument("--jobs", type=_positive_int, metavar="N", help="runs in parallel (default: cores - 1)")
+    p.add_argument("--out", metavar="DIR", help="output directory (default: advice/NAME)")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="reuse the finished runs in the output directory")
+    again.add_argument("--overwrite", action="store_true", help="replace the results already in the output directory")
+    p.add_argument("--allow-problem", dest="allow_problems", action="append", default=[], metavar="MODULE:FACTORY",
+                   help="let it run this problem factory or observable function (code outside the project)")
 
     p = sub.add_parser("plot", help="plot a run's probes (probes/*.csv) and energies into RUN_DIR/plots/")
     p.add_argument("run_dir", metavar="RUN_DIR")
@@ -359,6 +388,14 @@ def cmd_study(args) -> int:
     return EXIT_OK
 
 
+def cmd_advise(args) -> int:
+    if args.config is not None and not Path(args.config).is_file():
+        raise _InputError(f"config file not found: {args.config}")
+    from .advise import main_cli
+
+    return main_cli(args)
+
+
 def cmd_plot(args) -> int:
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
@@ -375,7 +412,7 @@ def cmd_plot(args) -> int:
 
 
 COMMANDS = {"run": cmd_run, "validate": cmd_validate, "demo": cmd_demo, "render": cmd_render, "gui": cmd_gui,
-            "study": cmd_study, "plot": cmd_plot}
+            "study": cmd_study, "plot": cmd_plot, "advise": cmd_advise}
 
 
 def main(argv=None) -> int:

@@ -47,6 +47,18 @@ def _stress_columns(dim: int, prefix: str = "s") -> list[str]:
     return [f"{prefix}{AXES[a]}{AXES[b]} [Pa]" for a, b in stress_components(dim)]
 
 
+def probe_columns(spec, dim: int) -> list[str]:
+    """The CSV columns (after time and step) of a probe of this spec in a `dim`-D scene."""
+    axes = AXES[:dim]
+    if spec.type == "point":
+        return ([f"{a} [m]" for a in axes] + [f"u{a} [m]" for a in axes] + [f"v{a} [m/s]" for a in axes]
+                + _stress_columns(dim))
+    if spec.type in ("body", "region"):
+        return ([f"u{a} [m]" for a in axes] + [f"v{a} [m/s]" for a in axes] + _stress_columns(dim)
+                + [f"kinetic [{_per_depth('J', dim)}]"])
+    return [f"f{a} [{_per_depth('N', dim)}]" for a in axes]
+
+
 class PointProbe:
     needs_particles = True
 
@@ -54,9 +66,7 @@ class PointProbe:
         x0 = sim.scene.x
         self.index = int(np.argmin(np.sum((x0 - np.asarray(spec.point)) ** 2, axis=1)))
         self.x0 = x0[self.index].copy()
-        d = sim.dim
-        self.columns = ([f"{AXES[a]} [m]" for a in range(d)] + [f"u{AXES[a]} [m]" for a in range(d)]
-                        + [f"v{AXES[a]} [m/s]" for a in range(d)] + _stress_columns(d))
+        self.columns = probe_columns(spec, sim.dim)
 
     def row(self, p, sim, impulse, elapsed):
         i = self.index
@@ -78,9 +88,7 @@ class GroupProbe:
         if not self.mask.any():
             raise ConfigError(f"the probe '{spec.name}' selects no particle", key=f"{key}.{spec.type}")
         self.x0 = s.x[self.mask]
-        d = sim.dim
-        self.columns = ([f"u{AXES[a]} [m]" for a in range(d)] + [f"v{AXES[a]} [m/s]" for a in range(d)]
-                        + _stress_columns(d) + [f"kinetic [{_per_depth('J', d)}]"])
+        self.columns = probe_columns(spec, sim.dim)
 
     def row(self, p, sim, impulse, elapsed):
         m, vol = p["mass"][self.mask], p["volume"][self.mask]
@@ -97,8 +105,7 @@ class WallProbe:
 
     def __init__(self, spec, sim, key):
         self.slot = 2 * AXES.index(spec.face[0]) + (spec.face.endswith("max"))
-        d = sim.dim
-        self.columns = [f"f{AXES[a]} [{_per_depth('N', d)}]" for a in range(d)]
+        self.columns = probe_columns(spec, sim.dim)
 
     def row(self, p, sim, impulse, elapsed):
         if elapsed <= 0:
