@@ -34,8 +34,8 @@ import yaml
 
 from . import observe as obs
 from .config import ConfigError
-from .study import (_prepare_out, _finished, _study_dump, default_jobs, load_study, print_progress, run_cases,
-                    write_reports)
+from .study import (_finished, _prepare_out, _study_dump, case_config, default_jobs, load_study, print_progress,
+                    run_cases, write_reports)
 
 BASES = ("linear", "gimp", "quadratic", "cubic")          # cheapest stencil first
 TRANSFERS = ("pic", "flip", "apic")
@@ -78,7 +78,7 @@ def advise(config=None, *, problem: Optional[dict] = None, observe, tolerance: f
     """Run the adaptive sweep; returns {"choice": row or None, "rows": [...], "reference": (value, how),
     "out": Path}. A row: params, error (estimated), cost, status, record."""
     if (config is None) == (problem is None):
-        raise ConfigError("advise needs a config file or a problem (--problem), not both")
+        raise ConfigError("advise needs one of: a config file, or an analytic problem (--problem)")
     if cost not in COSTS:
         raise ConfigError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
     if not isinstance(levels, int) or isinstance(levels, bool) or not 1 <= levels <= 8:
@@ -105,9 +105,8 @@ def advise(config=None, *, problem: Optional[dict] = None, observe, tolerance: f
         base_study["base"] = str(Path(config).resolve())
         if not Path(config).is_file():
             raise ConfigError(f"config file not found: {config}")
-    probe = load_study(base_study, allow_problems)          # checks observe/reference against the base config
-    from .study import case_config
-    _, cfg = case_config(probe.expand()[0])
+    first = load_study(base_study, allow_problems)          # checks observe/reference against the base config
+    _, cfg = case_config(first.expand()[0])
     name = re.sub(r"[^A-Za-z0-9_.-]", "_", cfg.name)[:80] or "run"
     dx0 = cfg.domain.dx
     dxs = [dx0 / 2**k for k in range(levels)]
