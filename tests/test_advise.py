@@ -4,7 +4,6 @@ Default tests: the checks of the new keys (no case runs), the reference arithmet
 small advise on the 1D manufactured solution, compared with the exhaustive sweep of the same candidates.
 Slow tests (`-m slow`): advise against exhaustive sweeps on the manufactured solution and the vibrating bar
 (where the true error is known), and advise on colliding_disks' rebound velocity."""
-import math
 from pathlib import Path
 
 import pytest
