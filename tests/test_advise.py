@@ -85,6 +85,34 @@ def test_richardson_recovers_a_known_limit():
     assert recs[0]["error_observed"] == pytest.approx(0.5 * 0.16 / 2)
 
 
+def test_observed_values_of_a_function_and_an_allowed_callable(tmp_path):
+    # a 1D block gliding at 0.5 m/s (no gravity, away from the walls): its mean x moves by exactly 0.5 t and its
+    # kinetic energy stays m v^2 / 2; one run, both observables (the callable in the study, the function in a
+    # second study of the same case, reusing the compiled kernels). Tolerances: round-off of f64 sums (1e-9)
+    import yaml
+    from conftest import make_cfg
+    cfg = make_cfg(1, velocity=[0.5], lower=[0.3], upper=[0.6], end_time=0.04)
+    (tmp_path / "block.yaml").write_text(yaml.safe_dump(cfg))
+    x0 = 0.45   # the block's centre
+    study = dict(study="glide", base="block.yaml", vary={"solver.transfer": ["apic"]}, timing={"runs": 0},
+                 observe="study_problems:mean_x@end", reference=x0 + 0.5 * 0.04)
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(study))
+    with pytest.raises(ConfigError, match="--allow-problem study_problems:mean_x"):
+        load_study(tmp_path / "s.yaml")
+    out = run_study(tmp_path / "s.yaml", out=tmp_path / "a", jobs=1, allow_problems=["study_problems:mean_x"])
+    (row,) = csv.DictReader(open(out / "results.csv"))
+    assert float(row["observed"]) == pytest.approx(x0 + 0.02, abs=1e-9)
+    assert float(row["error_observed"]) < 1e-8
+    assert "reference 0.47 (the given value)" in (out / "summary.md").read_text()
+
+    mass = 1000.0 * 0.3   # density x length (1D: per m^2 of cross-section)
+    study.update(observe="kinetic_energy@max", reference=0.5 * mass * 0.5**2)
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(study))
+    out = run_study(tmp_path / "s.yaml", out=tmp_path / "b", jobs=1)
+    (row,) = csv.DictReader(open(out / "results.csv"))
+    assert float(row["error_observed"]) < 1e-9
+
+
 # ---------------------------------------------------------------- one small advise, against its exhaustive sweep
 MMS = {"type": "mms_axis_aligned", "cells": 8, "amplitude": 0.01}
 
