@@ -205,8 +205,9 @@ def advise(config=None, *, problem: Optional[dict] = None, observe, tolerance: f
     rows = []
     for key, rec in records.items():
         p = next(c["params"] for c in cases.values() if _key(c["params"]) == key)
-        rows.append(dict(params=p, error=error(rec), cost=_cost(rec, cost, p, cfg.dim), status=status.get(key, "reference run"),
-                         record=rec))
+        finest_level = st.reference == "finest" and p["domain.dx"] == dxs[-1]   # the reference itself: no estimate
+        rows.append(dict(params=p, error=math.nan if finest_level else error(rec), cost=_cost(rec, cost, p, cfg.dim),
+                         status=status.get(key, "reference run"), record=rec))
     for row in rows:   # the reference runs count as candidates too
         if row["status"] == "reference run" and row["record"].get("outcome") == "ok" and row["error"] <= tolerance \
                 and not (st.reference == "finest" and row["params"]["domain.dx"] == dxs[-1]):
