@@ -5,6 +5,9 @@ Types (selection made once, from the particles' positions at t = 0, so a resumed
 - body:   all particles of a body (name or index); region: those inside a box or sphere at t = 0. Both give the
           mass-weighted mean displacement and velocity (centre of mass), the volume-weighted mean Cauchy stress
           (current volumes: the stress a homogeneous sample would carry) and the kinetic energy sum m v^2 / 2.
+- contact: the force the other bodies exert on a body: the change of its momentum since the last sample divided
+          by the elapsed time, minus its weight (the contact force while the body touches no wall and has no body
+          force). The t = 0 row has no interval yet: nan.
 - wall:   the force a domain face exerts on the material: the impulse its wall condition gives the grid nodes
           (Simulation.wall_impulse), summed since the last sample and divided by that time, so a sample is the
           mean force over the interval, not one noisy step. The t = 0 row has no interval yet: nan.
@@ -56,7 +59,7 @@ def probe_columns(spec, dim: int) -> list[str]:
     if spec.type in ("body", "region"):
         return ([f"u{a} [m]" for a in axes] + [f"v{a} [m/s]" for a in axes] + _stress_columns(dim)
                 + [f"kinetic [{_per_depth('J', dim)}]"])
-    return [f"f{a} [{_per_depth('N', dim)}]" for a in axes]
+    return [f"f{a} [{_per_depth('N', dim)}]" for a in axes]   # wall, contact
 
 
 class PointProbe:
@@ -113,7 +116,29 @@ class WallProbe:
         return list(impulse[self.slot] / elapsed)
 
 
-KINDS = {"point": PointProbe, "body": GroupProbe, "region": GroupProbe, "wall": WallProbe}
+class ContactProbe:
+    """Force of the other bodies on one body: d(momentum)/dt - m g over each sampling interval."""
+    needs_particles = True
+
+    def __init__(self, spec, sim, key):
+        s = sim.scene
+        index = spec.body if isinstance(spec.body, int) else [b.name for b in sim.cfg.bodies].index(spec.body)
+        self.mask = s.body == index
+        self.columns = probe_columns(spec, sim.dim)
+        p = sim.particles()   # the momentum at the start (or at the checkpoint's time, resuming)
+        m = p["mass"][self.mask]
+        self.weight = float(m.sum()) * np.asarray(sim.cfg.gravity[: sim.dim], dtype=float)
+        self.momentum = m @ p["v"][self.mask]
+
+    def row(self, p, sim, impulse, elapsed):
+        momentum = p["mass"][self.mask] @ p["v"][self.mask]
+        change, self.momentum = momentum - self.momentum, momentum
+        if elapsed <= 0:
+            return [math.nan] * sim.dim
+        return list(change / elapsed - self.weight)
+
+
+KINDS = {"point": PointProbe, "body": GroupProbe, "region": GroupProbe, "wall": WallProbe, "contact": ContactProbe}
 
 
 class Probes:
