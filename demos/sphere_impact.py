@@ -2,7 +2,7 @@
 
     python demos/sphere_impact.py [--set KEY=VALUE]... [--out DIR]
 
-Loads configs/sphere_impact.yaml and writes the outputs of its output section (color by von Mises stress; movie in runs/sphere_impact/movie.mp4).
+Loads configs/sphere_impact.yaml and writes the outputs of its output section (color by von Mises stress; movie in runs/sphere_impact_python/movie.mp4).
 """
 import sys
 

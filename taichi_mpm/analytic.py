@@ -122,6 +122,7 @@ class VibratingBar(Problem):
         X = sim.scene.x[:, 0]
         p = sim.particles()
         out = _norms(p["x"][:, 0] - X - self.exact_displacement(X, sim.time))
+        out["error_rel"] = out["error_rms"] / (self.v0 / self.omega)   # relative to the displacement amplitude
         vcm = float(np.sum(p["mass"] * p["v"][:, 0]) / np.sum(p["mass"]))
         out["error_com_velocity"] = abs(vcm - self.exact_com_velocity(sim.time))
         return out
@@ -199,7 +200,9 @@ class AxisAlignedMMS(Problem):
 
     def errors(self, sim):
         X = sim.scene.x
-        return _norms(sim.particles()["x"] - X - self.exact_displacement(X, sim.time))
+        out = _norms(sim.particles()["x"] - X - self.exact_displacement(X, sim.time))
+        out["error_rel"] = out["error_rms"] / self.G   # relative to the displacement amplitude
+        return out
 
 
 # ---------------------------------------------------------------- generalized vortex

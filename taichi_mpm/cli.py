@@ -8,6 +8,9 @@
     taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume | --overwrite]
                     [--allow-problem MODULE:FACTORY]... [--dry-run]
     taichi-mpm plot RUN_DIR [--probe NAME] [--out PNG]
+    taichi-mpm advise CONFIG | --problem SPEC  --observe Q --tolerance TOL [--reference REF] [--bases B,B]
+                    [--transfers T,T] [--ppc N,N] [--levels N] [--cost step_time|wall_time|work] [--set KEY=VALUE]...
+                    [--jobs N] [--out DIR] [--resume | --overwrite] [--allow-problem MODULE:FACTORY]...
 
 Exit codes: 0 success; 2 invalid input (one message on stderr, no traceback); 3 numerical
 instability (the last good state is kept as checkpoint.npz); 130 stopped by Ctrl-C (checkpoint kept).
@@ -143,6 +146,32 @@ def build_parser() -> argparse.ArgumentParser:
                    help="let the study run this problem factory (Python code outside the project), repeatable")
     p.add_argument("--dry-run", action="store_true", help="check the study and list its cases; run and write nothing")
 
+    p = sub.add_parser("advise", help="cheapest basis/transfer/resolution for a tolerance on one quantity (docs/study.md)")
+    p.add_argument("config", nargs="?", metavar="CONFIG", help="a config file (or give --problem)")
+    p.add_argument("--problem", metavar="SPEC", help="an analytic problem instead: NAME or '{type: NAME, key: value}'")
+    p.add_argument("--observe", required=True, metavar="Q",
+                   help="PROBE.COLUMN[@end|max|min|mean|maxabs], a function (kinetic_energy, ...) or a problem's error metric")
+    p.add_argument("--tolerance", required=True, metavar="TOL", help="the error allowed: 1%% or 0.01")
+    p.add_argument("--reference", metavar="REF", help="a number, exact, finest or richardson (default: richardson, "
+                   "or exact for a problem's error metric)")
+    p.add_argument("--bases", metavar="B,B", help="bases to try (default: linear,gimp,quadratic,cubic)")
+    p.add_argument("--transfers", metavar="T,T", help="transfers to try (default: flip,apic)")
+    p.add_argument("--ppc", metavar="N,N", help="particles per cell to try (default: the config's)")
+    p.add_argument("--levels", type=_positive_int, default=3, metavar="N",
+                   help="resolution levels: domain.dx, dx/2, ... (default 3)")
+    p.add_argument("--cost", choices=["step_time", "wall_time", "work"], default="step_time",
+                   help="what 'cheapest' means: stepping time without the JIT compile (default), wall time, or "
+                   "work = particle-steps x stencil nodes (the same on every machine)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value for every run, repeatable")
+    p.add_argument("--jobs", type=_positive_int, metavar="N", help="runs in parallel (default: cores - 1)")
+    p.add_argument("--out", metavar="DIR", help="output directory (default: advice/NAME)")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--resume", action="store_true", help="reuse the finished runs in the output directory")
+    again.add_argument("--overwrite", action="store_true", help="replace the results already in the output directory")
+    p.add_argument("--allow-problem", dest="allow_problems", action="append", default=[], metavar="MODULE:FACTORY",
+                   help="let it run this problem factory or observable function (code outside the project)")
+
     p = sub.add_parser("plot", help="plot a run's probes (probes/*.csv) and energies into RUN_DIR/plots/")
     p.add_argument("run_dir", metavar="RUN_DIR")
     p.add_argument("--probe", metavar="NAME", help="plot only this probe")
@@ -178,7 +207,9 @@ class _ProgressBar:
             TextColumn("left"), TimeRemainingColumn(),
             console=Console(stderr=True), transient=False)
         self.task = self.progress.add_task(sim.cfg.name, total=self.end, completed=sim.time, dt=0.0, rate=0.0)
-        self._t, self._steps, self._last = time.perf_counter(), sim.n_steps, 0.0
+        self.run = run
+        self._first = sim.n_steps  # the step count before the first (compiling) step
+        self._t, self._steps, self._last, self._out = time.perf_counter(), sim.n_steps, 0.0, run.output_seconds
 
     def __enter__(self):
         self.progress.__enter__()
@@ -194,11 +225,41 @@ class _ProgressBar:
             return
         sim = self.sim
         rate = self.progress.tasks[0].fields["rate"]
-        if sim.n_steps > self._steps and now > self._t:
-            rate = sim.n * (sim.n_steps - self._steps) / (now - self._t)
-            self._t, self._steps = now, sim.n_steps
+        # stepping rate only: the time spent writing outputs (VTU, frames) in the interval is left out, as in
+        # the summary, and the first step (which holds the JIT compile) starts the clock
+        stepping = now - self._t - (self.run.output_seconds - self._out)
+        if sim.n_steps > self._steps and stepping > 0 and self._steps > self._first:
+            rate = sim.n * (sim.n_steps - self._steps) / stepping
+        if sim.n_steps > self._steps:
+            self._t, self._steps, self._out = now, sim.n_steps, self.run.output_seconds
         self.progress.update(self.task, completed=min(sim.time, self.end), dt=sim.dt, rate=rate)
         self._last = now
+
+
+class _StepClock:
+    """Splits a run's wall time into the first step (which holds the JIT compile), stepping and writing
+    outputs, so that the summary's particle-steps/s is the stepping rate the progress bar shows."""
+
+    def __init__(self, sim, run):
+        self.sim, self.run = sim, run
+        self.t0, self.steps0, self.out0 = time.perf_counter(), sim.n_steps, run.output_seconds
+        self.first = None   # (time, output seconds) after the first step
+
+    def __call__(self, sim):
+        if self.first is None:
+            self.first = (time.perf_counter(), self.run.output_seconds)
+
+    def summary(self) -> str:
+        now, sim, run = time.perf_counter(), self.sim, self.run
+        steps = sim.n_steps - self.steps0
+        text = f"{steps} steps to t={sim.time:g} in {now - self.t0:.1f} s ({sim.n} particles"
+        if self.first is None:
+            return text + ")"
+        first = self.first[0] - self.t0 - (self.first[1] - self.out0)
+        stepping = now - self.first[0] - (run.output_seconds - self.first[1])
+        rate = f"{sim.n * (steps - 1) / stepping:.3g} particle-steps/s" if steps > 1 and stepping > 0 else "-"
+        return (text + f"): first step (JIT compile) {first:.1f} s, stepping {stepping:.1f} s at {rate}, "
+                f"outputs {run.output_seconds - self.out0:.1f} s")
 
 
 def _run_config(cfg, args) -> int:
@@ -222,14 +283,13 @@ def _run(cfg, args) -> int:
         if not args.quiet:
             print(f"nothing to do: {run.out_dir} is already at t={sim.time:g} = solver.end_time", file=sys.stderr)
         return EXIT_OK
-    t0 = time.perf_counter()
-    steps0 = sim.n_steps
+    clock = _StepClock(sim, run)
     try:
         if args.quiet:
-            run.execute()
+            run.execute(on_step=clock)
         else:
             with _ProgressBar(sim, run) as bar:
-                run.execute(on_step=bar.update)
+                run.execute(on_step=lambda s: (clock(s), bar.update(s)))
     except Interrupted as e:
         _err(f"interrupted: {e}")
         return EXIT_INTERRUPTED
@@ -239,11 +299,7 @@ def _run(cfg, args) -> int:
         _err(f"{e}\n  {kept}; outputs written so far are kept in {run.out_dir}")
         return EXIT_UNSTABLE
     if not args.quiet:
-        wall = time.perf_counter() - t0
-        steps = sim.n_steps - steps0
-        print(f"done: {steps} steps to t={sim.time:g} in {wall:.1f} s ({sim.n} particles, "
-              f"{sim.n * steps / max(wall, 1e-9):.3g} particle-steps/s); {run.index} outputs in {run.out_dir}",
-              file=sys.stderr)
+        print(f"done: {clock.summary()}; {run.index} outputs in {run.out_dir}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -332,6 +388,14 @@ def cmd_study(args) -> int:
     return EXIT_OK
 
 
+def cmd_advise(args) -> int:
+    if args.config is not None and not Path(args.config).is_file():
+        raise _InputError(f"config file not found: {args.config}")
+    from .advise import main_cli
+
+    return main_cli(args)
+
+
 def cmd_plot(args) -> int:
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
@@ -348,7 +412,7 @@ def cmd_plot(args) -> int:
 
 
 COMMANDS = {"run": cmd_run, "validate": cmd_validate, "demo": cmd_demo, "render": cmd_render, "gui": cmd_gui,
-            "study": cmd_study, "plot": cmd_plot}
+            "study": cmd_study, "plot": cmd_plot, "advise": cmd_advise}
 
 
 def main(argv=None) -> int:
@@ -373,6 +437,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         _err("interrupted")
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # `taichi-mpm demo --list | head`: the reader has what it wanted
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # so that the interpreter's final flush does not fail again
+        return EXIT_OK
 
 
 if __name__ == "__main__":

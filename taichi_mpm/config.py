@@ -266,11 +266,11 @@ class Render(Strict):
         return self
 
 
-PROBE_TYPES = ("point", "body", "region", "wall")
+PROBE_TYPES = ("point", "body", "region", "wall", "contact")
 FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 PROBE_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]*$"  # becomes probes/NAME.csv: no path characters
 # the keys each probe type needs (besides name and type); any other key is an error for that type
-PROBE_KEYS = {"point": ("point",), "body": ("body",), "region": ("region",), "wall": ("face",)}
+PROBE_KEYS = {"point": ("point",), "body": ("body",), "region": ("region",), "wall": ("face",), "contact": ("body",)}
 
 
 def _body_ref(v):

@@ -12,7 +12,7 @@ from . import io
 from .probes import PROBES_DIR, read_probe
 
 GROUPS = (("position", r"^[xyz] "), ("displacement", r"^u[xyz] "), ("velocity", r"^v[xyz] "),
-          ("stress", r"^s[xyz]{2} "), ("kinetic energy", r"^kinetic "), ("wall force", r"^f[xyz] "))
+          ("stress", r"^s[xyz]{2} "), ("kinetic energy", r"^kinetic "), ("force", r"^f[xyz] "))
 
 
 def _pyplot():

@@ -5,6 +5,9 @@ Types (selection made once, from the particles' positions at t = 0, so a resumed
 - body:   all particles of a body (name or index); region: those inside a box or sphere at t = 0. Both give the
           mass-weighted mean displacement and velocity (centre of mass), the volume-weighted mean Cauchy stress
           (current volumes: the stress a homogeneous sample would carry) and the kinetic energy sum m v^2 / 2.
+- contact: the force the other bodies exert on a body: the change of its momentum since the last sample divided
+          by the elapsed time, minus its weight (the contact force while the body touches no wall and has no body
+          force). The t = 0 row has no interval yet: nan.
 - wall:   the force a domain face exerts on the material: the impulse its wall condition gives the grid nodes
           (Simulation.wall_impulse), summed since the last sample and divided by that time, so a sample is the
           mean force over the interval, not one noisy step. The t = 0 row has no interval yet: nan.
@@ -47,6 +50,18 @@ def _stress_columns(dim: int, prefix: str = "s") -> list[str]:
     return [f"{prefix}{AXES[a]}{AXES[b]} [Pa]" for a, b in stress_components(dim)]
 
 
+def probe_columns(spec, dim: int) -> list[str]:
+    """The CSV columns (after time and step) of a probe of this spec in a `dim`-D scene."""
+    axes = AXES[:dim]
+    if spec.type == "point":
+        return ([f"{a} [m]" for a in axes] + [f"u{a} [m]" for a in axes] + [f"v{a} [m/s]" for a in axes]
+                + _stress_columns(dim))
+    if spec.type in ("body", "region"):
+        return ([f"u{a} [m]" for a in axes] + [f"v{a} [m/s]" for a in axes] + _stress_columns(dim)
+                + [f"kinetic [{_per_depth('J', dim)}]"])
+    return [f"f{a} [{_per_depth('N', dim)}]" for a in axes]   # wall, contact
+
+
 class PointProbe:
     needs_particles = True
 
@@ -54,9 +69,7 @@ class PointProbe:
         x0 = sim.scene.x
         self.index = int(np.argmin(np.sum((x0 - np.asarray(spec.point)) ** 2, axis=1)))
         self.x0 = x0[self.index].copy()
-        d = sim.dim
-        self.columns = ([f"{AXES[a]} [m]" for a in range(d)] + [f"u{AXES[a]} [m]" for a in range(d)]
-                        + [f"v{AXES[a]} [m/s]" for a in range(d)] + _stress_columns(d))
+        self.columns = probe_columns(spec, sim.dim)
 
     def row(self, p, sim, impulse, elapsed):
         i = self.index
@@ -78,9 +91,7 @@ class GroupProbe:
         if not self.mask.any():
             raise ConfigError(f"the probe '{spec.name}' selects no particle", key=f"{key}.{spec.type}")
         self.x0 = s.x[self.mask]
-        d = sim.dim
-        self.columns = ([f"u{AXES[a]} [m]" for a in range(d)] + [f"v{AXES[a]} [m/s]" for a in range(d)]
-                        + _stress_columns(d) + [f"kinetic [{_per_depth('J', d)}]"])
+        self.columns = probe_columns(spec, sim.dim)
 
     def row(self, p, sim, impulse, elapsed):
         m, vol = p["mass"][self.mask], p["volume"][self.mask]
@@ -97,8 +108,7 @@ class WallProbe:
 
     def __init__(self, spec, sim, key):
         self.slot = 2 * AXES.index(spec.face[0]) + (spec.face.endswith("max"))
-        d = sim.dim
-        self.columns = [f"f{AXES[a]} [{_per_depth('N', d)}]" for a in range(d)]
+        self.columns = probe_columns(spec, sim.dim)
 
     def row(self, p, sim, impulse, elapsed):
         if elapsed <= 0:
@@ -106,7 +116,29 @@ class WallProbe:
         return list(impulse[self.slot] / elapsed)
 
 
-KINDS = {"point": PointProbe, "body": GroupProbe, "region": GroupProbe, "wall": WallProbe}
+class ContactProbe:
+    """Force of the other bodies on one body: d(momentum)/dt - m g over each sampling interval."""
+    needs_particles = True
+
+    def __init__(self, spec, sim, key):
+        s = sim.scene
+        index = spec.body if isinstance(spec.body, int) else [b.name for b in sim.cfg.bodies].index(spec.body)
+        self.mask = s.body == index
+        self.columns = probe_columns(spec, sim.dim)
+        p = sim.particles()   # the momentum at the start (or at the checkpoint's time, resuming)
+        m = p["mass"][self.mask]
+        self.weight = float(m.sum()) * np.asarray(sim.cfg.gravity[: sim.dim], dtype=float)
+        self.momentum = m @ p["v"][self.mask]
+
+    def row(self, p, sim, impulse, elapsed):
+        momentum = p["mass"][self.mask] @ p["v"][self.mask]
+        change, self.momentum = momentum - self.momentum, momentum
+        if elapsed <= 0:
+            return [math.nan] * sim.dim
+        return list(change / elapsed - self.weight)
+
+
+KINDS = {"point": PointProbe, "body": GroupProbe, "region": GroupProbe, "wall": WallProbe, "contact": ContactProbe}
 
 
 class Probes:

@@ -17,6 +17,7 @@ import math
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -86,6 +87,7 @@ class Run:
         self._rows = 0           # rows in diagnostics.csv
         self.entries = []        # (time, file) of the VTU series
         self.stop_requested = False
+        self.output_seconds = 0.0  # wall time spent writing outputs (the CLI's summary keeps it apart from stepping)
         self._renderer = None
         self._frames = any(f in self.formats for f in ("png", "mp4", "gif"))
         self.out_dir.mkdir(parents=True, exist_ok=True)
@@ -115,6 +117,12 @@ class Run:
             raise ConfigError(f"--resume: the checkpoint in {self.out_dir} was written with {k}={old.get(k)!r}, "
                               f"the config now has {new.get(k)!r}; only solver.end_time, solver.max_steps and "
                               f"output.* may change when resuming", key=k)
+        end = self.cfg.solver.end_time
+        if "time" in state and float(state["time"]) > end * (1 + 1e-12):
+            raise ConfigError(f"--resume: the checkpoint in {self.out_dir} is at t={float(state['time']):.6g}, after "
+                              f"solver.end_time={end:g}; a resumed run continues forward: set solver.end_time "
+                              f"above {float(state['time']):.6g} (or start a fresh run without --resume)",
+                              key="solver.end_time")
         if int(state["x"].shape[0]) != self.sim.n:
             raise ConfigError(f"--resume: the checkpoint holds {state['x'].shape[0]} particles, the scene {self.sim.n}")
         self.sim.set_state(state)
@@ -130,6 +138,7 @@ class Run:
     def __call__(self, sim=None):
         """Write one output of the current state (observer for Simulation.run(on_output=...))."""
         sim = self.sim if sim is None else sim
+        t0 = time.perf_counter()
         name = io.SNAPSHOT.format(self.index)
         if "vtu" in self.formats or "npz" in self.formats or self._frames:
             p = io.derived_fields(sim.particles(), sim.scene)
@@ -147,6 +156,7 @@ class Run:
         self.index += 1
         self.last_time = sim.time
         self.checkpoint()
+        self.output_seconds += time.perf_counter() - t0
 
     def checkpoint(self):
         meta = dict(next_output=self.index, last_time=self.last_time, every=self.every, n_vtu=len(self.entries), n_rows=self._rows,
@@ -183,8 +193,10 @@ class Run:
             return
         from .render import make_movie
 
+        t0 = time.perf_counter()
         for fmt in movies:
             make_movie(self.out_dir / "frames", self.out_dir / f"movie.{fmt}", fps=20)
+        self.output_seconds += time.perf_counter() - t0
 
     # ------------------------------------------------------------ the loop
     def next_time(self) -> float:

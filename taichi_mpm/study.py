@@ -29,6 +29,7 @@ import os
 import re
 import reprlib
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -43,18 +44,23 @@ import yaml
 from .config import ConfigError, load_config, read_yaml
 
 STUDY_KEYS = {"study", "description", "base", "problem", "vary", "cases", "set", "repeats", "metric",
-              "time_metric", "convergence_key", "energy_limit", "timeout", "samples", "jobs"}
+              "time_metric", "convergence_key", "energy_limit", "timeout", "samples", "jobs", "observe", "reference",
+              "timing"}
+# timing: each case's stepping is rerun (same process, compiled kernels kept) until the spread of its step times,
+# (max - min) / median, is at most `spread`, or `runs` runs were made; the median is reported (issue 16: one run's
+# time on a loaded machine is noise)
+TIMING_DEFAULT = {"runs": 3, "spread": 0.1}   # runs: 0 times the first run alone (its compile left out)
 TIME_METRICS = ("wall_time", "step_time", "compile_time")
 OUTCOMES = ("ok", "unstable", "error")
-RECORD_COLUMNS = ["outcome", "cause", "wall_time", "setup_time", "compile_time", "step_time", "steps",
-                  "particles", "particle_steps_per_s", "peak_memory_mb", "sim_time", "energy_ratio_max",
-                  "energy_ratio_end", "message"]
+RECORD_COLUMNS = ["outcome", "cause", "wall_time", "setup_time", "compile_time", "step_time", "time_spread",
+                  "timing_runs", "steps", "particles", "particle_steps_per_s", "peak_memory_mb", "sim_time",
+                  "energy_ratio_max", "energy_ratio_end", "message"]
 # metrics (error columns for the plots) every case has, and those each project problem adds (its errors() keys;
 # tests/test_study.py checks that every analytic problem and stability scenario is listed)
 COMMON_METRICS = ("energy_drift", "energy_ratio_max", "energy_ratio_end")
 PROBLEM_METRICS = {
-    "vibrating_bar": ("error_rms", "error_max", "error_com_velocity"),
-    "mms_axis_aligned": ("error_rms", "error_max"),
+    "vibrating_bar": ("error_rms", "error_max", "error_com_velocity", "error_rel"),
+    "mms_axis_aligned": ("error_rms", "error_max", "error_rel"),
     "generalized_vortex": ("error_rms", "error_max"),
     "colliding_disks": ("error_energy", "energy_ratio_min"),
     "hertz": ("error_contact_time", "contact_time", "contact_time_hertz"),
@@ -65,6 +71,11 @@ MAX_CASES = 10_000      # a study expanding to more cases is almost surely a typ
 MAX_SAMPLES = 10_000
 # what a study writes into its output folder; an existing one of these marks a folder holding results
 OUTPUTS = ("study.yaml", "cases", "results.csv", "summary.md", "pareto.png", "convergence.png")
+
+
+def default_jobs() -> int:
+    """Cases in parallel by default: one per core minus one, so timings are not skewed by a busy machine."""
+    return max(1, (os.cpu_count() or 1) - 1)
 
 
 # ---------------------------------------------------------------- study file
@@ -85,7 +96,10 @@ class Study:
     energy_limit: Optional[float] = None
     timeout: Optional[float] = None
     samples: int = 20
-    jobs: int = 1
+    jobs: int = field(default_factory=default_jobs)
+    observe: Optional[dict] = None          # the quantity of interest (observe.parse), or None
+    reference: Any = None                   # a number, exact, finest or richardson (with observe)
+    timing: dict = field(default_factory=lambda: dict(TIMING_DEFAULT))
     allow_problems: tuple = ()             # `module:factory` problems the user opted in to
     lines: dict = field(default_factory=dict, repr=False)   # dotted key -> line in the study file
 
@@ -120,13 +134,16 @@ class Study:
                 _set_dotted(problem, k[len("problem."):], v)
             else:
                 overrides[k] = v
-        ident = json.dumps(dict(params=params, repeat=repeat, problem=problem, base=self.base, set=self.set,
-                                limit=self.energy_limit, samples=self.samples), sort_keys=True, default=str)
+        ident = dict(params=params, repeat=repeat, problem=problem, base=self.base, set=self.set,
+                     limit=self.energy_limit, samples=self.samples)
+        if self.observe is not None:   # (kept out of older studies' digests, so their --resume still matches)
+            ident["observe"] = self.observe["text"]
+        ident = json.dumps(ident, sort_keys=True, default=str)
         digest = hashlib.sha1(ident.encode()).hexdigest()[:10]
         return dict(id=f"{index:04d}_{digest}", digest=digest, index=index, repeat=repeat, params=params,
                     problem=problem, base=self.base, base_data=self.base_data, overrides=overrides,
                     energy_limit=self.energy_limit, samples=self.samples,
-                    allow_problems=list(self.allow_problems))
+                    allow_problems=list(self.allow_problems), observe=self.observe, timing=self.timing)
 
 
 def _set_dotted(data: dict, dotted: str, value):
@@ -269,7 +286,17 @@ def load_study(source, allow_problems=()) -> Study:
 
     st.repeats = count("repeats", 1)
     st.samples = count("samples", 20, MAX_SAMPLES)
-    st.jobs = count("jobs", 1)
+    st.jobs = count("jobs", default_jobs())
+    timing = data.get("timing", {})
+    if not isinstance(timing, dict) or set(timing) - set(TIMING_DEFAULT):
+        fail("must be a mapping {runs: N, spread: S} (runs of each case's stepping, until the time spread "
+             "(max - min) / median is at most S)", "timing")
+    st.timing = {**TIMING_DEFAULT, **timing}
+    runs, spread = st.timing["runs"], st.timing["spread"]
+    if not isinstance(runs, int) or isinstance(runs, bool) or not 0 <= runs <= 100:
+        fail(f"must be a whole number from 0 to 100, got {_what(runs)}", "timing.runs")
+    if not _is_number(spread) or spread <= 0:
+        fail(f"must be a positive number, got {_what(spread)}", "timing.spread")
     st.energy_limit = positive("energy_limit")
     st.timeout = positive("timeout")
     st.time_metric = data.get("time_metric", "step_time")
@@ -294,15 +321,28 @@ def load_study(source, allow_problems=()) -> Study:
         why = problem_refused(kind, allow)
         if why:
             fail(why, key)
+    from . import observe as obs
+    if "observe" in data:
+        try:
+            st.observe = obs.parse(data["observe"])
+        except obs.ObserveError as e:
+            fail(str(e), "observe")
+    elif "reference" in data:
+        fail("a reference needs the quantity it is for: add `observe`", "reference")
     st.metric = data.get("metric")
+    if st.metric is None and st.observe is not None:
+        st.metric = "error_observed"
     if st.metric is not None:
         if not isinstance(st.metric, str):
             fail(f"must be the name of a metric, got {_what(st.metric)}", "metric")
         known = known_metrics([t for _, t in types] if types else [None])
+        if known is not None and st.observe is not None:
+            known = known + ["observed", "error_observed"]
         if known is not None and st.metric not in known:
             fail(f"unknown metric {st.metric!r} for this study (known: {', '.join(known)})", "metric")
 
     # validate every case's config here, so a typo fails the study before anything runs
+    parsed, settled = st.observe, None
     try:
         cases = st.expand()
     except ConfigError as e:
@@ -312,12 +352,27 @@ def load_study(source, allow_problems=()) -> Study:
             why = problem_refused((case["problem"] or {}).get("type"), allow) if case["problem"] is not None else None
             if why:   # e.g. a problem.type.x key that turned the type into a mapping
                 raise ConfigError(why)
-            case_config(case)
+            problem, cfg = case_config(case)
         except ConfigError as e:
             fail(f"case {_repr.repr(case['params'])}: {e}", "vary" if st.vary else "cases")
         except Exception as e:  # noqa: BLE001 - a project (or opted-in) problem refusing its parameters
             fail(f"case {_repr.repr(case['params'])}: invalid problem {_repr.repr(case['problem'])}: "
                  f"{type(e).__name__}: {e}", "problem")
+        if st.observe is not None:   # the quantity exists in every case (its probe, its problem's metric)
+            kind = (case["problem"] or {}).get("type") if case["problem"] is not None else None
+            try:
+                spec = obs.check(parsed, cfg, known_metrics([kind]), allow)
+            except obs.ObserveError as e:
+                fail(f"{e}" + (f" (case {_repr.repr(case['params'])})" if len(cases) > 1 else ""), "observe")
+            if settled is not None and spec["kind"] != settled["kind"]:
+                fail(f"{parsed['text']} is a {settled['kind']} in one case and a {spec['kind']} in another", "observe")
+            settled = spec
+    if st.observe is not None:
+        st.observe = settled
+        try:
+            st.reference = obs.check_reference(data.get("reference", obs.default_reference(st.observe)), st.observe)
+        except obs.ObserveError as e:
+            fail(str(e), "reference")
     return st
 
 
@@ -398,6 +453,12 @@ def run_case_inline(case: dict) -> dict:
             problem.setup(sim)
         rec["particles"] = sim.n
         observe = getattr(problem, "observe", None)
+        sampler = None
+        if case.get("observe"):   # the study's quantity of interest (observe.py), sampled outside the timing
+            from .observe import Sampler
+            sampler = Sampler(case["observe"], sim, problem)
+            sampler.sample(sim)
+        state0 = sim.get_state() if (case.get("timing") or {}).get("runs", 0) > 0 else None
         e0 = _mech_energy(sim)  # compiles the energy kernel outside the timed stepping
         g0 = e0[1]
         ref = e0[0]
@@ -427,7 +488,9 @@ def run_case_inline(case: dict) -> dict:
                 raise _Undetected("non-finite energy without a solver error")
             if ref > 0:
                 e_max = max(e_max, e / ref)
-            clock["t0"] += time.perf_counter() - t_sample  # energy sampling is not stepping time
+            if sampler is not None:
+                sampler.sample(sim)
+            clock["t0"] += time.perf_counter() - t_sample  # energy and observable sampling are not stepping time
         compile_time = clock["compile"]
         step_time = time.perf_counter() - clock["t0"]
         p = sim.particles()
@@ -443,6 +506,10 @@ def run_case_inline(case: dict) -> dict:
         if problem is not None and hasattr(problem, "errors"):
             for name, value in problem.errors(sim).items():
                 rec[name] = _plain(value)
+        if sampler is not None:
+            rec["observed"] = rec.get(case["observe"]["name"]) if case["observe"]["kind"] == "metric" else sampler.value()
+        if state0 is not None and sim.time >= end * (1 - 1e-12) and sim.n_steps > 1:
+            step_time = _timing_reruns(sim, state0, end, step_time, case["timing"], rec)
         rec["outcome"] = "ok"
     except InstabilityError as e:
         rec["energy_ratio_max"] = e_max if ref > 0 else float("nan")
@@ -461,7 +528,7 @@ def run_case_inline(case: dict) -> dict:
     rec["setup_time"] = setup_time
     rec["compile_time"] = compile_time
     rec["step_time"] = step_time
-    rec["wall_time"] = time.perf_counter() - t_start
+    rec["wall_time"] = time.perf_counter() - t_start if "timing_runs" not in rec else setup_time + compile_time + step_time
     if sim is not None:
         rec["steps"] = sim.n_steps
         rec["sim_time"] = sim.time
@@ -470,6 +537,28 @@ def run_case_inline(case: dict) -> dict:
         rec["particle_steps_per_s"] = sim.n * timed_steps / timed if timed > 0 and timed_steps > 0 else float("nan")
     rec["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
     return rec
+
+
+def _timing_reruns(sim, state0, end, step_time, timing, rec) -> float:
+    """Rerun the stepping from the initial state until the spread (max - min) / median of the reruns' step times
+    is at most timing["spread"] (two reruns at least, timing["runs"] at most); record the spread and the number
+    of reruns and return their median stepping time for n_steps - 1 steps. The first run is left out: it still
+    compiles kernels first used after step 1 (the energy checks); the reruns compile nothing."""
+    steps = sim.n_steps
+    per_step, spread = [], math.inf
+    while len(per_step) < timing["runs"]:
+        sim.set_state(state0)
+        t0 = time.perf_counter()
+        sim.advance_to(end)
+        per_step.append((time.perf_counter() - t0) / max(1, sim.n_steps - state0["n_steps"]))
+        if len(per_step) >= 2:
+            med = statistics.median(per_step)
+            spread = (max(per_step) - min(per_step)) / med
+            if spread <= timing["spread"]:
+                break
+    rec["timing_runs"] = len(per_step)
+    rec["time_spread"] = spread if len(per_step) > 1 else float("nan")
+    return statistics.median(per_step) * (steps - 1)
 
 
 class _Undetected(Exception):
@@ -557,16 +646,22 @@ def run_study(study_path, out=None, jobs: Optional[int] = None, scheduler: Optio
         if progress:
             progress(finished[0], len(todo), case, rec)
 
-    if scheduler:
-        _run_dask(todo, scheduler, st.timeout, store)
-    else:
-        threads = max(1, (os.cpu_count() or 1) // jobs) if jobs > 1 else None
-        with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
-            futures = {pool.submit(execute_case, c, st.timeout, threads, _user_paths()): c for c in todo}
-            for fut in concurrent.futures.as_completed(futures):
-                store(futures[fut], fut.result())
+    run_cases(todo, jobs, scheduler, st.timeout, store)
     write_reports(st, out)
     return out
+
+
+def run_cases(cases: list, jobs: int, scheduler: Optional[str], timeout: Optional[float], store):
+    """Run cases (each in its own process) on a local pool of `jobs` or a Dask scheduler; `store(case, record)`
+    as each finishes."""
+    if scheduler:
+        _run_dask(cases, scheduler, timeout, store)
+        return
+    threads = max(1, (os.cpu_count() or 1) // jobs) if jobs > 1 else None
+    with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {pool.submit(execute_case, c, timeout, threads, _user_paths()): c for c in cases}
+        for fut in concurrent.futures.as_completed(futures):
+            store(futures[fut], fut.result())
 
 
 def _prepare_out(st: Study, out: Path, named: bool, resume: bool, overwrite: bool) -> Path:
@@ -661,7 +756,9 @@ def _study_dump(st: Study) -> dict:
         if getattr(st, k):
             d[k] = getattr(st, k)
     d.update(repeats=st.repeats, metric=st.metric, time_metric=st.time_metric, convergence_key=st.convergence_key,
-             energy_limit=st.energy_limit, timeout=st.timeout, samples=st.samples)
+             energy_limit=st.energy_limit, timeout=st.timeout, samples=st.samples, timing=st.timing)
+    if st.observe is not None:
+        d.update(observe=st.observe["text"], reference=st.reference)
     return d
 
 
@@ -678,6 +775,12 @@ def write_reports(st: Study, out: Path) -> list[dict]:
     matplotlib.use("Agg")
     records = collect(st, out)
     varied = st.varied
+    reference = None
+    if st.observe is not None:   # the reference (a number, or from the finished cases) and each case's error
+        from . import observe as obs
+        if st.observe["kind"] != "metric":
+            reference = obs.reference_value(records, st.reference, st.convergence_key, varied)
+        obs.observed_errors(records, reference[0] if reference else math.nan, st.observe)
     error_cols = sorted({k for r in records for k in r if k.startswith("error_") and k not in varied})
     extra = sorted({k for r in records for k in r} - set(varied) - set(error_cols) - set(RECORD_COLUMNS)
                    - {"case", "repeat", "digest", "traceback", "fail_step", "fail_time"})
@@ -700,7 +803,7 @@ def write_reports(st: Study, out: Path) -> list[dict]:
     fits = convergence_rates(points, group_keys, st.convergence_key)
     plot_pareto(points, front, group_keys, metric, st.time_metric, out / "pareto.png", st.name)
     plot_convergence(points, fits, group_keys, st.convergence_key, metric, out / "convergence.png", st.name)
-    (out / "summary.md").write_text(summary_markdown(st, records, varied, metric, front, fits))
+    (out / "summary.md").write_text(summary_markdown(st, records, varied, metric, front, fits, reference))
     return records
 
 
@@ -838,13 +941,19 @@ def plot_convergence(points, fits, group_keys, conv_key, metric, path, title):
     plt.close(fig)
 
 
-def summary_markdown(st, records, varied, metric, front, fits) -> str:
+def summary_markdown(st, records, varied, metric, front, fits, reference=None) -> str:
     counts = {o: sum(r.get("outcome") == o for r in records) for o in OUTCOMES}
     lines = [f"# Study `{st.name}`", "",
              f"{len(records)} cases: " + ", ".join(f"{n} {o}" for o, n in counts.items()) + ".",
-             f"Error metric `{metric}`; time metric `{st.time_metric}`.", "", "## Cases", ""]
-    cols = [*varied, "outcome", metric, "wall_time", "compile_time", "step_time", "steps", "particle_steps_per_s",
-            "peak_memory_mb", "cause"]
+             f"Error metric `{metric}`; time metric `{st.time_metric}` (median of up to {st.timing['runs']} timing reruns "
+             f"per case, until their spread is at most {st.timing['spread']:g}: column time_spread)."]
+    if st.observe is not None:
+        lines.append(f"Quantity `{st.observe['text']}`; " + (
+            "an error against the exact solution." if reference is None else
+            f"reference {reference[0]:.6g} ({reference[1]}); `error_observed` = |observed - reference| / |reference|."))
+    lines += ["", "## Cases", ""]
+    cols = [*varied, "outcome", *(["observed"] if st.observe is not None else []), metric, "wall_time",
+            "compile_time", "step_time", "time_spread", "steps", "particle_steps_per_s", "peak_memory_mb", "cause"]
     lines.append("| " + " | ".join(cols) + " |")
     lines.append("|" + "---|" * len(cols))
     for r in records:

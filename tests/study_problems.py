@@ -61,3 +61,8 @@ class Broken(MMS1D):
 
 def broken(spec):
     return Broken(spec)
+
+
+def mean_x(sim):
+    """An observable of the user's own (`observe: study_problems:mean_x`): the particles' mean x position."""
+    return float(sim.particles()["x"][:, 0].mean())

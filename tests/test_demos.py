@@ -63,8 +63,15 @@ def test_sphere_impact_quick(tmp_path):
     assert (tmp_path / "run" / "checkpoint.npz").is_file()
 
 
-def test_colliding_disks_quick(tmp_path):
+def test_colliding_disks_quick(tmp_path, capsys):
     sim = load_demo("colliding_disks").main(quick(tmp_path, 0.1, 0.5))
+    # the script prints its theory check: zero total momentum (to the round-off of the config's f32: 1e-6 of the
+    # summed |m v|, measured 6e-8; a real momentum error, e.g. a wall touched, is percents), energy ratio near 1
+    # (no contact yet at t = 0.5: only the transfers' dissipation, < 2 %)
+    assert "theory check" in capsys.readouterr().err
+    check = sim.theory_check
+    assert np.abs(check["momentum"]).max() < 1e-6 * check["momentum_scale"]
+    assert check["energy_ratio"] == pytest.approx(1.0, abs=0.02)
     p = sim.particles()
     c0 = p["x"][p["body"] == 0].mean(0)
     c1 = p["x"][p["body"] == 1].mean(0)
@@ -95,9 +102,12 @@ def test_cantilever_quick(tmp_path):
     assert np.abs(p["x"][wall] - sim.scene.x[wall]).max() < 2e-3  # the clamp block stays put
 
 
-def test_dam_break_quick(tmp_path):
+def test_dam_break_quick(tmp_path, capsys):
     sim = load_demo("dam_break").main(quick(tmp_path, 0.1, 0.3))
     x = sim.particles()["x"]
+    assert "Martin & Moyce" in capsys.readouterr().err   # the script prints the comparison itself
+    assert sim.front_check["T"] == pytest.approx(2.1, abs=0.05)
+    assert 1.5 < sim.front_check["Z"] < 2.5             # the same band as the front position below (x - 0 in 0.6..1.0)
     # Martin & Moyce (1952): at T = t sqrt(2 g / a) = 2.1 (a = 0.4 m) the surge front is at about 2 a from
     # the back wall, and the column has dropped to about 0.7 of its height
     assert 0.6 < x[:, 0].max() < 1.0
