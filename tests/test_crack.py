@@ -100,7 +100,7 @@ def _reference_run(dim, crack):
     return sim
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])  # 3D: ~60 s of cold compile
 def test_scene_without_crack_is_unchanged(dim):
     ref = np.load(DATA / "no_crack_reference.npz")
     sim = _reference_run(dim, crack=False)
