@@ -51,7 +51,6 @@ class Loads:
                     named = getattr(walls, face) is not None
                     key = f"domain.boundaries.{face if named else 'default'}.velocity"
                     self.walls.append((2 * a + side, *_vector(spec, key, cfg.dim)))
-        self._last_ramps = None
 
     # ------------------------------------------------------------------ tractions
     @property
@@ -61,14 +60,10 @@ class Loads:
     def ramps(self, t: float) -> tuple:
         return tuple(ramp(t) for _, ramp in self.tractions)
 
-    def traction_forces(self, t: float):
-        """(N, d) particle forces in creation order at time t, or None when unchanged since the last call."""
-        ramps = self.ramps(t)
-        if ramps == self._last_ramps:
-            return None
-        self._last_ramps = ramps
+    def traction_forces(self, t: float) -> np.ndarray:
+        """(N, d) particle forces in creation order at time t (what the solver's apply_loads kernel forms)."""
         f = np.zeros((self.n, self.dim))
-        for (load, _), r in zip(self.tractions, ramps):
+        for (load, _), r in zip(self.tractions, self.ramps(t)):
             np.add.at(f, load.particles, r * load.force)
         return f
 

@@ -167,6 +167,10 @@ class Simulation:
         self.body_acc = ti.Vector.field(d, float, n) if f["body_force"] else None
         self.half_width = ti.field(float, n) if f["gimp_per_particle"] else None
         self.load = ti.Vector.field(d, float, n) if f["tractions"] else None
+        n_loaded = sum(len(l.particles) for l in self.scene.loads)
+        self.load_slot = ti.field(ti.i32, n_loaded) if f["tractions"] else None      # solver slot of each loaded
+        self.load_index = ti.field(ti.i32, n_loaded) if f["tractions"] else None     # particle, its traction
+        self.load_force = ti.Vector.field(d, float, n_loaded) if f["tractions"] else None  # and force at ramp 1
         self.stress0 = ti.Matrix.field(d, d, float, n) if f["initial_stress"] else None
         n_grips, n_gripped = len(self.scene.grips), sum(len(g.particles) for g in self.scene.grips)
         self.grip_slot = ti.field(ti.i32, n_gripped) if f["grips"] else None    # solver slot of each gripped particle
@@ -247,8 +251,14 @@ class Simulation:
             self.body_id.from_numpy(self._to_solver(s.body).astype(np.int32))
         if self.stress0 is not None:  # S0 = the initial Cauchy stress (F = I at t = 0), held as a 2nd P-K stress
             self.stress0.from_numpy(self._to_solver(s.stress).reshape(self.n, d, d))
+        slot_of = np.argsort(self._perm)  # creation index -> solver slot
+        if self.load_slot is not None:
+            self.load_slot.from_numpy(np.concatenate([slot_of[l.particles] for l in s.loads]).astype(np.int32))
+            self.load_index.from_numpy(np.concatenate([np.full(len(l.particles), k, np.int32)
+                                                       for k, l in enumerate(s.loads)]))
+            self.load_force.from_numpy(np.concatenate([l.force for l in s.loads]).astype(np.float64))
+        self._ramps = None  # the traction ramps last applied
         if self.grip_slot is not None:
-            slot_of = np.argsort(self._perm)  # creation index -> solver slot
             self.grip_slot.from_numpy(np.concatenate([slot_of[g.particles] for g in s.grips]).astype(np.int32))
             self.grip_index.from_numpy(np.concatenate([np.full(len(g.particles), k + 1, np.int32)
                                                        for k, g in enumerate(s.grips)]))
@@ -272,6 +282,7 @@ class Simulation:
         gimp_lp0 = 0.5 * float(self.scene.spacing[0]) / dx
         x, v, F, C, vol0, mat = self.x, self.v, self.F, self.C, self.vol0, self.mat
         load, stress0, has_load, has_stress0 = self.load, self.stress0, f["tractions"], f["initial_stress"]
+        load_slot, load_index, load_force = self.load_slot, self.load_index, self.load_force
         grip_slot, grip_index, grip_v, grip_impulse = self.grip_slot, self.grip_index, self.grip_v, self.grip_impulse
         has_grips = f["grips"]
         grip_given = self.loads.grip_given()
@@ -570,6 +581,31 @@ class Simulation:
                         work[0] += m * (vel - before).dot(vel)
             return vel
 
+        n_loads, n_grip_rows = len(self.scene.loads), len(grip_given)
+        wall_v = self.wall_v
+
+        @ti.kernel
+        def apply_loads(ramps: ti.types.vector(max(n_loads, 1), float)):
+            """Particle forces of the tractions: the sum of ramp x force at ramp 1 (one launch: the loops run in
+            order)."""
+            for p in load:
+                load[p] = ti.Vector.zero(float, dim)
+            for e in load_slot:
+                load[load_slot[e]] += ramps[load_index[e]] * load_force[e]
+
+        @ti.kernel
+        def set_motion(values: ti.types.matrix(max(n_grip_rows + 2 * dim, 1), dim, float)):
+            """This step's grip velocities (rows 0..K-1) and velocity-wall velocities (rows K.., per face slot)."""
+            for _ in range(1):
+                if ti.static(has_grips):
+                    for k in ti.static(range(n_grip_rows)):
+                        for c in ti.static(range(dim)):
+                            grip_v[k][c] = values[k, c]
+                if ti.static(f["moving_walls"]):
+                    for slot in ti.static(range(2 * dim)):
+                        for c in ti.static(range(dim)):
+                            wall_v[slot][c] = values[n_grip_rows + slot, c]
+
         @ti.kernel
         def flag_grip_nodes():
             """Mark every node in the support (w > 0) of a gripped particle with its grip (the largest wins)."""
@@ -690,7 +726,9 @@ class Simulation:
             for p in x:
                 mp = density(p) * vol0[p]
                 acc[0] += 0.5 * mp * v[p].norm_sqr()
-                psi = strain_energy(p, F[p]) + initial_energy(p, F[p])
+                psi = strain_energy(p, F[p])
+                if ti.static(has_stress0):
+                    acc[4] += vol0[p] * initial_energy(p, F[p])  # apart: it can be negative (see _energy_parts)
                 if ti.static(crack):
                     psi = crk.degrade_energy(p, F[p], psi, kirchhoff(p, F[p]))
                 acc[1] += vol0[p] * psi
@@ -751,7 +789,7 @@ class Simulation:
 
         self._k = dict(p2g=p2g, grid_update=grid_update, g2p=g2p, p2g_momentum=p2g_momentum, grid_remap=grid_remap,
                        energies=energies, momenta=momenta, cauchy_stress=cauchy_stress, body_moments=body_moments,
-                       flag_grip_nodes=flag_grip_nodes)
+                       flag_grip_nodes=flag_grip_nodes, apply_loads=apply_loads, set_motion=set_motion)
         if crack:
             self._k.update(crk.grid_kernels())
 
@@ -810,18 +848,17 @@ class Simulation:
         """Upload this step's tractions (ramps at t + dt/2) and grip and wall velocities (at t + dt)."""
         L = self.loads
         if self.load is not None:
-            forces = L.traction_forces(self.time + 0.5 * dt)
-            if forces is not None:
-                self.load.from_numpy(self._to_solver(forces))
+            ramps = L.ramps(self.time + 0.5 * dt)
+            if ramps != self._ramps:
+                self._k["apply_loads"](ti.Vector(list(ramps)))
+                self._ramps = ramps
         if self.grip_v is None and self.wall_v is None:
             return
         if self._motion_time is not None and L.motion_constant:
             return
         t = self.time + dt
-        if self.grip_v is not None:
-            self.grip_v.from_numpy(L.grip_velocities(t))
-        if self.wall_v is not None:
-            self.wall_v.from_numpy(L.wall_velocities(t))
+        rows = np.concatenate([L.grip_velocities(t), L.wall_velocities(t)])  # the layout set_motion reads
+        self._k["set_motion"](ti.Matrix(rows.tolist()))
         self._motion_time = t
 
     def step(self, dt: Optional[float] = None) -> float:
@@ -901,12 +938,16 @@ class Simulation:
         self._k["energies"]()
         e = self.diag.to_numpy()
         w = self.work.to_numpy()
+        # slot 4: the stored initial stress's energy S0 : E, part of the strain energy; it falls below zero as a
+        # pre-stressed body relaxes, so the balance's scale (slot 5) counts its size, not its sign
+        e[5] = e[0] + e[1] + abs(e[4])
+        e[1] += e[4]
         return e, w
 
     def _energy_balance_reference(self) -> dict:
         e, w = self._energy_parts()
         floor = self._energy_floor(e[3])
-        return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1], scale=max(e[0] + e[1], floor),
+        return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1], scale=max(e[5], floor),
                     floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time)
 
     def _energy_floor(self, potential_scale: float) -> float:
@@ -929,7 +970,7 @@ class Simulation:
         e, w = self._energy_parts()
         total = e[0] + e[1] + e[2]
         work, dissipated = w[0] - ref["work"], w[1] - ref["dissipated"]
-        scale = max(ref["scale"], e[0] + e[1])
+        scale = max(ref["scale"], e[5])
         growth = total + dissipated - ref["total"] - work
         return dict(growth=growth, ratio=growth / scale, scale=scale, work=work, dissipated=dissipated,
                     total=total, initial=ref["total"])
