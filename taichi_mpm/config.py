@@ -47,9 +47,13 @@ def _expression(variables, nullable=False):
             except ConfigError as e:
                 raise ValueError(e.message) from None
             return v
-        if not math.isfinite(float(v)):
-            raise ValueError(f"must be a finite number, got {v}")
-        return float(v)
+        try:
+            value = float(v)
+        except OverflowError:
+            value = math.inf
+        if not math.isfinite(value):
+            raise ValueError(f"must be a finite number, got {_brief(v)}")
+        return value
     return check
 
 

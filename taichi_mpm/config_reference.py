@@ -33,7 +33,11 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "domain.boundaries": ("", f"wall condition per face: `default` and optionally {FACE_NAMES}"),
     "domain.boundaries.default": ("", "wall of every face not named: a wall type (`slip`) or `{type, friction}`"),
     "domain.boundaries.default.type": ("", "slip: no flow into the wall, may separate; roller: normal velocity "
-                                           "zero both ways; sticky: velocity zero; free: no wall"),
+                                           "zero both ways; sticky: velocity zero; free: no wall; velocity: the "
+                                           "face's nodes take `velocity` (a moving wall or driven lid; docs/loads.md)"),
+    "domain.boundaries.default.velocity": ("m/s", "velocity wall: per axis a number, an expression of t "
+                                                  "(docs/loads.md) or null (that component free); the face itself "
+                                                  "stays in place"),
     "domain.boundaries.default.friction": ("1", "Coulomb friction coefficient mu (slip and roller walls): the "
                                                 "tangential velocity drops by mu times the normal velocity removed"),
     **{f"domain.boundaries.{f}": ("", f"wall at the {'lower' if f.endswith('min') else 'upper'} {f[0]} face; null "
@@ -100,7 +104,29 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "bodies[].particles_per_cell": ("", "particles per cell along each axis"),
     "bodies[].placement": ("", "regular grid of particles, or jittered (each moved randomly by up to a quarter "
                                "spacing per axis)"),
-    "bodies[].velocity": ("m/s", "initial velocity, one number per axis; null: at rest"),
+    "bodies[].velocity": ("m/s", "initial velocity, per axis a number or an expression of x, y, z such as "
+                                 "\"0.1 * sin(pi * x / 25)\" (docs/loads.md); null: at rest"),
+    "bodies[].stress": ("Pa", "initial Cauchy stress (tension positive), a number or expression of x, y, z per "
+                              "component: Voigt [sxx] (1D), [sxx, syy, sxy] (2D), [sxx, syy, szz, syz, sxz, sxy] (3D), "
+                              "or a symmetric d x d matrix; kept as a stored stress added to the material's "
+                              "(docs/loads.md); null: none"),
+    "bodies[].tractions": ("", "prescribed surface tractions or pressures: forces on the body's exposed particle "
+                               "faces (docs/loads.md)"),
+    "bodies[].tractions[].region": ("", "box or sphere: the surface particles inside it are loaded; null: the "
+                                        "whole surface"),
+    "bodies[].tractions[].faces": ("", "outward normals of the particle faces loaded (x_min ... z_max); null: every "
+                                       "exposed face in the region (a corner's faces on both sides)"),
+    "bodies[].tractions[].traction": ("Pa", "traction vector, one number per axis (give it or `pressure`)"),
+    "bodies[].tractions[].pressure": ("Pa", "normal pressure, positive pushing inward (give it or `traction`)"),
+    "bodies[].tractions[].ramp": ("1", "factor on the load, a number or an expression of t such as "
+                                       "\"min(t / 0.01, 1)\""),
+    "bodies[].prescribed_velocity": ("", "grips: body regions whose velocity is prescribed on the grid nodes "
+                                         "their particles touch (docs/loads.md); the reaction: "
+                                         "Simulation.prescribed_impulse()"),
+    "bodies[].prescribed_velocity[].region": ("", "box or sphere: the body's particles inside it at t = 0; null: "
+                                                  "the whole body"),
+    "bodies[].prescribed_velocity[].velocity": ("m/s", "per axis a number, an expression of t, or null (that "
+                                                       "component free)"),
     "bodies[].angular_velocity": ("rad/s", "initial rotation about the shape's centre, added to velocity: a scalar "
                                            "in 2D, a vector in 3D; null: none"),
     "bodies[].interface": ("", "flag the surface particles for multi-body interaction (crack finder)"),
@@ -245,7 +271,8 @@ def _describe_type(tp) -> tuple[str, list[str]]:
     if _is_model(tp):
         short = getattr(tp, "__shorthand__", None)
         return (f"string or mapping (a string s means {{{short}: s}})" if short else "mapping"), allowed
-    return {float: "number", int: "int", bool: "bool", str: "string"}.get(tp, getattr(tp, "__name__", str(tp))), allowed
+    return {float: "number", int: "int", bool: "bool", str: "string", type(None): "null"}.get(
+        tp, getattr(tp, "__name__", str(tp))), allowed
 
 
 def _default_text(field) -> str:
