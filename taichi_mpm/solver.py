@@ -963,7 +963,8 @@ class Simulation:
     def energy_balance(self) -> dict:
         """The energy balance since its reference time (first step, or the last set_particles/set_state):
         growth = E(t) + dissipated - E(ref) - work, with E = kinetic + strain + gravity potential, work the
-        body-force work, dissipated the viscous dissipation; scale = largest kinetic + strain energy seen.
+        external work (body forces, tractions, grips and velocity walls), dissipated the viscous dissipation;
+        scale = largest kinetic + strain energy seen.
         Walls and PIC/APIC/FLIP transfers only remove energy, so growth > 0 is numerical."""
         self._check_live()
         ref = self._balance or self._energy_balance_reference()
@@ -990,6 +991,8 @@ class Simulation:
             speed = np.sum(self._read("v") ** 2, axis=1)
             terms = ["gravity"] if self._g_norm > 0 else []
             terms += ["body forces"] if self.body_acc is not None else []
+            terms += ["tractions"] if self.load is not None else []
+            terms += ["prescribed velocities"] if self.grip_v is not None or self.wall_v is not None else []
             terms += ["viscous dissipation"] if self.feat["viscosity"] else []
             raise InstabilityError(
                 ENERGY_GROWTH, self.n_steps, self.time, particle=int(np.argmax(speed)),
