@@ -372,10 +372,10 @@ class Render(Strict):
         return self
 
 
-PROBE_TYPES = ("point", "body", "region", "wall")
+PROBE_TYPES = ("point", "body", "region", "wall", "grip")
 PROBE_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]*$"  # becomes probes/NAME.csv: no path characters
 # the keys each probe type needs (besides name and type); any other key is an error for that type
-PROBE_KEYS = {"point": ("point",), "body": ("body",), "region": ("region",), "wall": ("face",)}
+PROBE_KEYS = {"point": ("point",), "body": ("body",), "region": ("region",), "wall": ("face",), "grip": ("grip",)}
 
 
 def _body_ref(v):
@@ -398,6 +398,7 @@ class Probe(Strict):
     body: Annotated[Optional[Union[int, str]], BeforeValidator(_body_ref)] = None  # body: a body's name or index
     region: Optional[Shape] = None                   # region: a box or sphere; the particles inside at t = 0
     face: Optional[Literal[FACES]] = None            # wall: the domain face
+    grip: Optional[Annotated[int, Field(ge=0)]] = None  # grip: a bodies[].prescribed_velocity entry, counted over all bodies
 
     @field_validator("name")
     @classmethod
@@ -408,7 +409,7 @@ class Probe(Strict):
 
     @model_validator(mode="after")
     def _keys_of_type(self):
-        for key in ("point", "body", "region", "face"):
+        for key in ("point", "body", "region", "face", "grip"):
             wanted = key in PROBE_KEYS[self.type]
             if wanted and getattr(self, key) is None:
                 raise _Located(key, f"a {self.type} probe needs '{key}'")
@@ -535,6 +536,10 @@ class Config(Strict):
             if isinstance(p.body, str) and p.body not in body_names:
                 known = ", ".join(n for n in body_names if n) or "none (give bodies a name, or use an index)"
                 raise _Located(f"{key}.body", f"unknown body '{p.body}' (named bodies: {known})")
+            n_grips = sum(len(b.prescribed_velocity) for b in self.bodies)
+            if p.grip is not None and p.grip >= n_grips:
+                raise _Located(f"{key}.grip", f"no grip {p.grip}: the bodies have {n_grips} prescribed_velocity "
+                                              "entries (numbered from 0 over all bodies in order)")
             if p.face is not None and "xyz".index(p.face[0]) >= d:
                 raise _Located(f"{key}.face", f"no face {p.face} in {d}D (faces: {', '.join(FACES[:2 * d])})")
         if any(p.type == "wall" for p in self.output.probes) and self.crack is not None:

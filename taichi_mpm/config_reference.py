@@ -155,11 +155,14 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "output.probes": ("", "quantities over time, one CSV per probe in probes/NAME.csv (see Probes below)"),
     "output.probes[].name": ("", "the probe's name, also its file probes/NAME.csv: letters, digits, _ and -; unique"),
     "output.probes[].type": ("", "point: one particle; body: a body's means; region: the means over the particles "
-                                 "inside a shape at t = 0; wall: the reaction force of a domain face"),
+                                 "inside a shape at t = 0; wall: the reaction force of a domain face; grip: the "
+                                 "force of a prescribed-velocity region"),
     "output.probes[].point": ("m", "point probe: the particle nearest this point at t = 0 is followed"),
     "output.probes[].body": ("", "body probe: the body's name (bodies[].name) or index (from 0)"),
     "output.probes[].region": ("", "region probe: a box or sphere; the particles inside it at t = 0"),
     "output.probes[].face": ("", "wall probe: the domain face whose force on the material is recorded"),
+    "output.probes[].grip": ("", "grip probe: a bodies[].prescribed_velocity entry, numbered from 0 over all bodies "
+                                 "in order; its force on the material is recorded"),
     "output.probe_every": ("s", "time between probe samples (taken at the first step on or after each multiple); "
                                 "step: after every step; null: at every output. t = 0 is always sampled"),
 }
@@ -176,6 +179,7 @@ the axes that exist (`sxy` in 2D; `sxy`, `sxz`, `syz` in 3D). In 2D forces and e
 | --- | --- | --- |
 | `point` | `x.. [m]`, `ux.. [m]`, `vx.. [m/s]`, stress `[Pa]` | the particle nearest `point` at t = 0 (the lowest index on a tie): position, displacement from t = 0, velocity, stress |
 | `body`, `region` | `ux.. [m]`, `vx.. [m/s]`, stress `[Pa]`, `kinetic [J]` | over the body's particles, or those inside `region` at t = 0: mass-weighted mean displacement and velocity (the centre of mass), volume-weighted mean stress over the current volumes, kinetic energy sum m v^2 / 2 (without APIC's affine part) |
+| `grip` | `fx.. [N]` | the force a `bodies[].prescribed_velocity` entry (`grip`: its number over all bodies, from 0) exerts on the material, measured like a wall's: the momentum its prescribed velocity adds at the nodes it holds, per interval; nan in the t = 0 row |
 | `wall` | `fx.. [N]` | the force the face exerts on the material: the momentum its wall condition adds at the face's grid nodes, summed over the steps since the previous sample and divided by that time (a mean, not one step); nan in the t = 0 row. A corner node gives each face the change of that face's own condition. Not available with a crack section |
 
 The particles a probe follows are chosen from the positions at t = 0, so a resumed run follows the same ones;

@@ -10,6 +10,7 @@ import pytest
 
 import taichi_mpm as tm
 from taichi_mpm.analytic import VibratingBar
+from taichi_mpm.probes import read_probe
 from taichi_mpm.scene import build_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -206,25 +207,29 @@ def test_cantilever_tip_load_matches_euler_bernoulli():
 
 
 # ---------------------------------------------------------------- prescribed velocities
-def test_grips_pull_a_bar_quasi_statically():
+def test_grips_pull_a_bar_quasi_statically(tmp_path):
     """Grips at both ends, the left held, the right pulled at 0.01 m/s (c / 1000) after a smooth start: the bar is
     in quasi-static equilibrium, so both grips carry the same force and that force is E delta / L_free with
     L_free = 0.8 m between the grips. Measured: the reaction 1.0 % and the mid-bar stress 1.2 % above it (the grip
-    holds every node its particles touch, shortening the free length by less than a cell, 1/32 m = 4 %): 3 %."""
+    holds every node its particles touch, shortening the free length by less than a cell, 1/32 m = 4 %): 3 %.
+    The forces are read from grip probes (probes/NAME.csv, one mean per 0.2 s)."""
     speed = "0.01 * (1 - cos(pi * min(t / 0.4, 1))) / 2"
-    sim = tm.Simulation(tm.load_config(bar(lower=0.5, upper=1.5, prescribed_velocity=[
+    cfg = bar(lower=0.5, upper=1.5, end_time=0.8, prescribed_velocity=[
         dict(region=dict(type="box", lower=[0.5], upper=[0.6]), velocity=[0.0]),
-        dict(region=dict(type="box", lower=[1.4], upper=[1.5]), velocity=[speed])])))
-    sim.advance_to(0.6)
-    sim.prescribed_impulse()
-    sim.advance_to(0.8)
-    force = sim.prescribed_impulse() / 0.2          # mean force of each grip over [0.6, 0.8]
+        dict(region=dict(type="box", lower=[1.4], upper=[1.5]), velocity=[speed])])
+    cfg["output"] = dict(every=0.8, formats=[], probe_every=0.2,
+                         probes=[dict(name="left", type="grip", grip=0), dict(name="right", type="grip", grip=1)])
+    sim = tm.Simulation(tm.load_config(cfg))
+    sim.run(out_dir=tmp_path)
+    left, right = (read_probe(tmp_path / "probes" / f"{n}.csv") for n in ("left", "right"))
+    assert right["time [s]"][-1] == pytest.approx(0.8)
+    force = right["fx [N/m^2]"][-1]                 # mean force of the right grip over [0.6, 0.8]
     delta_mid = 0.01 * (0.7 - 0.2)                  # right grip's displacement at t = 0.7
     p = sim.particles()
     X = sim.scene.x[:, 0]
     assert p["x"][-1, 0] - X[-1] == pytest.approx(0.01 * (0.8 - 0.2), rel=1e-3)  # the grip moved as told
-    assert force[1, 0] == pytest.approx(E * delta_mid / 0.8, rel=0.03)
-    assert force[0, 0] == pytest.approx(-force[1, 0], rel=1e-3)                   # equilibrium
+    assert force == pytest.approx(E * delta_mid / 0.8, rel=0.03)
+    assert left["fx [N/m^2]"][-1] == pytest.approx(-force, rel=1e-3)             # equilibrium
     mid = np.abs(X - 1.0) < 0.1
     assert p["stress"][mid, 0, 0].mean() == pytest.approx(E * 0.01 * (0.8 - 0.2) / 0.8, rel=0.03)
     bal = sim.energy_balance()                      # the grips' work F . v is the energy put in
