@@ -78,7 +78,7 @@ class Expression:
         if not np.isfinite(out).all():
             bad = np.flatnonzero(~np.isfinite(out.ravel()))[0]
             at = ", ".join(f"{k}={np.broadcast_to(np.asarray(v, float), shape).ravel()[bad]:.6g}"
-                           for k, v in values.items()) if shape else ""
+                           for k, v in values.items())
             raise ConfigError(f"expression {_brief(self.text)} is not a finite number" + (f" at {at}" if at else ""),
                               key=self.key)
         return out if shape else float(out)

@@ -277,3 +277,24 @@ def test_block_on_a_moving_floor_takes_its_speed():
     assert mean == pytest.approx(0.5, rel=0.05)
     bal = sim.energy_balance()
     assert bal["work"] > 0 and bal["growth"] < 0.01 * bal["work"]  # the belt's work is counted; it only dissipates
+
+
+def test_expression_errors_exit_2_with_key_and_line(tmp_path, capsys):
+    """A bad expression is a config error at load (key and line); one that turns non-finite during the run stops it
+    with exit 2 naming the key (docs/contract.md)."""
+    import yaml
+    from taichi_mpm.cli import main
+
+    cfg = bar(end_time=0.02, tractions=[dict(traction=[1.0], ramp="log(0.01 - t)")])
+    cfg["output"] = dict(formats=[], every=0.02)
+    path = tmp_path / "bar.yaml"
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    assert main(["run", str(path), "--quiet", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "bodies.0.tractions.0.ramp" in err and "not a finite number at t=" in err
+    bad = path.read_text().replace("log(0.01 - t)", "log(0.01 - t")
+    path.write_text(bad)
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err
+    line = next(i + 1 for i, text in enumerate(bad.splitlines()) if "ramp" in text)
+    assert f"bar.yaml:{line}" in err and "bodies.0.tractions.0.ramp" in err and "never closed" in err
