@@ -177,7 +177,9 @@ def _time_step(cfg: Config, base_dir) -> tuple[float, str]:
     c, which = max((wave_speed(cfg.materials[b.material]), b.material) for b in cfg.bodies)
     vmax = 0.0
     for i, b in enumerate(cfg.bodies):
-        v = float(np.linalg.norm(b.velocity)) if b.velocity is not None else 0.0
+        # expression components (functions of position) are not known before the particles exist: counted as 0
+        v = float(np.linalg.norm([c for c in b.velocity if not isinstance(c, str)] or [0.0])) \
+            if b.velocity is not None else 0.0
         if b.angular_velocity is not None:
             lo, hi = shape_bounds(b.shape, cfg.dim, base_dir, f"bodies.{i}.shape")
             v += float(np.linalg.norm(np.atleast_1d(b.angular_velocity))) * 0.5 * float(np.linalg.norm(hi - lo))

@@ -6,6 +6,7 @@ Unknown keys are errors everywhere (`extra="forbid"`).
 from __future__ import annotations
 
 import copy
+import math
 import os
 import reprlib
 import re
@@ -17,6 +18,7 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr
                       model_serializer, model_validator)
 
 from .errors import ConfigError
+from .expressions import parse as parse_expression
 
 
 def _no_bool(v):
@@ -26,6 +28,38 @@ def _no_bool(v):
 
 
 Real = Annotated[float, BeforeValidator(_no_bool)]
+
+
+SPACE, TIME = ("x", "y", "z"), ("t",)  # the variables of initial fields and of time functions
+
+
+def _expression(variables, nullable=False):
+    """A number, or an expression text of `variables` (taichi_mpm/expressions.py), checked when the config loads."""
+    def check(v):
+        if v is None and nullable:
+            return v
+        if isinstance(v, bool) or not isinstance(v, (int, float, str)):
+            raise ValueError(f"must be a number or an expression of {', '.join(variables)} in quotes, "
+                             f"got {_brief(v)}")
+        if isinstance(v, str):
+            try:
+                parse_expression(v, variables)
+            except ConfigError as e:
+                raise ValueError(e.message) from None
+            return v
+        try:
+            value = float(v)
+        except OverflowError:
+            value = math.inf
+        if not math.isfinite(value):
+            raise ValueError(f"must be a finite number, got {_brief(v)}")
+        return value
+    return check
+
+
+SpaceExpr = Annotated[Union[float, str], BeforeValidator(_expression(SPACE))]   # number or expression of x, y, z
+TimeExpr = Annotated[Union[float, str], BeforeValidator(_expression(TIME))]     # number or expression of t
+FreeTimeExpr = Annotated[Optional[Union[float, str]], BeforeValidator(_expression(TIME, nullable=True))]
 PositiveFloat = Annotated[float, BeforeValidator(_no_bool), Field(gt=0)]
 Vec = list[Real]
 
@@ -93,27 +127,41 @@ class Mesh(Strict):
 Shape = Annotated[Union[Box, Sphere, Ring, Cylinder, Mesh], Field(discriminator="type")]
 
 
+FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+
+
 # ---------------------------------------------------------------- sections
 # slip: no flow into the wall, may separate; roller: normal velocity zero both ways (bilateral);
 # sticky: velocity zero; free: nothing. Slip and roller faces may carry Coulomb friction.
-WALL_TYPES = ("slip", "roller", "sticky", "free")
+# velocity: the face's grid nodes get the prescribed velocity components (a moving wall or a driven lid).
+WALL_TYPES = ("slip", "roller", "sticky", "free", "velocity")
 
 
 class Face(Strict):
-    """One wall: `slip` (a wall type alone) or `{type: slip, friction: 0.3}`."""
+    """One wall: `slip` (a wall type alone), `{type: slip, friction: 0.3}` or `{type: velocity, velocity: [..]}`."""
     __shorthand__ = "type"  # a plain string stands for {type: <string>}
     type: Literal[WALL_TYPES]
     friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
+    # type velocity: per axis a number or an expression of t (m/s), null leaves that component free
+    velocity: Optional[list[FreeTimeExpr]] = None
 
     @model_validator(mode="after")
     def _friction_needs_contact(self):
         if self.friction > 0 and self.type not in ("slip", "roller"):
             raise _Located("friction", f"Coulomb friction needs a slip or roller wall, not {self.type}")
+        if self.type == "velocity" and self.velocity is None:
+            raise _Located("velocity", "a velocity wall needs `velocity`: one number, expression of t or null "
+                                       "(free) per axis")
+        if self.type != "velocity" and self.velocity is not None:
+            raise _Located("velocity", f"only a wall of type velocity takes `velocity` (this one is {self.type})")
         return self
 
     @model_serializer(mode="wrap")
     def _short(self, handler):
-        return self.type if self.friction == 0 else handler(self)
+        if self.friction == 0 and self.velocity is None:
+            return self.type
+        out = handler(self)
+        return {k: v for k, v in out.items() if v is not None and not (k == "friction" and v == 0)}
 
 
 class Boundaries(Strict):
@@ -155,6 +203,10 @@ class Boundaries(Strict):
     def friction(self, axis: int, side: int) -> float:
         """The Coulomb friction coefficient of a face."""
         return self._get(axis, side).friction
+
+    def velocity(self, axis: int, side: int):
+        """The prescribed velocity of a velocity face (list: number, expression text or None per axis), else None."""
+        return self._get(axis, side).velocity
 
 
 class Domain(Strict):
@@ -234,6 +286,56 @@ class DamageRegion(Strict):
     value: Annotated[float, Field(ge=0, le=1)] = 1.0
 
 
+def _stress_value(v):
+    """bodies[].stress: Voigt list (1D [sxx]; 2D [sxx, syy, sxy]; 3D [sxx, syy, szz, syz, sxz, sxy]) or a symmetric
+    d x d matrix; each entry a number or an expression of x, y, z. Lengths are checked against dim later."""
+    if v is None:
+        return v
+    if not isinstance(v, list) or not v:
+        raise ValueError(f"must be a list of stress components (Voigt) or a d x d matrix, got {_brief(v)}")
+    check = _expression(SPACE)
+    out = []
+    for i, row in enumerate(v):
+        if isinstance(row, list):
+            items = []
+            for j, item in enumerate(row):
+                try:
+                    items.append(check(item))
+                except ValueError as e:
+                    raise _Located(f"{i}.{j}", str(e)) from None
+            out.append(items)
+        else:
+            try:
+                out.append(check(row))
+            except ValueError as e:
+                raise _Located(str(i), str(e)) from None
+    if any(isinstance(r, list) for r in out) and not all(isinstance(r, list) for r in out):
+        raise ValueError("mixes numbers and rows: give a Voigt list or a matrix (a list of rows)")
+    return out
+
+
+class Traction(Strict):
+    """A prescribed surface traction or pressure on a body (docs/loads.md): particle forces on the body's exposed
+    particle faces inside `region`, force = traction x face area, scaled by `ramp` (a function of t)."""
+    region: Optional[Shape] = None               # box or sphere; null: the body's whole surface
+    faces: Optional[list[Literal[FACES]]] = None  # outward normals of the faces loaded; null: every exposed face
+    traction: Optional[list[Real]] = None         # Pa, per axis
+    pressure: Optional[Real] = None               # Pa, positive pushes inward (along -n)
+    ramp: TimeExpr = 1.0                          # factor of time, e.g. "min(t / 0.01, 1)"
+
+    @model_validator(mode="after")
+    def _one_load(self):
+        if (self.traction is None) == (self.pressure is None):
+            raise _Located("traction", "give exactly one of `traction` (a vector) and `pressure` (a number)")
+        return self
+
+
+class PrescribedVelocity(Strict):
+    """Particles of a body region whose velocity is prescribed (grips): docs/loads.md."""
+    region: Optional[Shape] = None               # box or sphere; null: the whole body
+    velocity: list[FreeTimeExpr]                 # per axis: number or expression of t (m/s), null: free
+
+
 class Body(Strict):
     name: Optional[str] = None
     shape: Shape
@@ -241,7 +343,11 @@ class Body(Strict):
     # per axis; capped so that dx / particles_per_cell stays a number (10**400 overflowed: tests/test_fuzz.py)
     particles_per_cell: Annotated[int, Field(gt=0, le=1000)] = 2
     placement: Literal["regular", "jittered"] = "regular"
-    velocity: Optional[Vec] = None
+    velocity: Optional[list[SpaceExpr]] = None    # per axis: a number or an expression of x, y, z
+    # initial Cauchy stress (Voigt list or matrix; numbers or expressions of x, y, z), kept as a stored stress
+    stress: Annotated[Optional[list[Union[float, str, list[Union[float, str]]]]], BeforeValidator(_stress_value)] = None
+    tractions: list[Traction] = []
+    prescribed_velocity: list[PrescribedVelocity] = []
     angular_velocity: Optional[Union[Real, Vec]] = None
     interface: bool = False
     damage_regions: list[DamageRegion] = []
@@ -266,11 +372,11 @@ class Render(Strict):
         return self
 
 
-PROBE_TYPES = ("point", "body", "region", "wall", "contact")
-FACES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+PROBE_TYPES = ("point", "body", "region", "wall", "contact", "grip")
 PROBE_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]*$"  # becomes probes/NAME.csv: no path characters
 # the keys each probe type needs (besides name and type); any other key is an error for that type
-PROBE_KEYS = {"point": ("point",), "body": ("body",), "region": ("region",), "wall": ("face",), "contact": ("body",)}
+PROBE_KEYS = {"point": ("point",), "body": ("body",), "region": ("region",), "wall": ("face",), "contact": ("body",),
+              "grip": ("grip",)}
 
 
 def _body_ref(v):
@@ -293,6 +399,7 @@ class Probe(Strict):
     body: Annotated[Optional[Union[int, str]], BeforeValidator(_body_ref)] = None  # body: a body's name or index
     region: Optional[Shape] = None                   # region: a box or sphere; the particles inside at t = 0
     face: Optional[Literal[FACES]] = None            # wall: the domain face
+    grip: Optional[Annotated[int, Field(ge=0)]] = None  # grip: a bodies[].prescribed_velocity entry, counted over all bodies
 
     @field_validator("name")
     @classmethod
@@ -303,7 +410,7 @@ class Probe(Strict):
 
     @model_validator(mode="after")
     def _keys_of_type(self):
-        for key in ("point", "body", "region", "face"):
+        for key in ("point", "body", "region", "face", "grip"):
             wanted = key in PROBE_KEYS[self.type]
             if wanted and getattr(self, key) is None:
                 raise _Located(key, f"a {self.type} probe needs '{key}'")
@@ -387,6 +494,22 @@ class Config(Strict):
             _check_shape(f"{key}.shape", b.shape, d)
             for j, r in enumerate(b.damage_regions):
                 _check_shape(f"{key}.damage_regions.{j}.shape", r.shape, d)
+            _check_loads(key, b, d)
+            if self.crack is not None and b.prescribed_velocity:
+                raise _Located(f"{key}.prescribed_velocity", "prescribed velocities are not available with a crack "
+                                                             "section (the crack finder has its own grid update)")
+        for a in range(d):
+            for side in (0, 1):
+                face = FACES[2 * a + side]
+                vel = self.domain.boundaries.velocity(a, side)
+                if vel is None:
+                    continue
+                named = getattr(self.domain.boundaries, face) is not None
+                fkey = f"domain.boundaries.{face if named else 'default'}.velocity"
+                _need_len(fkey, vel, d)
+                if self.crack is not None:
+                    raise _Located(fkey, "velocity walls are not available with a crack section (the crack finder "
+                                         "has its own grid update)")
         if self.crack is not None and self.solver.volumetric == "fbar":
             raise _Located("solver.volumetric", "fbar cannot be combined with the crack finder (section 'crack'): "
                                                 "its modified shape functions are not averaged; use standard")
@@ -414,6 +537,10 @@ class Config(Strict):
             if isinstance(p.body, str) and p.body not in body_names:
                 known = ", ".join(n for n in body_names if n) or "none (give bodies a name, or use an index)"
                 raise _Located(f"{key}.body", f"unknown body '{p.body}' (named bodies: {known})")
+            n_grips = sum(len(b.prescribed_velocity) for b in self.bodies)
+            if p.grip is not None and p.grip >= n_grips:
+                raise _Located(f"{key}.grip", f"no grip {p.grip}: the bodies have {n_grips} prescribed_velocity "
+                                              "entries (numbered from 0 over all bodies in order)")
             if p.face is not None and "xyz".index(p.face[0]) >= d:
                 raise _Located(f"{key}.face", f"no face {p.face} in {d}D (faces: {', '.join(FACES[:2 * d])})")
         if any(p.type == "wall" for p in self.output.probes) and self.crack is not None:
@@ -455,6 +582,64 @@ def _need_len(key, v, d):
         raise _Located(key, f"must be a list of {d} numbers for dim {d}, got {v!r}")
     if len(v) != d:
         raise _Located(key, f"must have {d} components for dim {d}, got {len(v)}")
+
+
+def _check_names(key, value, d):
+    """An expression may use only the axes the dimension has."""
+    if isinstance(value, str):
+        from .expressions import Expression
+        extra = [n for n in Expression(value, SPACE, key).names if n not in SPACE[:d]]
+        if extra:
+            raise _Located(key, f"expression {_brief(value)} uses {', '.join(extra)}, which {d}D does not have "
+                                f"(axes: {', '.join(SPACE[:d])})")
+
+
+def _check_region(key, region, d):
+    if region is None:
+        return
+    if not isinstance(region, (Box, Sphere)):
+        raise _Located(f"{key}.type", f"a region is a box or a sphere, not a {region.type}")
+    _check_shape(key, region, d)
+
+
+def _check_loads(key, b, d):
+    """Lengths and dimensions of a body's initial fields, tractions and prescribed velocities."""
+    if b.velocity is not None:
+        _need_len(f"{key}.velocity", b.velocity, d)
+        for a, v in enumerate(b.velocity):
+            _check_names(f"{key}.velocity.{a}", v, d)
+    if b.stress is not None:
+        voigt = {1: 1, 2: 3, 3: 6}[d]
+        if isinstance(b.stress[0], list):
+            if len(b.stress) != d or any(len(row) != d for row in b.stress):
+                raise _Located(f"{key}.stress", f"a stress matrix must be {d} x {d} in {d}D")
+            for i in range(d):
+                for j in range(d):
+                    _check_names(f"{key}.stress.{i}.{j}", b.stress[i][j], d)
+                    if j > i and b.stress[i][j] != b.stress[j][i]:
+                        raise _Located(f"{key}.stress.{i}.{j}", f"the stress must be symmetric: entry {i},{j} is "
+                                       f"{b.stress[i][j]!r} but {j},{i} is {b.stress[j][i]!r}")
+        else:
+            if len(b.stress) != voigt:
+                order = {1: "[sxx]", 2: "[sxx, syy, sxy]", 3: "[sxx, syy, szz, syz, sxz, sxy]"}[d]
+                raise _Located(f"{key}.stress", f"must have {voigt} Voigt components {order} in {d}D (or be a "
+                                                f"{d} x {d} matrix), got {len(b.stress)}")
+            for i, v in enumerate(b.stress):
+                _check_names(f"{key}.stress.{i}", v, d)
+    for j, t in enumerate(b.tractions):
+        tkey = f"{key}.tractions.{j}"
+        _check_region(f"{tkey}.region", t.region, d)
+        if t.traction is not None:
+            _need_len(f"{tkey}.traction", t.traction, d)
+        for face in t.faces or []:
+            if "xyz".index(face[0]) >= d:
+                raise _Located(f"{tkey}.faces", f"no face {face} in {d}D (faces: {', '.join(FACES[:2 * d])})")
+    for j, g in enumerate(b.prescribed_velocity):
+        gkey = f"{key}.prescribed_velocity.{j}"
+        _check_region(f"{gkey}.region", g.region, d)
+        _need_len(f"{gkey}.velocity", g.velocity, d)
+        if all(v is None for v in g.velocity):
+            raise _Located(f"{gkey}.velocity", "prescribes no component (every one is null)")
 
 
 def _check_shape(key, s, d):

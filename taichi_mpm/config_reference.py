@@ -33,7 +33,11 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "domain.boundaries": ("", f"wall condition per face: `default` and optionally {FACE_NAMES}"),
     "domain.boundaries.default": ("", "wall of every face not named: a wall type (`slip`) or `{type, friction}`"),
     "domain.boundaries.default.type": ("", "slip: no flow into the wall, may separate; roller: normal velocity "
-                                           "zero both ways; sticky: velocity zero; free: no wall"),
+                                           "zero both ways; sticky: velocity zero; free: no wall; velocity: the "
+                                           "face's nodes take `velocity` (a moving wall or driven lid; docs/loads.md)"),
+    "domain.boundaries.default.velocity": ("m/s", "velocity wall: per axis a number, an expression of t "
+                                                  "(docs/loads.md) or null (that component free); the face itself "
+                                                  "stays in place"),
     "domain.boundaries.default.friction": ("1", "Coulomb friction coefficient mu (slip and roller walls): the "
                                                 "tangential velocity drops by mu times the normal velocity removed"),
     **{f"domain.boundaries.{f}": ("", f"wall at the {'lower' if f.endswith('min') else 'upper'} {f[0]} face; null "
@@ -100,7 +104,29 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "bodies[].particles_per_cell": ("", "particles per cell along each axis"),
     "bodies[].placement": ("", "regular grid of particles, or jittered (each moved randomly by up to a quarter "
                                "spacing per axis)"),
-    "bodies[].velocity": ("m/s", "initial velocity, one number per axis; null: at rest"),
+    "bodies[].velocity": ("m/s", "initial velocity, per axis a number or an expression of x, y, z such as "
+                                 "\"0.1 * sin(pi * x / 25)\" (docs/loads.md); null: at rest"),
+    "bodies[].stress": ("Pa", "initial Cauchy stress (tension positive), a number or expression of x, y, z per "
+                              "component: Voigt [sxx] (1D), [sxx, syy, sxy] (2D), [sxx, syy, szz, syz, sxz, sxy] (3D), "
+                              "or a symmetric d x d matrix; kept as a stored stress added to the material's "
+                              "(docs/loads.md); null: none"),
+    "bodies[].tractions": ("", "prescribed surface tractions or pressures: forces on the body's exposed particle "
+                               "faces (docs/loads.md)"),
+    "bodies[].tractions[].region": ("", "box or sphere: the surface particles inside it are loaded; null: the "
+                                        "whole surface"),
+    "bodies[].tractions[].faces": ("", "outward normals of the particle faces loaded (x_min ... z_max); null: every "
+                                       "exposed face in the region (a corner's faces on both sides)"),
+    "bodies[].tractions[].traction": ("Pa", "traction vector, one number per axis (give it or `pressure`)"),
+    "bodies[].tractions[].pressure": ("Pa", "normal pressure, positive pushing inward (give it or `traction`)"),
+    "bodies[].tractions[].ramp": ("1", "factor on the load, a number or an expression of t such as "
+                                       "\"min(t / 0.01, 1)\""),
+    "bodies[].prescribed_velocity": ("", "grips: body regions whose velocity is prescribed on the grid nodes "
+                                         "their particles touch (docs/loads.md); the reaction: "
+                                         "Simulation.prescribed_impulse()"),
+    "bodies[].prescribed_velocity[].region": ("", "box or sphere: the body's particles inside it at t = 0; null: "
+                                                  "the whole body"),
+    "bodies[].prescribed_velocity[].velocity": ("m/s", "per axis a number, an expression of t, or null (that "
+                                                       "component free)"),
     "bodies[].angular_velocity": ("rad/s", "initial rotation about the shape's centre, added to velocity: a scalar "
                                            "in 2D, a vector in 3D; null: none"),
     "bodies[].interface": ("", "flag the surface particles for multi-body interaction (crack finder)"),
@@ -130,11 +156,13 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "output.probes[].name": ("", "the probe's name, also its file probes/NAME.csv: letters, digits, _ and -; unique"),
     "output.probes[].type": ("", "point: one particle; body: a body's means; region: the means over the particles "
                                  "inside a shape at t = 0; wall: the reaction force of a domain face; contact: the force the "
-                                 "other bodies exert on a body"),
+                                 "other bodies exert on a body; grip: the force of a prescribed-velocity region"),
     "output.probes[].point": ("m", "point probe: the particle nearest this point at t = 0 is followed"),
     "output.probes[].body": ("", "body and contact probes: the body's name (bodies[].name) or index (from 0)"),
     "output.probes[].region": ("", "region probe: a box or sphere; the particles inside it at t = 0"),
     "output.probes[].face": ("", "wall probe: the domain face whose force on the material is recorded"),
+    "output.probes[].grip": ("", "grip probe: a bodies[].prescribed_velocity entry, numbered from 0 over all bodies "
+                                 "in order; its force on the material is recorded"),
     "output.probe_every": ("s", "time between probe samples (taken at the first step on or after each multiple); "
                                 "step: after every step; null: at every output. t = 0 is always sampled"),
 }
@@ -151,6 +179,7 @@ the axes that exist (`sxy` in 2D; `sxy`, `sxz`, `syz` in 3D). In 2D forces and e
 | --- | --- | --- |
 | `point` | `x.. [m]`, `ux.. [m]`, `vx.. [m/s]`, stress `[Pa]` | the particle nearest `point` at t = 0 (the lowest index on a tie): position, displacement from t = 0, velocity, stress |
 | `body`, `region` | `ux.. [m]`, `vx.. [m/s]`, stress `[Pa]`, `kinetic [J]` | over the body's particles, or those inside `region` at t = 0: mass-weighted mean displacement and velocity (the centre of mass), volume-weighted mean stress over the current volumes, kinetic energy sum m v^2 / 2 (without APIC's affine part) |
+| `grip` | `fx.. [N]` | the force a `bodies[].prescribed_velocity` entry (`grip`: its number over all bodies, from 0) exerts on the material, measured like a wall's: the momentum its prescribed velocity adds at the nodes it holds, per interval; nan in the t = 0 row |
 | `wall` | `fx.. [N]` | the force the face exerts on the material: the momentum its wall condition adds at the face's grid nodes, summed over the steps since the previous sample and divided by that time (a mean, not one step); nan in the t = 0 row. A corner node gives each face the change of that face's own condition. Not available with a crack section |
 | `contact` | `fx.. [N]` | the force the other bodies exert on `body` (contact through the shared grid): the change of the body's momentum since the previous sample divided by that time, minus its weight (mass x `solver.gravity`); nan in the t = 0 row. It is the contact force only while the body touches no wall and has no `body_force` (those would be included) |
 
@@ -247,7 +276,8 @@ def _describe_type(tp) -> tuple[str, list[str]]:
     if _is_model(tp):
         short = getattr(tp, "__shorthand__", None)
         return (f"string or mapping (a string s means {{{short}: s}})" if short else "mapping"), allowed
-    return {float: "number", int: "int", bool: "bool", str: "string"}.get(tp, getattr(tp, "__name__", str(tp))), allowed
+    return {float: "number", int: "int", bool: "bool", str: "string", type(None): "null"}.get(
+        tp, getattr(tp, "__name__", str(tp))), allowed
 
 
 def _default_text(field) -> str:

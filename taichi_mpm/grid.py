@@ -55,7 +55,7 @@ def _pow2(n: int) -> int:
 
 
 def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str]], basis, friction=None,
-                        reaction=None):
+                        reaction=None, moving=None):
     """@ti.func (I, v) -> v with each face's condition applied at nodes on or beyond that wall.
 
     `reaction`: an optional dim-vector field of 2 dim entries (x_min, x_max, y_min, ...). `apply.measured(I, v, m)`
@@ -71,12 +71,20 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     flowing into it (a compressive contact impulse m dv_n), the tangential velocity is reduced by mu dv_n, and
     not below zero (then the node sticks). A roller pulling a node back from outside the wall (tension) adds no
     friction.
+
+    velocity (moving wall, driven lid): `moving = (given, values, work)`: given[2 axis + side] is a tuple of dim
+    bools (the prescribed components; the others stay free), values a dim-vector field of 2 dim entries holding the
+    current wall velocities (set by the solver each step), work a f64 field whose slot 0 gets the work the wall
+    does on the grid in the measured pass: the impulse m (v_after - v_before) times the wall velocity v_after.
+    The face itself does not move: a normal component pushes or pulls material through a fixed plane.
     """
 
-    kind = {"free": 0, "sticky": 1, "slip": 2, "roller": 3}
+    kind = {"free": 0, "sticky": 1, "slip": 2, "roller": 3, "velocity": 4}
     codes = [(kind[lo], kind[hi]) for lo, hi in faces]
     mus = [(float(lo), float(hi)) for lo, hi in (friction or [(0.0, 0.0)] * dim)]
     measuring = reaction is not None
+    given, wall_v, work = moving if moving is not None else ([(False,) * dim] * (2 * dim), None, None)
+    doing_work = moving is not None
 
     @ti.func
     def coulomb(v, a: ti.template(), dv_n, mu: ti.template()):
@@ -101,25 +109,38 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
         return v
 
     @ti.func
+    def prescribed(v, slot: ti.template()):
+        """Velocity wall: the given components take the wall's current velocity."""
+        for c in ti.static(range(dim)):
+            if ti.static(given[slot][c]):
+                v[c] = wall_v[slot][c]
+        return v
+
+    @ti.func
+    def face(v, m, a: ti.template(), side: ti.template(), measure: ti.template()):
+        slot = ti.static(2 * a + side)
+        code = ti.static(codes[a][side])
+        before = v
+        if ti.static(code == 1):
+            v = ti.Vector.zero(float, dim)
+        elif ti.static(code == 2 or code == 3):
+            v = contact(v, a, ti.static(1.0 - 2.0 * side), code, mus[a][side])
+        elif ti.static(code == 4):
+            v = prescribed(v, slot)
+        if ti.static(measure and measuring):
+            reaction[slot] += m * (v - before)
+        if ti.static(measure and code == 4):
+            work[0] += m * (v - before).dot(v)
+        return v
+
+    @ti.func
     def conditions(I, v, m, measure: ti.template()):
         for a in ti.static(range(dim)):
             c = basis.coord(I[a], n_cells[a])
             if c <= 0.0:
-                before = v
-                if ti.static(codes[a][0] == 1):
-                    v = ti.Vector.zero(float, dim)
-                elif ti.static(codes[a][0] >= 2):
-                    v = contact(v, a, 1.0, codes[a][0], mus[a][0])
-                if ti.static(measure):
-                    reaction[2 * a] += m * (v - before)
+                v = face(v, m, a, 0, measure)
             if c >= ti.static(float(n_cells[a])):
-                before = v
-                if ti.static(codes[a][1] == 1):
-                    v = ti.Vector.zero(float, dim)
-                elif ti.static(codes[a][1] >= 2):
-                    v = contact(v, a, -1.0, codes[a][1], mus[a][1])
-                if ti.static(measure):
-                    reaction[2 * a + 1] += m * (v - before)
+                v = face(v, m, a, 1, measure)
         return v
 
     @ti.func
@@ -128,8 +149,9 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
 
     @ti.func
     def apply_measured(I, v, m):
-        """apply, adding the impulse m dv each face gives the node to reaction[2 axis + side]."""
-        return conditions(I, v, m, measuring)
+        """apply, adding the impulse m dv each face gives the node to reaction[2 axis + side] (wall probes) and
+        the work of velocity walls to work[0]."""
+        return conditions(I, v, m, True)
 
     apply.measured = apply_measured
     return apply

@@ -11,6 +11,7 @@ Types (selection made once, from the particles' positions at t = 0, so a resumed
 - wall:   the force a domain face exerts on the material: the impulse its wall condition gives the grid nodes
           (Simulation.wall_impulse), summed since the last sample and divided by that time, so a sample is the
           mean force over the interval, not one noisy step. The t = 0 row has no interval yet: nan.
+- grip:   the same for a bodies[].prescribed_velocity entry (Simulation.prescribed_impulse): a grip's force.
 
 Sampling (`output.probe_every`): null samples at every output, a number every that many seconds (at the first
 step on or after each multiple), `step` after every step; t = 0 is always sampled. Each row is flushed, so the
@@ -138,7 +139,18 @@ class ContactProbe:
         return list(change / elapsed - self.weight)
 
 
-KINDS = {"point": PointProbe, "body": GroupProbe, "region": GroupProbe, "wall": WallProbe, "contact": ContactProbe}
+class GripProbe(WallProbe):
+    """The force a grip (bodies[].prescribed_velocity entry) exerts on the material: its impulse over the interval
+    (Simulation.prescribed_impulse) divided by the interval."""
+
+    def __init__(self, spec, sim, key):
+        self.slot = spec.grip
+        d = sim.dim
+        self.columns = [f"f{AXES[a]} [{_per_depth('N', d)}]" for a in range(d)]
+
+
+KINDS = {"point": PointProbe, "body": GroupProbe, "region": GroupProbe, "wall": WallProbe, "contact": ContactProbe,
+         "grip": GripProbe}
 
 
 class Probes:
@@ -161,7 +173,8 @@ class Probes:
             self._files[name] = self._open(self.dir / f"{name}.csv", ["time [s]", "step"] + probe.columns,
                                            sim.time if resume else None)
         self._particles = any(p.needs_particles for _, p in self.probes)
-        self._walls = any(isinstance(p, WallProbe) for _, p in self.probes)
+        self._walls = any(type(p) is WallProbe for _, p in self.probes)
+        self._grips = any(isinstance(p, GripProbe) for _, p in self.probes)
         self._since = sim.time                 # start of the interval the wall impulses cover
         self._last_step = sim.n_steps if resume else None
         self._next = self._next_time(sim.time)
@@ -202,9 +215,10 @@ class Probes:
             return
         p = sim.particles() if self._particles else None
         impulse = sim.wall_impulse() if self._walls else None
+        grip_impulse = sim.prescribed_impulse() if self._grips else None
         elapsed = sim.time - self._since
         for name, probe in self.probes:
-            values = probe.row(p, sim, impulse, elapsed)
+            values = probe.row(p, sim, grip_impulse if isinstance(probe, GripProbe) else impulse, elapsed)
             f = self._files[name]
             csv.writer(f).writerow([repr(float(sim.time)), sim.n_steps] + [repr(float(v)) for v in values])
             f.flush()

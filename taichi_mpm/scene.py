@@ -11,10 +11,29 @@ import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
-from .config import Body, Box, Config, ConfigError, Cylinder, Mesh, Ring, Sphere
+from .config import SPACE, TIME, Body, Box, Config, ConfigError, Cylinder, Mesh, Ring, Sphere
+from .expressions import evaluate
+
+
+@dataclass
+class Load:
+    """One traction entry: the particles it loads and the force each gets at ramp 1 (traction x face area)."""
+    particles: np.ndarray    # (M,) particle indices
+    force: np.ndarray        # (M, d) N (per metre of depth in 2D, per m^2 in 1D)
+    ramp: object             # number or expression text of t
+    key: str                 # bodies.I.tractions.J, for error messages
+
+
+@dataclass
+class Grip:
+    """One prescribed-velocity entry: the particles whose velocity is prescribed, and the velocity spec."""
+    particles: np.ndarray    # (M,) particle indices
+    velocity: list           # per axis: number, expression text of t, or None (free)
+    key: str                 # bodies.I.prescribed_velocity.J
 
 
 @dataclass
@@ -29,6 +48,9 @@ class Scene:
     interface: np.ndarray    # (N,) 1 for surface particles of interface bodies
     spacing: np.ndarray      # (N,) initial particle spacing (dx / ppc)
     materials: list = field(default_factory=list)   # material names, in index order
+    stress: Optional[np.ndarray] = None   # (N, d, d) initial Cauchy stress (bodies[].stress); None: no body has one
+    loads: list = field(default_factory=list)   # Load per bodies[].tractions entry, in body order
+    grips: list = field(default_factory=list)   # Grip per bodies[].prescribed_velocity entry, in body order
 
     @property
     def n(self) -> int:
@@ -407,6 +429,51 @@ def _surface_flags(pts, h):
     return flags
 
 
+def _exposed_faces(pts, origin, h) -> np.ndarray:
+    """(N, d, 2) bool: the particle's lattice neighbour along -axis (0) or +axis (1) is missing from the body, so
+    that face of the particle's cell is on the body's surface (outward normal -e_a or +e_a)."""
+    base = np.round((pts - origin) / h - 0.5).astype(np.int64)
+    lo = base.min(0) - 1
+    ext = base.max(0) - lo + 2
+    def code(k):
+        return np.ravel_multi_index(tuple((k - lo).T), tuple(ext))
+    occupied = np.sort(code(base))
+    out = np.zeros((len(pts), pts.shape[1], 2), bool)
+    for a in range(pts.shape[1]):
+        for side, s in enumerate((-1, 1)):
+            nb = base.copy()
+            nb[:, a] += s
+            c = code(nb)
+            i = np.minimum(np.searchsorted(occupied, c), len(occupied) - 1)
+            out[:, a, side] = occupied[i] != c
+    return out
+
+
+def _traction_forces(t, exposed, pts, h, key, base_dir):
+    """Particles and forces (at ramp 1) of one traction entry: every exposed face of the particles inside the
+    region (or all), restricted to `faces`, gets traction x h^(d-1) or -pressure n h^(d-1)."""
+    d = pts.shape[1]
+    chosen = np.ones(len(pts), bool) if t.region is None else inside(t.region, pts, base_dir, f"{key}.region")
+    mask = exposed & chosen[:, None, None]
+    if t.faces is not None:
+        keep = np.zeros((d, 2), bool)
+        for face in t.faces:
+            keep["xyz".index(face[0]), face.endswith("max")] = True
+        mask &= keep[None]
+    n_faces = mask.sum(axis=(1, 2))
+    sel = np.flatnonzero(n_faces)
+    if len(sel) == 0:
+        raise ConfigError("loads no particle face: no surface particle of the body lies in the region"
+                          + (" with the faces named" if t.faces else ""), key=key)
+    area = h ** (d - 1)
+    if t.traction is not None:
+        force = np.outer(n_faces[sel], np.asarray(t.traction, float)) * area
+    else:  # outward normal of face (a, side) is (2 side - 1) e_a; pressure pushes along -n
+        normals = mask[sel, :, 1].astype(float) - mask[sel, :, 0].astype(float)
+        force = -t.pressure * normals * area
+    return sel, force
+
+
 def _label(bi, body) -> str:
     return f"bodies.{bi}" + (f" ({body.name!r})" if body.name else "")
 
@@ -457,14 +524,17 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
         raise ConfigError("every particle of this body lies inside earlier bodies (overlap: skip left none)",
                           key=f"{key}.overlap")
     iface = _surface_flags(pts, h) if body.interface else np.zeros(len(pts), np.int32)
+    exposed = _exposed_faces(pts, origin, h) if body.tractions else None  # on the lattice, before jitter
     if body.placement == "jittered":
         pts = pts + rng.uniform(-0.25 * h, 0.25 * h, pts.shape)
         pts = np.clip(pts, dlo + 1e-9, dhi - 1e-9)
     mat = cfg.materials[body.material]
     vol = np.full(len(pts), h**d)
+    coords = {SPACE[a]: pts[:, a] for a in range(d)}
     v = np.zeros_like(pts)
     if body.velocity is not None:
-        v += np.asarray(body.velocity, float)
+        for a, comp in enumerate(body.velocity):
+            v[:, a] += evaluate(comp, f"{key}.velocity.{a}", SPACE, **coords)
     if body.angular_velocity is not None:
         r = pts - shape_center(body.shape, d, base_dir, f"{key}.shape")
         w = body.angular_velocity
@@ -473,9 +543,43 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     for j, region in enumerate(body.damage_regions):
         m = inside(region.shape, pts, base_dir, f"{key}.damage_regions.{j}.shape")
         dmg[m] = np.maximum(dmg[m], region.value)
+    grips = []
+    for j, g in enumerate(body.prescribed_velocity):
+        gkey = f"{key}.prescribed_velocity.{j}"
+        sel = np.arange(len(pts)) if g.region is None else np.flatnonzero(inside(g.region, pts, base_dir,
+                                                                                  f"{gkey}.region"))
+        if len(sel) == 0:
+            raise ConfigError("the region holds no particle of the body", key=f"{gkey}.region")
+        for a, comp in enumerate(g.velocity):  # the grip starts at its prescribed velocity
+            if comp is not None:
+                v[sel, a] = evaluate(comp, f"{gkey}.velocity.{a}", TIME, t=0.0)
+        grips.append(Grip(sel, list(g.velocity), gkey))
+    loads = []
+    for j, t in enumerate(body.tractions):
+        tkey = f"{key}.tractions.{j}"
+        sel, force = _traction_forces(t, exposed, pts, h, tkey, base_dir)
+        loads.append(Load(sel, force, t.ramp, tkey))
     return dict(x=pts, v=v, volume=vol, mass=vol * mat.density, body=np.full(len(pts), bi, np.int32),
                 material=np.full(len(pts), mat_names.index(body.material), np.int32),
-                damage=dmg, interface=iface, spacing=np.full(len(pts), h))
+                damage=dmg, interface=iface, spacing=np.full(len(pts), h),
+                stress=_initial_stress(body.stress, d, coords, f"{key}.stress"), loads=loads, grips=grips)
+
+
+def _initial_stress(spec, d, coords, key) -> Optional[np.ndarray]:
+    """(N, d, d) Cauchy stress of bodies[].stress (Voigt list or matrix), or None."""
+    if spec is None:
+        return None
+    n = len(next(iter(coords.values())))
+    out = np.zeros((n, d, d))
+    if isinstance(spec[0], list):
+        pairs = [((i, j), spec[i][j], f"{key}.{i}.{j}") for i in range(d) for j in range(d)]
+    else:
+        index = {1: [(0, 0)], 2: [(0, 0), (1, 1), (0, 1)],
+                 3: [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]}[d]
+        pairs = [(ij, spec[k], f"{key}.{k}") for k, ij in enumerate(index)]
+    for (i, j), comp, k in pairs:
+        out[:, i, j] = out[:, j, i] = evaluate(comp, k, SPACE, **coords)
+    return out
 
 
 def base_dir_of(cfg: Config):
@@ -493,5 +597,14 @@ def build_scene(cfg: Config, seed: int = 0) -> Scene:
     rng = np.random.default_rng(seed)
     mat_names = list(dict.fromkeys(b.material for b in cfg.bodies))
     parts = [_body_particles(cfg, bi, body, mat_names, base_dir, rng) for bi, body in enumerate(cfg.bodies)]
-    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    return Scene(materials=mat_names, **cat)
+    special = ("stress", "loads", "grips")
+    cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k not in special}
+    offsets = np.cumsum([0] + [len(p["x"]) for p in parts])
+    stress = None
+    if any(p["stress"] is not None for p in parts):
+        d = cfg.dim
+        stress = np.concatenate([p["stress"] if p["stress"] is not None else np.zeros((len(p["x"]), d, d))
+                                 for p in parts])
+    loads = [Load(l.particles + off, l.force, l.ramp, l.key) for p, off in zip(parts, offsets) for l in p["loads"]]
+    grips = [Grip(g.particles + off, g.velocity, g.key) for p, off in zip(parts, offsets) for g in p["grips"]]
+    return Scene(materials=mat_names, stress=stress, loads=loads, grips=grips, **cat)

@@ -27,6 +27,7 @@ from . import crack as crack_finder
 from . import fbar
 from .errors import InstabilityError
 from .grid import Grid, make_wall_condition
+from .loads import Loads
 from .materials import MODELS, embed3, wave_speed
 from .scene import Scene, build_scene
 
@@ -125,6 +126,7 @@ class Simulation:
         self.dt_limit = None  # which rate limited the last CFL-rule dt (one of DT_LIMITS)
         self._balance = None  # energy balance reference (see _check_energy_balance)
         self._body_acc_time, self._body_acc_max = None, 0.0
+        self.loads = Loads(c, self.scene)  # tractions, grips, velocity walls (their time functions)
         self._allocate()
         self._build_kernels()
         self._upload()
@@ -147,6 +149,10 @@ class Simulation:
             gimp_per_particle=c.solver.basis == "gimp" and len(spacing) > 1,
             gravity=any(g != 0 for g in c.gravity),
             viscosity=uses_viscosity,
+            tractions=bool(s.loads),             # particle forces of bodies[].tractions
+            grips=bool(s.grips),                 # bodies[].prescribed_velocity on the nodes the grip touches
+            initial_stress=s.stress is not None,  # bodies[].stress, a stored stress added to the model's
+            moving_walls=bool(self.loads.walls),  # domain.boundaries faces of type velocity
         )
 
     def _allocate(self):
@@ -160,7 +166,20 @@ class Simulation:
         self.mat = ti.field(ti.u8, n) if f["multi_material"] else None
         self.body_acc = ti.Vector.field(d, float, n) if f["body_force"] else None
         self.half_width = ti.field(float, n) if f["gimp_per_particle"] else None
+        self.load = ti.Vector.field(d, float, n) if f["tractions"] else None
+        n_loaded = sum(len(l.particles) for l in self.scene.loads)
+        self.load_slot = ti.field(ti.i32, n_loaded) if f["tractions"] else None      # solver slot of each loaded
+        self.load_index = ti.field(ti.i32, n_loaded) if f["tractions"] else None     # particle, its traction
+        self.load_force = ti.Vector.field(d, float, n_loaded) if f["tractions"] else None  # and force at ramp 1
+        self.stress0 = ti.Matrix.field(d, d, float, n) if f["initial_stress"] else None
+        n_grips, n_gripped = len(self.scene.grips), sum(len(g.particles) for g in self.scene.grips)
+        self.grip_slot = ti.field(ti.i32, n_gripped) if f["grips"] else None    # solver slot of each gripped particle
+        self.grip_index = ti.field(ti.i32, n_gripped) if f["grips"] else None   # its grip, from 1
+        self.grip_v = ti.Vector.field(d, float, n_grips) if f["grips"] else None
+        self.grip_impulse = ti.Vector.field(d, ti.f64, n_grips) if f["grips"] else None
+        self.wall_v = ti.Vector.field(d, float, 2 * d) if f["moving_walls"] else None
         vec = ["v"] + (["v_old"] if f["flip"] else []) + (["v2"] if f["musl"] else [])
+        vec += ["grip"] if f["grips"] else []  # component 0: the grip (from 1) whose particles touch the node
         vec += crack_finder.grid_fields(d) if self.cfg.crack is not None else []  # tensor node mass rows
         shape = [self.basis.nodes(nc) for nc in self.n_cells]
         self.grid = Grid(d, shape, self.cfg.domain.sparse, vec)
@@ -169,7 +188,8 @@ class Simulation:
         self.fail = ti.field(ti.i32, ())
         self.vmax2 = ti.field(float, ())
         self.diag = ti.field(ti.f64, 8)  # reduction slots for energies and momenta
-        self.work = ti.field(ti.f64, 2)  # accumulated per step: body-force work, viscous dissipation
+        # accumulated per step: external work (body forces, tractions, prescribed velocities), viscous dissipation
+        self.work = ti.field(ti.f64, 2)
         self.body_id = ti.field(ti.i32, n) if self.scene.body.max(initial=0) > 0 else None
         self.n_bodies = int(self.scene.body.max(initial=0)) + 1
         self.moments = ti.field(ti.f64, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
@@ -193,6 +213,8 @@ class Simulation:
         floats += d * d if self.C is not None else 0
         floats += d if self.body_acc is not None else 0
         floats += 1 if self.half_width is not None else 0
+        floats += d if self.load is not None else 0
+        floats += d * d if self.stress0 is not None else 0
         return floats * size + (1 if self.mat is not None else 0)
 
     def _block_order(self) -> np.ndarray:
@@ -227,6 +249,21 @@ class Simulation:
             self.half_width.from_numpy(self._to_solver(0.5 * s.spacing / self.dx))
         if self.body_id is not None:
             self.body_id.from_numpy(self._to_solver(s.body).astype(np.int32))
+        if self.stress0 is not None:  # S0 = the initial Cauchy stress (F = I at t = 0), held as a 2nd P-K stress
+            self.stress0.from_numpy(self._to_solver(s.stress).reshape(self.n, d, d))
+        slot_of = np.argsort(self._perm)  # creation index -> solver slot
+        if self.load_slot is not None:
+            self.load_slot.from_numpy(np.concatenate([slot_of[l.particles] for l in s.loads]).astype(np.int32))
+            self.load_index.from_numpy(np.concatenate([np.full(len(l.particles), k, np.int32)
+                                                       for k, l in enumerate(s.loads)]))
+            self.load_force.from_numpy(np.concatenate([l.force for l in s.loads]).astype(np.float64))
+        self._ramps = None  # the traction ramps last applied
+        if self.grip_slot is not None:
+            self.grip_slot.from_numpy(np.concatenate([slot_of[g.particles] for g in s.grips]).astype(np.int32))
+            self.grip_index.from_numpy(np.concatenate([np.full(len(g.particles), k + 1, np.int32)
+                                                       for k, g in enumerate(s.grips)]))
+            self.grip_impulse.fill(0)
+        self._motion_time = None  # when grip and wall velocities were last uploaded
         if self.crack is not None:
             self.crack.upload()
 
@@ -244,6 +281,11 @@ class Simulation:
         gimp_deforming = self.cfg.solver.gimp_domain == "deforming"
         gimp_lp0 = 0.5 * float(self.scene.spacing[0]) / dx
         x, v, F, C, vol0, mat = self.x, self.v, self.F, self.C, self.vol0, self.mat
+        load, stress0, has_load, has_stress0 = self.load, self.stress0, f["tractions"], f["initial_stress"]
+        load_slot, load_index, load_force = self.load_slot, self.load_index, self.load_force
+        grip_slot, grip_index, grip_v, grip_impulse = self.grip_slot, self.grip_index, self.grip_v, self.grip_impulse
+        has_grips = f["grips"]
+        grip_given = self.loads.grip_given()
         body_acc, half_width = self.body_acc, self.half_width
         has_C, has_body_acc, has_half_width = C is not None, body_acc is not None, half_width is not None
         store_B = f["apic"] and not basis.apic_gradient  # the C field holds APIC's B_p (see affine())
@@ -261,7 +303,8 @@ class Simulation:
         walls = self.cfg.domain.boundaries
         faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(dim)]
         friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
-        wall = make_wall_condition(dim, n_cells, faces, basis, friction, self.wall_reaction)
+        moving = (self.loads.wall_given(), self.wall_v, self.work) if f["moving_walls"] else None
+        wall = make_wall_condition(dim, n_cells, faces, basis, friction, self.wall_reaction, moving)
         span = [S] * dim
         # The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))`
         # with off = o + inner[k]. Unrolled, the outer range is a single point and `inner` lists every node, so
@@ -286,7 +329,7 @@ class Simulation:
             Lp = ti.Matrix.zero(float, dim, dim)
             if ti.static(f["viscosity"]):
                 Lp = velocity_gradient(p)
-            return model_kirchhoff(p, Fp, Lp)
+            return model_kirchhoff(p, Fp, Lp) + initial_kirchhoff(p, Fp)
 
         @ti.func
         def kirchhoff3(p):
@@ -294,7 +337,25 @@ class Simulation:
             Lp = ti.Matrix.zero(float, dim, dim)
             if ti.static(f["viscosity"]):
                 Lp = velocity_gradient(p)
-            return model_kirchhoff(p, embed3(F[p], 1.0), embed3(Lp, 0.0))
+            return model_kirchhoff(p, embed3(F[p], 1.0), embed3(Lp, 0.0)) + embed3(initial_kirchhoff(p, F[p]), 0.0)
+
+        @ti.func
+        def initial_kirchhoff(p, Fp):
+            """bodies[].stress: a stored 2nd Piola-Kirchhoff stress S0 (the initial Cauchy stress, F = I at t = 0)
+            added to the model's: tau = F S0 F^T, objective, with energy S0 : E (initial_energy). Zero without."""
+            tau = ti.Matrix.zero(float, dim, dim)
+            if ti.static(has_stress0):
+                tau = Fp @ stress0[p] @ Fp.transpose()
+            return tau
+
+        @ti.func
+        def initial_energy(p, Fp):
+            """S0 : E with the Green-Lagrange strain E = (F^T F - I) / 2: the work of the stored stress."""
+            psi = 0.0
+            if ti.static(has_stress0):
+                E = 0.5 * (Fp.transpose() @ Fp - ti.Matrix.identity(float, dim))
+                psi = (stress0[p] * E).sum()
+            return psi
 
         @ti.func
         def model_kirchhoff(p, Fp, Lp):
@@ -464,9 +525,12 @@ class Simulation:
                     stress = -crk.degrade(p, -stress)
                 vp = v[p]
                 Ap = affine(p, W, R)
-                force_density = ti.Vector.zero(float, dim)
+                force_density = ti.Vector.zero(float, dim)  # the external force on the particle (N)
                 if ti.static(has_body_acc):
                     force_density = mp * body_acc[p]
+                if ti.static(has_load):
+                    force_density += load[p]  # tractions (loads.py): traction x face area x ramp
+                if ti.static(has_body_acc or has_load):
                     work[0] += 0.5 * dt * force_density.dot(vp)  # trapezoid: the other half in G2P
                 if ti.static(f["viscosity"]):
                     work[1] += dt * vol0[p] * viscous_power(p, Fp)
@@ -493,9 +557,65 @@ class Simulation:
                     vel = gv[I] / m
                     if ti.static(f["gravity"]):
                         vel += dt * gravity
-                    gv[I] = wall.measured(I, vel, m)  # adds m dv per face to wall_reaction (wall probes only)
+                    vel = wall.measured(I, vel, m)  # adds m dv per face to wall_reaction (wall probes only)
+                    gv[I] = grip_condition(I, vel, m, True)
                     if ti.static(f["flip"]):
                         gv_old[I] = gv_old[I] / m
+
+        @ti.func
+        def grip_condition(I, vel, m, measure: ti.template()):
+            """bodies[].prescribed_velocity: a node touched by a gripped particle (flag_grip_nodes) takes the grip's
+            prescribed components; measured: the impulse m dv goes to grip_impulse and m dv . v to the work."""
+            if ti.static(has_grips):
+                g = ti.cast(grid.vec["grip"][I][0], ti.i32)
+                if g > 0:
+                    before = vel
+                    for k in ti.static(range(len(grip_given))):
+                        if g == k + 1:
+                            for c in ti.static(range(dim)):
+                                if ti.static(grip_given[k][c]):
+                                    vel[c] = grip_v[k][c]
+                            if ti.static(measure):
+                                grip_impulse[k] += m * (vel - before)
+                    if ti.static(measure):
+                        work[0] += m * (vel - before).dot(vel)
+            return vel
+
+        n_loads, n_grip_rows = len(self.scene.loads), len(grip_given)
+        wall_v = self.wall_v
+
+        @ti.kernel
+        def apply_loads(ramps: ti.types.vector(max(n_loads, 1), float)):
+            """Particle forces of the tractions: the sum of ramp x force at ramp 1 (one launch: the loops run in
+            order)."""
+            for p in load:
+                load[p] = ti.Vector.zero(float, dim)
+            for e in load_slot:
+                load[load_slot[e]] += ramps[load_index[e]] * load_force[e]
+
+        @ti.kernel
+        def set_motion(values: ti.types.matrix(max(n_grip_rows + 2 * dim, 1), dim, float)):
+            """This step's grip velocities (rows 0..K-1) and velocity-wall velocities (rows K.., per face slot)."""
+            for _ in range(1):
+                if ti.static(has_grips):
+                    for k in ti.static(range(n_grip_rows)):
+                        for c in ti.static(range(dim)):
+                            grip_v[k][c] = values[k, c]
+                if ti.static(f["moving_walls"]):
+                    for slot in ti.static(range(2 * dim)):
+                        for c in ti.static(range(dim)):
+                            wall_v[slot][c] = values[n_grip_rows + slot, c]
+
+        @ti.kernel
+        def flag_grip_nodes():
+            """Mark every node in the support (w > 0) of a gripped particle with its grip (the largest wins)."""
+            for e in grip_slot:
+                p = grip_slot[e]
+                base, W, DW, R = stencil(p)
+                for off in ti.grouped(ti.ndrange(*span)):
+                    w, gw = node_weight(W, DW, off)
+                    if w > 0:
+                        ti.atomic_max(grid.vec["grip"][base + off][0], ti.cast(grip_index[e], float))
 
         @ti.kernel
         def p2g_momentum():
@@ -522,7 +642,7 @@ class Simulation:
             for I in ti.grouped(gm):
                 m = gm[I]
                 if m > 0:
-                    gv2[I] = wall(I, gv2[I] / m)
+                    gv2[I] = grip_condition(I, wall(I, gv2[I] / m), m, False)
 
         vgrad = gv2 if f["musl"] else gv  # MUSL takes grad v from the remapped velocities
 
@@ -562,6 +682,8 @@ class Simulation:
                         v[p] = v_pic
                     if ti.static(has_body_acc):
                         work[0] += 0.5 * dt * density(p) * vol0[p] * body_acc[p].dot(v[p])
+                    if ti.static(has_load):
+                        work[0] += 0.5 * dt * load[p].dot(v[p])
                     if ti.static(f["apic"]):
                         if ti.static(basis.apic_gradient):
                             C[p] = G
@@ -605,6 +727,8 @@ class Simulation:
                 mp = density(p) * vol0[p]
                 acc[0] += 0.5 * mp * v[p].norm_sqr()
                 psi = strain_energy(p, F[p])
+                if ti.static(has_stress0):
+                    acc[4] += vol0[p] * initial_energy(p, F[p])  # apart: it can be negative (see _energy_parts)
                 if ti.static(crack):
                     psi = crk.degrade_energy(p, F[p], psi, kirchhoff(p, F[p]))
                 acc[1] += vol0[p] * psi
@@ -664,7 +788,8 @@ class Simulation:
                     out[p, a, b] = tau[a, b]
 
         self._k = dict(p2g=p2g, grid_update=grid_update, g2p=g2p, p2g_momentum=p2g_momentum, grid_remap=grid_remap,
-                       energies=energies, momenta=momenta, cauchy_stress=cauchy_stress, body_moments=body_moments)
+                       energies=energies, momenta=momenta, cauchy_stress=cauchy_stress, body_moments=body_moments,
+                       flag_grip_nodes=flag_grip_nodes, apply_loads=apply_loads, set_motion=set_motion)
         if crack:
             self._k.update(crk.grid_kernels())
 
@@ -719,6 +844,23 @@ class Simulation:
             self._body_acc_time, self._body_acc_max = self.time, _max_speed(acc) if self.n else 0.0
         return self._body_acc_max
 
+    def _prescribe(self, dt: float):
+        """Upload this step's tractions (ramps at t + dt/2) and grip and wall velocities (at t + dt)."""
+        L = self.loads
+        if self.load is not None:
+            ramps = L.ramps(self.time + 0.5 * dt)
+            if ramps != self._ramps:
+                self._k["apply_loads"](ti.Vector(list(ramps)))
+                self._ramps = ramps
+        if self.grip_v is None and self.wall_v is None:
+            return
+        if self._motion_time is not None and L.motion_constant:
+            return
+        t = self.time + dt
+        rows = np.concatenate([L.grip_velocities(t), L.wall_velocities(t)])  # the layout set_motion reads
+        self._k["set_motion"](ti.Matrix(rows.tolist()))
+        self._motion_time = t
+
     def step(self, dt: Optional[float] = None) -> float:
         """Advance one step (dt from the CFL rule unless given); returns dt."""
         self._check_live()
@@ -732,10 +874,13 @@ class Simulation:
         if self._balance is None:  # the balance is kept (energy_balance()) even with the check off
             self._balance = self._energy_balance_reference()
         self._body_acc_now()
+        self._prescribe(dt)
         self.grid.clear()
         if self.crack is not None:
             self.crack.update()
         k["p2g"](dt)
+        if self.feat["grips"]:
+            k["flag_grip_nodes"]()
         k["grid_update"](dt)
         self.fail[None] = _NO_FAIL
         self.vmax2[None] = 0.0
@@ -793,12 +938,16 @@ class Simulation:
         self._k["energies"]()
         e = self.diag.to_numpy()
         w = self.work.to_numpy()
+        # slot 4: the stored initial stress's energy S0 : E, part of the strain energy; it falls below zero as a
+        # pre-stressed body relaxes, so the balance's scale (slot 5) counts its size, not its sign
+        e[5] = e[0] + e[1] + abs(e[4])
+        e[1] += e[4]
         return e, w
 
     def _energy_balance_reference(self) -> dict:
         e, w = self._energy_parts()
         floor = self._energy_floor(e[3])
-        return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1], scale=max(e[0] + e[1], floor),
+        return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1], scale=max(e[5], floor),
                     floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time)
 
     def _energy_floor(self, potential_scale: float) -> float:
@@ -814,14 +963,15 @@ class Simulation:
     def energy_balance(self) -> dict:
         """The energy balance since its reference time (first step, or the last set_particles/set_state):
         growth = E(t) + dissipated - E(ref) - work, with E = kinetic + strain + gravity potential, work the
-        body-force work, dissipated the viscous dissipation; scale = largest kinetic + strain energy seen.
+        external work (body forces, tractions, grips and velocity walls), dissipated the viscous dissipation;
+        scale = largest kinetic + strain energy seen.
         Walls and PIC/APIC/FLIP transfers only remove energy, so growth > 0 is numerical."""
         self._check_live()
         ref = self._balance or self._energy_balance_reference()
         e, w = self._energy_parts()
         total = e[0] + e[1] + e[2]
         work, dissipated = w[0] - ref["work"], w[1] - ref["dissipated"]
-        scale = max(ref["scale"], e[0] + e[1])
+        scale = max(ref["scale"], e[5])
         growth = total + dissipated - ref["total"] - work
         return dict(growth=growth, ratio=growth / scale, scale=scale, work=work, dissipated=dissipated,
                     total=total, initial=ref["total"])
@@ -841,6 +991,8 @@ class Simulation:
             speed = np.sum(self._read("v") ** 2, axis=1)
             terms = ["gravity"] if self._g_norm > 0 else []
             terms += ["body forces"] if self.body_acc is not None else []
+            terms += ["tractions"] if self.load is not None else []
+            terms += ["prescribed velocities"] if self.grip_v is not None or self.wall_v is not None else []
             terms += ["viscous dissipation"] if self.feat["viscosity"] else []
             raise InstabilityError(
                 ENERGY_GROWTH, self.n_steps, self.time, particle=int(np.argmax(speed)),
@@ -1093,6 +1245,18 @@ class Simulation:
         out = self.wall_reaction.to_numpy().reshape(2 * self.dim, self.dim)
         if reset:
             self.wall_reaction.fill(0)
+        return out
+
+    def prescribed_impulse(self, reset: bool = True) -> np.ndarray:
+        """(K, dim) impulse (N s; per metre of depth in 2D) each bodies[].prescribed_velocity entry (in body order)
+        gave the material at the grid nodes it holds since the last reset: divided by the elapsed time, the mean
+        force the grip exerts (the reaction a testing machine would measure)."""
+        self._check_live()
+        if self.grip_impulse is None:
+            raise RuntimeError("the scene has no prescribed velocities (bodies[].prescribed_velocity)")
+        out = self.grip_impulse.to_numpy().reshape(-1, self.dim)
+        if reset:
+            self.grip_impulse.fill(0)
         return out
 
     def max_speed(self) -> float:

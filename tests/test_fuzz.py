@@ -191,8 +191,23 @@ def _body(rng, dim, dx, lower, cells, materials, name) -> dict:
     if rng.random() < 0.5:
         body["name"] = name
     small = [-1.5, -0.2, 0.0, 0.3, 1.0]
+    exprs = ["0.1 * sin(pi * x)", "x - 2 * x", "min(x, 1) if x > 0 else 0", "exp(-x**2)"]
     if rng.random() < 0.4:
-        body["velocity"] = [rng.choice(small) for _ in range(dim)]
+        body["velocity"] = [rng.choice(small + exprs) for _ in range(dim)]
+    if rng.random() < 0.15:  # initial stress: Voigt list
+        body["stress"] = [rng.choice([0.0, -1e3, "-1e3 * x"]) for _ in range({1: 1, 2: 3, 3: 6}[dim])]
+    region = dict(type="box", lower=blo, upper=bhi)
+    if rng.random() < 0.2:
+        load = dict(region=region) if rng.random() < 0.5 else {}
+        if rng.random() < 0.5:
+            load["pressure"] = rng.choice([0.0, 1e3])
+        else:
+            load["traction"] = [rng.choice(small) for _ in range(dim)]
+        _maybe(rng, load, "ramp", [1.0, "min(t / 0.01, 1)", "sin(2 * pi * t)"])
+        body["tractions"] = [load]
+    if rng.random() < 0.15:
+        body["prescribed_velocity"] = [dict(region=region, velocity=[rng.choice([0.0, "0.1 * t", None])
+                                                                     for _ in range(dim - 1)] + [0.1])]
     if dim > 1 and rng.random() < 0.3:
         body["angular_velocity"] = rng.choice(small) if dim == 2 else [rng.choice(small) for _ in range(3)]
     if rng.random() < 0.2:
@@ -221,12 +236,20 @@ def config_from(dim, dx, seed, name, body_name) -> dict:
     walls = dict(default=rng.choice(WALLS))
     for face in [f"{a}_{s}" for a in "xyz"[:dim] for s in ("min", "max")]:
         _maybe(rng, walls, face, WALLS, 0.2)
+        if rng.random() < 0.05:  # a moving wall
+            walls[face] = dict(type="velocity", velocity=[rng.choice([0.0, "0.5 * min(t / 0.1, 1)", None])
+                                                          for _ in range(dim)])
     cfg = dict(name=name, dim=dim, domain=dict(lower=lower, upper=upper, dx=dx, boundaries=walls),
                solver=solver, materials=mats, bodies=bodies)
     _maybe(rng, cfg, "precision", ["f32", "f64"])
     _maybe(rng, cfg, "arch", ["auto", "cpu", "cuda", "vulkan", "metal"])
     _maybe(rng, cfg["domain"], "sparse", [True, False], 0.3)
     if rng.random() < 0.3:
+        for b in bodies:  # grips and velocity walls are not available with the crack finder
+            b.pop("prescribed_velocity", None)
+        for face, w in list(walls.items()):
+            if isinstance(w, dict):
+                walls[face] = "slip"
         cfg["crack"] = {}
         _maybe(rng, cfg["crack"], "kernel_radius", [1.5, 2.0])
         _maybe(rng, cfg["crack"], "contact_in_compression", [True, False])

@@ -1,0 +1,100 @@
+"""Host side of prescribed loads and motions (docs/loads.md): the time functions of tractions, grips
+(bodies[].prescribed_velocity) and velocity walls, evaluated once per step and handed to the solver's fields.
+
+The particles and forces come from the scene (scene.Load, scene.Grip); here only their values in time:
+- a traction's particle forces are its force at ramp 1 times ramp(t), taken at the step's midpoint t + dt/2;
+- a grip's or a velocity wall's velocity is taken at t + dt, the time the grid update's new velocity belongs to.
+
+Physics only: no I/O.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .config import FACES, TIME, Config
+from .expressions import Expression
+
+
+class _TimeValue:
+    """A number or an expression of t; `constant` when it cannot change."""
+
+    def __init__(self, value, key):
+        self.expr = Expression(value, TIME, key) if isinstance(value, str) else None
+        self.value = None if self.expr is not None else float(value)
+        self.constant = self.expr is None or not self.expr.names
+
+    def __call__(self, t: float) -> float:
+        return self.value if self.expr is None else float(self.expr.evaluate(t=t))
+
+
+def _vector(spec, key, dim):
+    """(given, values): which components are prescribed (static), and their time values."""
+    given = tuple(c is not None for c in spec)
+    values = [_TimeValue(c, f"{key}.{a}") if c is not None else None for a, c in enumerate(spec)]
+    return given, values
+
+
+class Loads:
+    """Tractions, grips and velocity walls of a scene; each part is None/empty when the scene has none."""
+
+    def __init__(self, cfg: Config, scene):
+        self.dim, self.n = cfg.dim, scene.n
+        self.tractions = [(load, _TimeValue(load.ramp, f"{load.key}.ramp")) for load in scene.loads]
+        self.grips = [(grip, *_vector(grip.velocity, f"{grip.key}.velocity", cfg.dim)) for grip in scene.grips]
+        walls = cfg.domain.boundaries
+        self.walls = []  # (slot, given, values) of each velocity face
+        for a in range(cfg.dim):
+            for side in (0, 1):
+                spec = walls.velocity(a, side)
+                if spec is not None:
+                    face = FACES[2 * a + side]
+                    named = getattr(walls, face) is not None
+                    key = f"domain.boundaries.{face if named else 'default'}.velocity"
+                    self.walls.append((2 * a + side, *_vector(spec, key, cfg.dim)))
+
+    # ------------------------------------------------------------------ tractions
+    @property
+    def has_tractions(self) -> bool:
+        return bool(self.tractions)
+
+    def ramps(self, t: float) -> tuple:
+        return tuple(ramp(t) for _, ramp in self.tractions)
+
+    def traction_forces(self, t: float) -> np.ndarray:
+        """(N, d) particle forces in creation order at time t (what the solver's apply_loads kernel forms)."""
+        f = np.zeros((self.n, self.dim))
+        for (load, _), r in zip(self.tractions, self.ramps(t)):
+            np.add.at(f, load.particles, r * load.force)
+        return f
+
+    def max_force(self) -> float:
+        """Largest particle force a traction gives at ramp 1 (for messages)."""
+        return max((float(np.abs(l.force).max()) for l, _ in self.tractions), default=0.0)
+
+    # ------------------------------------------------------------------ prescribed velocities
+    def grip_given(self) -> list[tuple]:
+        return [given for _, given, _ in self.grips]
+
+    def grip_velocities(self, t: float) -> np.ndarray:
+        """(K, d) prescribed velocities of the grips at time t (free components 0)."""
+        return np.array([[v(t) if v is not None else 0.0 for v in values] for _, _, values in self.grips],
+                        dtype=np.float64).reshape(len(self.grips), self.dim)
+
+    def wall_given(self) -> list[tuple]:
+        """Per face slot (x_min, x_max, ...), the prescribed components (all False for other faces)."""
+        out = [(False,) * self.dim for _ in range(2 * self.dim)]
+        for slot, given, _ in self.walls:
+            out[slot] = given
+        return out
+
+    def wall_velocities(self, t: float) -> np.ndarray:
+        """(2 d, d) velocities of the velocity faces at time t (zero for other faces and free components)."""
+        out = np.zeros((2 * self.dim, self.dim))
+        for slot, _, values in self.walls:
+            out[slot] = [v(t) if v is not None else 0.0 for v in values]
+        return out
+
+    @property
+    def motion_constant(self) -> bool:
+        """Whether grip and wall velocities never change (then they are uploaded once)."""
+        return all(v is None or v.constant for _, _, vals in self.grips + self.walls for v in vals)
