@@ -23,7 +23,7 @@ def parse(name, argv=None, doc=None):
 def run(sim, out=None, setup=None):
     """Run to the end time writing the config's outputs; report particles, steps and wall time."""
     t0 = time.perf_counter()
-    sim.run(out_dir=out)
+    sim.run(out_dir=out, overwrite=True)  # a demo script regenerates its outputs
     wall = time.perf_counter() - t0
     print(f"{sim.cfg.name}: {sim.n} particles, {sim.n_steps} steps to t={sim.time:.4g} s in {wall:.1f} s "
           f"-> {out or sim.cfg.output.dir.format(name=sim.cfg.name)}", file=sys.stderr)
