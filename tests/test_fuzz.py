@@ -245,8 +245,13 @@ def config_from(dim, dx, seed, name, body_name) -> dict:
 
 
 WALLS = ["slip", "roller", "sticky", "free"]
+# a run's name names its folder runs/NAME, so a valid one is a plain folder name (config.plain_name); names that
+# are not reach it through the mutations below and tests/test_run_folder.py
+RUN_NAMES = st.one_of(st.sampled_from(["test", "a-b_c.d", "é", "x" * 40]),
+                      st.text(st.sampled_from([c for c in CHARS.elements if c.isprintable() and c not in "/\\"]),
+                              min_size=1, max_size=8).map(lambda t: "n" + t.strip()))
 valid_configs = st.builds(config_from, st.sampled_from([1, 2, 3]), st.sampled_from([0.5, 0.25, 0.2, 0.125, 0.1]),
-                          st.integers(0, 2**32), NAMES, NAMES)
+                          st.integers(0, 2**32), RUN_NAMES, NAMES)
 
 
 # ---------------------------------------------------------------- strategies: mutations

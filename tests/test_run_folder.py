@@ -243,3 +243,30 @@ def test_killed_run_releases_the_folder_and_resume_cleans_up(tmp_path, capsys):
     (out / ".diagnostics.csv.tmp99999").write_text("half")
     code, err = run(capsys, "run", path, "--quiet", "--out", out, "--resume", "--set", "solver.end_time=0.1")
     assert code == 0 and not list(out.glob(".*.tmp*")) and not (out / LOCK_NAME).exists()
+
+
+# ---------------------------------------------------------------- hostile YAML, an arch this machine lacks
+ALIAS_BOMB = "l0: &l0 [x]\n" + "".join(f"l{i}: &l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]\n" for i in range(1, 9))
+
+
+@pytest.mark.parametrize("text,words", [
+    (ALIAS_BOMB + "name: x\n", "expands to more than"),            # 9^8 = 43 million values if walked
+    ("name: " + "[" * 3000 + "]" * 3000 + "\n", "nested too deeply"),
+    ("".join("  " * i + f"k{i}:\n" for i in range(1500)), "nested too deeply"),
+])
+def test_alias_bomb_and_deep_nesting_exit_2(tmp_path, capsys, text, words):
+    """Before: MemoryError / RecursionError tracebacks."""
+    (tmp_path / "hostile.yaml").write_text(text)
+    code, err = run(capsys, "validate", tmp_path / "hostile.yaml")
+    assert code == 2 and words in err and "hostile.yaml" in err and err.count("error:") == 1
+
+
+def test_validate_refuses_an_arch_this_machine_lacks(tmp_path, capsys):
+    """`run` refuses it (tests/test_reproducibility.py); `validate` used to say the config was fine."""
+    from taichi_mpm.solver import GPU_ARCHS, available_archs
+
+    missing = [a for a in GPU_ARCHS if a not in available_archs()]
+    if not missing:
+        pytest.skip("every GPU arch is available here")
+    code, err = run(capsys, "validate", scene(tmp_path), "--arch", missing[0])
+    assert code == 2 and f"arch {missing[0]} is not available" in err and "key 'arch'" in err
