@@ -154,6 +154,16 @@ def test_two_blocks_separate_with_crack_finder():
 
 
 @pytest.mark.slow
+def test_3d_threshold_0_leaks_momentum_at_the_contact_face_edges():
+    """The known limitation of docs/crack_finder.md ("The threshold"), kept measured: with threshold 0 the nodes
+    at the edges of the contact face stay shared and the 3D blocks keep only 0.167 m/s of 0.2 (17 % leak).
+    Fails if the leak vanished (then the docs and the demos' threshold -0.6 need revisiting) or grew."""
+    sim, p, b, gaps, t, smax = _pull(blocks_cfg(3, crack=True, threshold=0.0), steps=30)
+    va, vb = p["v"][b == 0, 0].mean(), p["v"][b == 1, 0].mean()
+    assert 0.15 < vb < 0.19 and 0.15 < -va < 0.19, (va, vb)
+
+
+@pytest.mark.slow
 def test_two_blocks_separate_3d_with_interface_threshold():
     """In 3D the edges of the contact face leak momentum with threshold 0 (blocks lose 17 %); with
     threshold -0.6 (nodes whose normal turns more than 53 degrees away count as across) they keep it."""
