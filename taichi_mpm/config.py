@@ -6,6 +6,7 @@ Unknown keys are errors everywhere (`extra="forbid"`).
 from __future__ import annotations
 
 import copy
+import math
 import os
 import reprlib
 import re
@@ -392,6 +393,9 @@ class Config(Strict):
             raise _Located("domain.upper", "must exceed domain.lower on every axis")
         for a, (l, u) in enumerate(zip(self.domain.lower, self.domain.upper)):
             n = (u - l) / self.domain.dx
+            if not math.isfinite(n):  # dx = 5e-324 (found by tests/test_fuzz.py)
+                raise _Located("domain.dx", f"dx={self.domain.dx:g} is too small: the domain extent {u - l:g} along "
+                                            f"{'xyz'[a]} would be more cells than a number can hold")
             if abs(n - round(n)) > 1e-6 * max(1.0, n) or round(n) < 1:
                 raise _Located("domain.dx", f"the domain extent {u - l:g} along {'xyz'[a]} is not a whole number of "
                                             f"cells of dx={self.domain.dx:g} ({n:.4g} cells); "

@@ -149,13 +149,17 @@ class Run:
         except ValueError as e:  # a NUL character in --out or output.dir
             raise ConfigError(f"cannot use {str(self.out_dir)!r} as the output folder: {e}", key="output.dir") from None
         self.lock = FolderLock(self.out_dir)
-        self._remove_temporaries()
-        if resume:
-            self._restore()
-        else:
-            self._fresh(overwrite)
-        io.write_config(self.out_dir / io.CONFIG_NAME, self.cfg)
-        self.probes = probes.Probes(sim, self.out_dir, resume=resume)  # probes/NAME.csv (output.probes)
+        try:
+            self._remove_temporaries()
+            if resume:
+                self._restore()
+            else:
+                self._fresh(overwrite)
+            io.write_config(self.out_dir / io.CONFIG_NAME, self.cfg)
+            self.probes = probes.Probes(sim, self.out_dir, resume=resume)  # probes/NAME.csv (output.probes)
+        except BaseException:  # a refused resume or overwrite leaves the folder free at once
+            self.lock.release()
+            raise
 
     # ------------------------------------------------------------ set-up
     def _remove_temporaries(self):
@@ -173,7 +177,6 @@ class Run:
     def _fresh(self, overwrite: bool = False):
         held = self.held()
         if held and not overwrite:
-            self.lock.release()
             raise ConfigError(f"{self.out_dir} already holds a run's results ({', '.join(held[:4])}): add --resume to "
                               f"continue that run or --overwrite to replace its results")
         for pattern in self.STALE:

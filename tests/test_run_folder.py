@@ -115,6 +115,8 @@ def test_rerun_into_a_folder_with_results_needs_overwrite_or_resume(finished, tm
     sim = tm.Simulation(tm.load_config(path))
     with pytest.raises(ConfigError, match="already holds"):
         sim.run(out_dir=out)                                         # the API says the same
+    sim.run(out_dir=out, overwrite=True)                             # and the refusal left the folder free
+    assert not (out / LOCK_NAME).exists()
 
 
 def test_leftover_temporary_files_are_removed_and_others_kept(finished, tmp_path, capsys):
