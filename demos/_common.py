@@ -31,7 +31,7 @@ def run(sim, out=None, on_step=None):
     """Run to the end time writing the config's outputs; report particles, steps and wall time."""
     out = Path(out) if out is not None else default_out(sim.cfg)
     t0 = time.perf_counter()
-    sim.run(out_dir=out, on_step=on_step)
+    sim.run(out_dir=out, on_step=on_step, overwrite=True)  # a demo script regenerates its outputs
     wall = time.perf_counter() - t0
     print(f"{sim.cfg.name}: {sim.n} particles, {sim.n_steps} steps to t={sim.time:.4g} s in {wall:.1f} s -> {out}",
           file=sys.stderr)

@@ -175,16 +175,22 @@ def _time_step(cfg: Config, base_dir) -> tuple[float, str]:
     if s.dt is not None:
         return s.dt, "from solver.dt"
     c, which = max((wave_speed(cfg.materials[b.material]), b.material) for b in cfg.bodies)
-    vmax = 0.0
+    vmax, fastest = 0.0, None
     for i, b in enumerate(cfg.bodies):
         # expression components (functions of position) are not known before the particles exist: counted as 0
-        v = float(np.linalg.norm([c for c in b.velocity if not isinstance(c, str)] or [0.0])) \
-            if b.velocity is not None else 0.0
-        if b.angular_velocity is not None:
-            lo, hi = shape_bounds(b.shape, cfg.dim, base_dir, f"bodies.{i}.shape")
-            v += float(np.linalg.norm(np.atleast_1d(b.angular_velocity))) * 0.5 * float(np.linalg.norm(hi - lo))
-        vmax = max(vmax, v)
+        with np.errstate(over="ignore"):
+            v = float(np.linalg.norm([c for c in b.velocity if not isinstance(c, str)] or [0.0])) \
+                if b.velocity is not None else 0.0
+            if b.angular_velocity is not None:
+                lo, hi = shape_bounds(b.shape, cfg.dim, base_dir, f"bodies.{i}.shape")
+                v += float(np.linalg.norm(np.atleast_1d(b.angular_velocity))) * 0.5 * float(np.linalg.norm(hi - lo))
+        if fastest is None or v > vmax:
+            vmax, fastest = v, i
     dt = s.cfl * cfg.domain.dx / (c + vmax)
+    if not dt > 0:  # a speed (or wave speed) so large that the step underflows: found by tests/test_fuzz.py
+        key = f"bodies.{fastest}.velocity" if vmax >= c else f"materials.{which}"
+        raise ConfigError(f"the CFL time step underflows to zero (wave speed {c:.3g} m/s, body speed {vmax:.3g} m/s, "
+                          f"domain.dx = {cfg.domain.dx:g}): check the units", key=key)
     return dt, f"from the CFL rule: wave speed {c:.3g} m/s of material '{which}'"
 
 

@@ -1,6 +1,6 @@
 """The `taichi-mpm` command (also `python -m taichi_mpm`).
 
-    taichi-mpm run CONFIG [--set KEY=VALUE]... [--out DIR] [--arch ARCH] [--quiet] [--resume]
+    taichi-mpm run CONFIG [--set KEY=VALUE]... [--out DIR] [--arch ARCH] [--quiet] [--resume | --overwrite]
     taichi-mpm validate CONFIG [--set KEY=VALUE]...
     taichi-mpm demo [NAME] [--list] [run options]
     taichi-mpm render RUN_DIR [--color-by FIELD] [--size WxH] [--camera CAMERA] [--movie FILE|mp4|gif]
@@ -96,7 +96,10 @@ def _add_config_options(p, run=True):
     if run:
         p.add_argument("--out", metavar="DIR", help="output directory (default: output.dir of the config)")
         p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
-        p.add_argument("--resume", action="store_true", help="continue from checkpoint.npz in the output directory")
+        again = p.add_mutually_exclusive_group()
+        again.add_argument("--resume", action="store_true", help="continue from checkpoint.npz in the output directory")
+        again.add_argument("--overwrite", action="store_true",
+                           help="replace the results of an earlier run in the output directory")
     p.add_argument("--arch", choices=["auto", "cpu", "cuda", "vulkan", "metal"], help="override the config's arch")
     p.add_argument("--allow-large", dest="overrides", action="append_const", const="limits.allow_large=true",
                    help="run even when the size estimate exceeds limits.memory_gb / limits.particles")
@@ -270,13 +273,18 @@ def _run_config(cfg, args) -> int:
 
 
 def _run(cfg, args) -> int:
-    from .runner import Interrupted, Run, Simulation
+    from . import io
+    from .runner import Interrupted, Run, Simulation, output_dir
 
+    if args.resume:  # an unreadable checkpoint is refused before anything is allocated
+        checkpoint = output_dir(cfg, args.out) / io.CHECKPOINT_NAME
+        if checkpoint.exists():
+            io.load_checkpoint(checkpoint)
     # ti.init prints "[Taichi] Starting on arch=..." to stdout: keep stdout clean
     with contextlib.redirect_stdout(StringIO() if args.quiet else sys.stderr):
         sim = Simulation(cfg)
     try:
-        run = Run(sim, args.out, resume=args.resume)
+        run = Run(sim, args.out, resume=args.resume, overwrite=args.overwrite)
     except OSError as e:  # an output directory that cannot be created or written
         raise _InputError(f"cannot write the outputs: {e}") from None
     if args.resume and run.done:
@@ -316,6 +324,10 @@ def cmd_validate(args) -> int:
 
     cfg = _load(args.config, args)
     try:
+        if cfg.arch not in ("auto", "cpu"):  # an arch named explicitly must exist here, as for `run`
+            from .solver import resolve_arch
+
+            resolve_arch(cfg.arch)
         estimate = budget.check(cfg)  # before the scene: an absurd size is refused, not generated
         scene = build_scene(cfg)
     except ConfigError as e:

@@ -69,6 +69,16 @@ FIELDS = ("velocity", "stress", "von_mises", "J", "body", "damage", "speed", "pr
           "F", "C", "mass", "volume", "material", "interface")
 
 
+MAX_NAME = 100
+
+
+def plain_name(v) -> bool:
+    """A name that is safe as one folder name: `runs/{name}` stays inside runs/ (not '.', '..', a path, a hidden
+    folder, NUL or other control characters, nor longer than most file systems allow)."""
+    return (isinstance(v, str) and 0 < len(v) <= MAX_NAME and not v.startswith((".", " ")) and not v.endswith(" ")
+            and not any(c in "/\\" or not c.isprintable() for c in v))
+
+
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=False, allow_inf_nan=False)
 
@@ -365,6 +375,24 @@ class Render(Strict):
 
     @model_validator(mode="after")
     def _lengths(self):
+        from .render import CAMERAS, color_fields  # (light: numpy and the field registry)
+
+        if self.camera not in CAMERAS:
+            raise _Located("camera", f"unknown camera {self.camera!r} (choose from {', '.join(CAMERAS)}; "
+                                     f"2D and 1D frames are always seen along z)")
+        if self.color_by not in color_fields():
+            raise _Located("color_by", f"unknown colour field {self.color_by!r} (choose from "
+                                       f"{', '.join(color_fields()[:14])}, or sxx, sxy, ..., szz)")
+        if self.colormap != "viridis":
+            try:
+                import matplotlib
+
+                matplotlib.colormaps[self.colormap]
+            except ImportError:  # nothing to check against; the renderer is not installed either
+                pass
+            except (KeyError, ValueError, TypeError):
+                raise _Located("colormap", f"unknown colormap {self.colormap!r} (a matplotlib colormap name, "
+                                           f"e.g. viridis, plasma, coolwarm, turbo)") from None
         if len(self.size) != 2:
             raise _Located("size", f"must be [width, height] in pixels, got {len(self.size)} numbers")
         if self.clim is not None and (len(self.clim) != 2 or self.clim[0] >= self.clim[1]):
@@ -457,8 +485,9 @@ class Config(Strict):
     @field_validator("name")
     @classmethod
     def _name(cls, v):
-        if not v or "/" in v:
-            raise ValueError("name must be a non-empty string without '/'")
+        if not plain_name(v):
+            raise ValueError(f"must be a plain folder name (it names runs/NAME): 1-{MAX_NAME} characters, no '/', "
+                             f"'\\', control characters or leading '.' or space")
         return v
 
     @model_validator(mode="after")
@@ -470,6 +499,9 @@ class Config(Strict):
             raise _Located("domain.upper", "must exceed domain.lower on every axis")
         for a, (l, u) in enumerate(zip(self.domain.lower, self.domain.upper)):
             n = (u - l) / self.domain.dx
+            if not math.isfinite(n):  # dx = 5e-324 (found by tests/test_fuzz.py)
+                raise _Located("domain.dx", f"dx={self.domain.dx:g} is too small: the domain extent {u - l:g} along "
+                                            f"{'xyz'[a]} would be more cells than a number can hold")
             if abs(n - round(n)) > 1e-6 * max(1.0, n) or round(n) < 1:
                 raise _Located("domain.dx", f"the domain extent {u - l:g} along {'xyz'[a]} is not a whole number of "
                                             f"cells of dx={self.domain.dx:g} ({n:.4g} cells); "

@@ -219,15 +219,24 @@ def save_checkpoint(path, state: dict, meta: dict | None = None):
 
 
 def load_checkpoint(path) -> tuple[dict, dict]:
-    """(state for sim.set_state, metadata)."""
-    with np.load(path, allow_pickle=False) as z:
-        state = {k: z[k] for k in z.files if k != "__meta__"}
-        meta = json.loads(str(z["__meta__"])) if "__meta__" in z.files else {}
-    for k in ("time", "dt", "vmax"):
-        if k in state:
-            state[k] = float(state[k])
-    if "n_steps" in state:
-        state["n_steps"] = int(state["n_steps"])
+    """(state for sim.set_state, metadata). A file that is not a complete checkpoint (corrupt, truncated, another
+    .npz, pickled objects) is a ConfigError naming it; whether the state fits the scene is set_state's check."""
+    from .errors import ConfigError
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            state = {k: z[k] for k in z.files if k != "__meta__"}
+            meta = json.loads(str(z["__meta__"])) if "__meta__" in z.files else None
+        if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
+            raise ValueError("no metadata (output counter and config) in it")
+        for k in ("time", "dt", "vmax"):
+            if k in state:
+                state[k] = float(state[k])
+        if "n_steps" in state:
+            state["n_steps"] = int(state["n_steps"])
+    except Exception as e:  # BadZipFile, EOFError, OSError, ValueError, KeyError, JSONDecodeError, ...
+        raise ConfigError(f"{path} is not a readable checkpoint ({type(e).__name__}: {str(e)[:200]}); it may be "
+                          f"corrupt or truncated: run again without --resume") from None
     return state, meta
 
 

@@ -26,6 +26,12 @@ FIELDS = tuple(n for n, f in registry.REGISTRY.items() if f.kind in ("scalar", "
 _ALIASES = {"velocity": "speed", "velocity_x": "vx", "velocity_y": "vy", "velocity_z": "vz", "mises": "von_mises",
             "stress": "von_mises"}
 _CAMERAS_3D = ("iso", "xy", "xz", "yz", "front", "side", "top")
+CAMERAS = _CAMERAS_3D  # the names output.render.camera and --camera accept (2D and 1D frames ignore the camera)
+
+
+def color_fields() -> list[str]:
+    """Every name output.render.color_by and --color-by accept: the scalar fields, aliases, vx/vy/vz, sxx ... szz."""
+    return list(FIELDS) + list(_ALIASES) + [f"s{a}{b}" for a in "xyz" for b in "xyz"]
 
 
 _BACKEND: dict = {}
@@ -325,8 +331,19 @@ def read_series(run_dir) -> list[tuple[float, Path]]:
     run_dir = Path(run_dir)
     pvd = run_dir / "particles.pvd"
     if pvd.is_file():
-        root = ET.parse(pvd).getroot()
-        items = [(float(ds.get("timestep", 0.0)), run_dir / ds.get("file")) for ds in root.iter("DataSet")]
+        try:
+            root = ET.parse(pvd).getroot()
+            items = []
+            for ds in root.iter("DataSet"):
+                name = ds.get("file") or ""
+                if Path(name).name != name or not name.endswith(".vtu"):  # only the run's own files, by name
+                    raise ValueError(f"a DataSet names {name!r}, not a .vtu file in the run folder")
+                items.append((float(ds.get("timestep", 0.0)), run_dir / name))
+        except (ET.ParseError, ValueError, TypeError) as e:
+            from .errors import ConfigError
+
+            raise ConfigError(f"cannot read {pvd}: {e} (a corrupt series file: remove it to render the "
+                              f"particles_*.vtu files in name order)") from None
         if items:
             return items
     files = sorted(run_dir.glob("particles_*.vtu"))
@@ -335,9 +352,22 @@ def read_series(run_dir) -> list[tuple[float, Path]]:
 
 def read_particles(vtu_path, dim: int) -> dict:
     """A particle dict (x, v, stress, stress3, F, von_mises, J, body, damage, ...) from one saved VTU file."""
+    import contextlib
+    import io as _io
+    import warnings
+
+    from .errors import ConfigError
     from .io import read_vtu
 
-    p = read_vtu(vtu_path, dim)
+    said = _io.StringIO()
+    try:  # meshio's VTU reader prints its complaint and calls sys.exit on some corrupt files
+        with warnings.catch_warnings(), contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            warnings.simplefilter("ignore")
+            p = read_vtu(vtu_path, dim)
+    except (Exception, SystemExit) as e:
+        detail = " ".join(said.getvalue().split()) if isinstance(e, SystemExit) else f"{type(e).__name__}: {e}"
+        raise ConfigError(f"cannot read {vtu_path}: {detail[:300] or type(e).__name__} (a corrupt or truncated "
+                          f"snapshot)") from None
     if "velocity" in p:
         p["v"] = p.pop("velocity")
     return p

@@ -14,6 +14,8 @@ checkpoint holds (positions, velocities, F, C, time, step count and the CFL spee
 from __future__ import annotations
 
 import math
+import os
+import re
 import signal
 import sys
 import threading
@@ -28,6 +30,58 @@ from .solver import Simulation as _Simulation
 
 # keys that may differ between a checkpoint and the config it resumes with
 RESUMABLE_CHANGES = ("name", "arch", "solver.end_time", "solver.max_steps", "output", "limits")
+
+
+LOCK_NAME = "run.lock"
+# temporary files of io's atomic writes (".NAME.tmpPID"): complete files are renamed over the real ones, so any
+# such file in a run folder held by this run's lock is left over from a killed run
+_TEMPORARY = re.compile(r"\..+\.tmp\d+")
+
+
+class FolderLock:
+    """One writer per run folder: an exclusive advisory lock (flock) on RUN_DIR/run.lock, which holds the owner's
+    pid. The operating system releases it when the process ends, however it ends, so a file left by a killed run
+    is no obstacle (the next run takes it over and removes it). Where flock does not exist (Windows), no lock."""
+
+    def __init__(self, folder: Path):
+        self.path = Path(folder) / LOCK_NAME
+        self.fd = None
+        try:
+            import fcntl
+        except ImportError:
+            return
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                try:
+                    owner = os.read(fd, 32).decode(errors="replace").strip() or "?"
+                finally:
+                    os.close(fd)
+                raise ConfigError(f"another run (pid {owner}) is writing into {self.path.parent}: wait for it to end, "
+                                  f"or give this run another output folder (--out DIR or output.dir)") from None
+            try:  # the holder before us may have removed the file between our open and flock: lock the file there
+                same = os.path.samestat(os.fstat(fd), os.stat(self.path))
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self.fd = fd
+
+    def release(self):
+        if self.fd is not None:
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
+            os.close(self.fd)  # closing releases the flock
+            self.fd = None
+
+    __del__ = release
 
 
 class Interrupted(KeyboardInterrupt):
@@ -75,7 +129,7 @@ class Run:
              "frames/frame_*.png", "movie.mp4", "movie.gif")
 
     def __init__(self, sim, out_dir=None, formats=None, every: Optional[float] = None, resume: bool = False,
-                 log: Optional[Callable[[str], None]] = None):
+                 log: Optional[Callable[[str], None]] = None, overwrite: bool = False):
         self.sim, self.cfg = sim, sim.cfg
         self.out_dir = output_dir(self.cfg, out_dir)
         self.formats = list(self.cfg.output.formats if formats is None else formats)
@@ -90,16 +144,43 @@ class Run:
         self.output_seconds = 0.0  # wall time spent writing outputs (the CLI's summary keeps it apart from stepping)
         self._renderer = None
         self._frames = any(f in self.formats for f in ("png", "mp4", "gif"))
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        if resume:
-            self._restore()
-        else:
-            self._fresh()
-        io.write_config(self.out_dir / io.CONFIG_NAME, self.cfg)
-        self.probes = probes.Probes(sim, self.out_dir, resume=resume)  # probes/NAME.csv (output.probes)
+        if resume and overwrite:
+            raise ConfigError("--resume continues a run's results and --overwrite replaces them: give one")
+        try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+        except ValueError as e:  # a NUL character in --out or output.dir
+            raise ConfigError(f"cannot use {str(self.out_dir)!r} as the output folder: {e}", key="output.dir") from None
+        self.lock = FolderLock(self.out_dir)
+        try:
+            self._remove_temporaries()
+            if resume:
+                self._restore()
+            else:
+                self._fresh(overwrite)
+            io.write_config(self.out_dir / io.CONFIG_NAME, self.cfg)
+            self.probes = probes.Probes(sim, self.out_dir, resume=resume)  # probes/NAME.csv (output.probes)
+        except BaseException:  # a refused resume or overwrite leaves the folder free at once
+            self.lock.release()
+            raise
 
     # ------------------------------------------------------------ set-up
-    def _fresh(self):
+    def _remove_temporaries(self):
+        """Temporary files a killed run left (with the lock held, no other writer can own one)."""
+        for folder in (self.out_dir, self.out_dir / "probes", self.out_dir / "frames"):
+            if folder.is_dir():
+                for f in folder.iterdir():
+                    if _TEMPORARY.fullmatch(f.name) and f.is_file():
+                        f.unlink()
+
+    def held(self) -> list[str]:
+        """The results of an earlier run in the output folder (what a fresh run would replace)."""
+        return [p for p in self.STALE if next(self.out_dir.glob(p), None) is not None]
+
+    def _fresh(self, overwrite: bool = False):
+        held = self.held()
+        if held and not overwrite:
+            raise ConfigError(f"{self.out_dir} already holds a run's results ({', '.join(held[:4])}): add --resume to "
+                              f"continue that run or --overwrite to replace its results")
         for pattern in self.STALE:
             for f in self.out_dir.glob(pattern):
                 f.unlink()
@@ -109,7 +190,7 @@ class Run:
         path = self.out_dir / io.CHECKPOINT_NAME
         if not path.is_file():
             raise ConfigError(f"--resume: no checkpoint to resume from ({path} does not exist)")
-        state, meta = io.load_checkpoint(path)
+        state, meta = io.load_checkpoint(path)  # a corrupt file: ConfigError naming it
         changed = config_changes(meta.get("config", {}), io.config_dict(self.cfg))
         if changed:
             old, new = _flat(meta.get("config", {})), _flat(io.config_dict(self.cfg))
@@ -117,17 +198,24 @@ class Run:
             raise ConfigError(f"--resume: the checkpoint in {self.out_dir} was written with {k}={old.get(k)!r}, "
                               f"the config now has {new.get(k)!r}; only solver.end_time, solver.max_steps and "
                               f"output.* may change when resuming", key=k)
-        end = self.cfg.solver.end_time
-        if "time" in state and float(state["time"]) > end * (1 + 1e-12):
-            raise ConfigError(f"--resume: the checkpoint in {self.out_dir} is at t={float(state['time']):.6g}, after "
+        held = getattr(state.get("x"), "shape", (None,))[:1] or (None,)
+        if held[0] != self.sim.n:
+            raise ConfigError(f"--resume: {path} holds {held[0]} particle positions, the scene {self.sim.n} particles")
+        end, t_state = self.cfg.solver.end_time, _scalar(state.get("time"))
+        if t_state is not None and t_state > end * (1 + 1e-12):
+            raise ConfigError(f"--resume: the checkpoint in {self.out_dir} is at t={t_state:.6g}, after "
                               f"solver.end_time={end:g}; a resumed run continues forward: set solver.end_time "
-                              f"above {float(state['time']):.6g} (or start a fresh run without --resume)",
+                              f"above {t_state:.6g} (or start a fresh run without --resume)",
                               key="solver.end_time")
-        if int(state["x"].shape[0]) != self.sim.n:
-            raise ConfigError(f"--resume: the checkpoint holds {state['x'].shape[0]} particles, the scene {self.sim.n}")
-        self.sim.set_state(state)
+        try:
+            self.sim.set_state(state)  # checks every array before applying any
+        except (ValueError, TypeError, KeyError) as e:
+            raise ConfigError(f"--resume: {path} does not fit this scene ({e})") from None
         self.index = int(meta.get("next_output", 0))
-        self.every = float(meta.get("every", self.every))
+        old_every = meta.get("every")
+        if isinstance(old_every, (int, float)) and not math.isclose(old_every, self.every, rel_tol=1e-12):
+            self.log(f"note: output.every changed from {old_every:g} to {self.every:g} s on --resume: the outputs "
+                     f"after t={self.sim.time:g} follow the new interval")
         self.entries = [e for e in io.read_pvd(self.out_dir / io.PVD_NAME)][: int(meta.get("n_vtu", 0))]
         self.diagnostics = io.Diagnostics(self.out_dir / io.DIAGNOSTICS_NAME, self.sim.dim,
                                           keep=int(meta.get("n_rows", 0)))
@@ -215,6 +303,14 @@ class Run:
 
         Ctrl-C (when called from the main thread) finishes the current step, writes the checkpoint and
         raises Interrupted. InstabilityError propagates with the last good checkpoint left on disk."""
+        try:
+            self._loop(on_step, handle_sigint)
+            self.finish()
+        finally:
+            self.lock.release()  # also on Ctrl-C and instability: the folder is free for --resume
+        return self
+
+    def _loop(self, on_step, handle_sigint):
         sim, end = self.sim, self.cfg.solver.end_time
         restore = None
         if handle_sigint and threading.current_thread() is threading.main_thread():
@@ -250,18 +346,24 @@ class Run:
         finally:
             if restore is not None:
                 signal.signal(signal.SIGINT, restore)
-        self.finish()
-        return self
 
 
 class Simulation(_Simulation):
     """taichi_mpm.Simulation: the solver, whose run() writes outputs when given no observer."""
 
     def run(self, on_output: Optional[Callable] = None, every: Optional[float] = None, *, out_dir=None,
-            formats=None, resume: bool = False, on_step: Optional[Callable] = None):
+            formats=None, resume: bool = False, on_step: Optional[Callable] = None, overwrite: bool = False):
         """Run to solver.end_time. With on_output: call it at t=0 and every `every` seconds and write
         nothing; without: write the outputs of the config (or `formats`) into output.dir (or `out_dir`)."""
         if on_output is not None:
             return super().run(on_output, every)
-        Run(self, out_dir, formats=formats, every=every, resume=resume).execute(on_step=on_step)
+        Run(self, out_dir, formats=formats, every=every, resume=resume, overwrite=overwrite).execute(on_step=on_step)
         return self
+
+
+def _scalar(value) -> float | None:
+    """A checkpoint's number as a float, or None when it is missing or not one number (set_state reports that)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None

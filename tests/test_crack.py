@@ -154,6 +154,16 @@ def test_two_blocks_separate_with_crack_finder():
 
 
 @pytest.mark.slow
+def test_3d_threshold_0_leaks_momentum_at_the_contact_face_edges():
+    """The known limitation of docs/crack_finder.md ("The threshold"), kept measured: with threshold 0 the nodes
+    at the edges of the contact face stay shared and the 3D blocks keep only 0.167 m/s of 0.2 (17 % leak).
+    Fails if the leak vanished (then the docs and the demos' threshold -0.6 need revisiting) or grew."""
+    sim, p, b, gaps, t, smax = _pull(blocks_cfg(3, crack=True, threshold=0.0), steps=30)
+    va, vb = p["v"][b == 0, 0].mean(), p["v"][b == 1, 0].mean()
+    assert 0.15 < vb < 0.19 and 0.15 < -va < 0.19, (va, vb)
+
+
+@pytest.mark.slow
 def test_two_blocks_separate_3d_with_interface_threshold():
     """In 3D the edges of the contact face leak momentum with threshold 0 (blocks lose 17 %); with
     threshold -0.6 (nodes whose normal turns more than 53 degrees away count as across) they keep it."""
@@ -282,8 +292,12 @@ def test_load_to_failure_crack_grows():
 
 
 def test_state_round_trip_keeps_damage():
-    """get_state/set_state (checkpoints) carry the grown damage and the damage law's history."""
+    """get_state/set_state (checkpoints) carry the grown damage and the damage law's history. Deterministic (one
+    thread): with several, P2G's atomic adds in a varying order could differ by rounding, and a damage threshold
+    can turn a rounding difference into a different crack; under solver.deterministic the continued run must be
+    bit-identical."""
     cfg = load_to_failure_cfg()
+    cfg["solver"]["deterministic"] = True
     sim = tm.Simulation(cfg)
     x0 = sim.particles()["x"]
     v = np.zeros_like(x0)
@@ -298,8 +312,8 @@ def test_state_round_trip_keeps_damage():
     sim2.set_state(state)
     sim2.advance(0.02)
     again = sim2.particles()
-    assert np.allclose(again["x"], ahead["x"], rtol=0, atol=1e-12)
-    assert np.allclose(again["damage"], ahead["damage"], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(again["x"], ahead["x"])
+    np.testing.assert_array_equal(again["damage"], ahead["damage"])
 
 
 def load_to_failure_cfg():
