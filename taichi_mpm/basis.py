@@ -13,14 +13,19 @@ first and last lie on the walls, which is where wall conditions act.
 
 `gimp` is uGIMP (Bardenhagen & Kober 2004) on the nodes 0..n with one ghost node beyond each wall;
 its particle half-width lp comes from the initial particle spacing, optionally stretched with F.
+
+`cpdi` (CPDI1, Sadeghirad, Brannon & Burghardt 2011) is not a tensor product: it samples the linear
+B-splines at the corners of each particle's deformed domain (stencils.py builds its contributions); its
+grid, node coordinates and wall nodes are the linear basis's.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import taichi as ti
 
-BASES = ("linear", "gimp", "quadratic", "cubic")
+BASES = ("linear", "gimp", "quadratic", "cubic", "cpdi")
+TENSOR_BASES = ("linear", "gimp", "quadratic", "cubic")   # per-axis weights: the tensor-product fast path
 
 
 @dataclass(frozen=True)
@@ -33,6 +38,12 @@ class Basis:
     coord: Callable                        # @ti.func: (node index, n cells) -> coordinate in grid units
     coord_py: Callable[[int, int], float]  # the same in Python
     weights_1d: Callable                   # @ti.func: (u, n cells, lp) -> (first node, w, dw)
+    kind: str = "tensor"                   # how stencils.py builds a particle's contributions: tensor, cpdi
+
+    def contributions(self, dim: int) -> int:
+        """(node, weight, gradient) contributions of one particle: S^d for tensor products; CPDI: 2^d nodes of
+        each of its 2^d corners (a node shared by corners appears once per corner)."""
+        return self.stencil ** dim if self.kind == "tensor" else 4 ** dim
 
 
 @ti.func
@@ -120,7 +131,15 @@ def make_gimp() -> Basis:
     return Basis("gimp", 3, 1, False, lambda n: n + 3, coord, lambda i, n: float(i - 1), weights_1d)
 
 
+def make_cpdi() -> Basis:
+    """CPDI1 over the linear B-splines: the grid, wall nodes and 1D weights are the linear basis's; `stencil` is
+    the nodes per axis an undeformed domain (half-width <= half a cell) reaches (budget and crack reach)."""
+    return replace(make_bspline(1, "cpdi"), stencil=3, apic_gradient=False, kind="cpdi")
+
+
 def make_basis(name: str) -> Basis:
     if name == "gimp":
         return make_gimp()
+    if name == "cpdi":
+        return make_cpdi()
     return make_bspline({"linear": 1, "quadratic": 2, "cubic": 3}[name], name)
