@@ -172,7 +172,7 @@ class Cpdi(Strict):
 
 
 class Solver(Strict):
-    basis: Literal["linear", "gimp", "quadratic", "cubic", "cpdi"] = "quadratic"
+    basis: Literal["linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp"] = "quadratic"
     transfer: Literal["pic", "flip", "apic"] = "apic"
     update: Literal["usl", "musl"] = "usl"
     flip_blend: Annotated[float, Field(ge=0, le=1)] = 0.99

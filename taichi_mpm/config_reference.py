@@ -39,8 +39,9 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     **{f"domain.boundaries.{f}": ("", f"wall at the {'lower' if f.endswith('min') else 'upper'} {f[0]} face; null "
                                       "takes `default`") for f in FACE_NAMES.split(", ")},
     "solver": ("", "time integration and the MPM scheme"),
-    "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines, or cpdi (CPDI1 "
-                         "particle domains over linear grid functions; docs/bases.md)"),
+    "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines, cpdi (CPDI1 "
+                         "particle domains over linear grid functions) or ddmp (linear functions, dual-domain "
+                         "smoothed gradient); docs/bases.md"),
     "solver.cpdi": ("", "options of basis cpdi"),
     "solver.cpdi.variant": ("", "cpdi1: parallelogram / parallelepiped domains with half-edges F r0 (Sadeghirad et "
                                 "al. 2011); cpdi2 (corners tracked as points) is not implemented yet"),

@@ -658,6 +658,8 @@ class Simulation:
             self._balance = self._energy_balance_reference()
         self._body_acc_now()
         self.grid.clear()
+        if self.ctx.stencil.prepare is not None:
+            self.ctx.stencil.prepare()   # stencils that read grid state (ddmp's nodal volumes)
         if self.crack is not None:
             self.crack.update()
         k["p2g"](dt)

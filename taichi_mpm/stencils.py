@@ -12,6 +12,12 @@ contributions (CPDI: once per corner that reaches it); sums over contributions a
 
 - tensor (linear, gimp, quadratic, cubic): the contribution index is the node offset per axis; `at` computes the
   per-axis weights, derivatives and offsets once, `node` multiplies them (the same work as before this interface).
+  ddmp is a tensor stencil too (4 nodes per axis) whose gradient blends the linear one with the dual-domain one:
+      grad_a S_ip = alpha dN_a prod_{b != a} N_b + (1 - alpha) Ds_a prod_{b != a} Ns_b,  alpha = prod_a 4 t_a (1 - t_a)
+  (basis.make_ddmp; derivation in docs/bases.md). Where a node of the smoothed stencil has a partly filled dual
+  domain (free surfaces), the blend moves to the linear gradient: alpha_p = max(alpha_p, 1 - min fill), fill =
+  sum_q V_q N_j(x_q) / (the dual domain's volume), from a nodal-volume pass before P2G (`Stencil.prepare`), so that
+  no node without material receives force.
 - cpdi (CPDI1, Sadeghirad, Brannon & Burghardt 2011, IJNME 86): the particle domain is the parallelogram /
   parallelepiped x_p + A xi, xi in [-1, 1]^d, with half-edge vectors A = F A0 (A0 = half the initial spacing per
   axis; full F, rotation included). Linear grid functions N_i are replaced over the domain by their multilinear
@@ -99,6 +105,7 @@ class Stencil:
     inertia_inverse: Callable   # @ti.func (st) -> D_p^-1 (zero along an axis where D_p vanishes)
     index: Callable             # @ti.func (off) -> flat contribution number 0..count-1
     count: int
+    prepare: Optional[Callable] = None   # per step before P2G, for stencils that read grid state (ddmp)
 
 
 def make_stencil(ctx: KernelContext) -> Stencil:
@@ -144,8 +151,11 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     S = basis.stencil
     x, F = ctx.x, ctx.F
     gimp, gimp_deforming = basis.name == "gimp", ctx.gimp_deforming
+    smooth = basis.smooth_1d is not None   # ddmp
     half_width = _domain_half_width(ctx)
     d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * dx * dx  # smallest D_p entry inverted
+    span = [S] * dim
+    prepare, fill = _dual_domain_fill(ctx, span) if smooth else (None, None)
 
     @ti.func
     def at(p):
@@ -156,6 +166,9 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
         W = ti.Matrix.zero(float, dim, S)
         DW = ti.Matrix.zero(float, dim, S)
         R = ti.Matrix.zero(float, dim, S)
+        WS = ti.Matrix.zero(float, dim, S)    # ddmp: smoothed weights and derivatives, blend (unused otherwise)
+        DS = ti.Matrix.zero(float, dim, S)
+        alpha = 1.0
         for a in ti.static(range(dim)):
             lp = 0.0
             if ti.static(gimp):
@@ -171,11 +184,19 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
                 W[a, k] = w[k]
                 DW[a, k] = dw[k] * inv_dx
                 R[a, k] = (basis.coord(b + k, n_cells[a]) - u[a]) * dx
-        return base, W, DW, R
+            if ti.static(smooth):
+                ws, ds, al = basis.smooth_1d(u[a], n_cells[a])
+                alpha *= al
+                for k in ti.static(range(S)):
+                    WS[a, k] = ws[k]
+                    DS[a, k] = ds[k] * inv_dx
+        if ti.static(smooth):
+            alpha = ti.max(alpha, 1.0 - fill(base))
+        return base, W, DW, R, WS, DS, alpha
 
     @ti.func
     def node(st, off):
-        base, W, DW, R = st
+        base, W, DW, R, WS, DS, alpha = st
         w = 1.0
         grad = ti.Vector.zero(float, dim)
         r = ti.Vector.zero(float, dim)
@@ -187,13 +208,19 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
             for b in ti.static(range(dim)):
                 if ti.static(b != a):
                     g *= W[b, off[b]]
+            if ti.static(smooth):
+                gs = DS[a, off[a]]
+                for b in ti.static(range(dim)):
+                    if ti.static(b != a):
+                        gs *= WS[b, off[b]]
+                g = alpha * g + (1.0 - alpha) * gs
             grad[a] = g
         return base + off, w, grad, r
 
     @ti.func
     def inertia(st):
         """D_p: diagonal for tensor-product weights."""
-        base, W, DW, R = st
+        base, W, DW, R, WS, DS, alpha = st
         D = ti.Matrix.zero(float, dim, dim)
         for a in ti.static(range(dim)):
             s = 0.0
@@ -213,9 +240,65 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
                 Dinv[a, a] = 1.0 / D[a, a]
         return Dinv
 
-    span = [S] * dim
     outer, inner = _loops(span, ctx.unroll)
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), S ** dim)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), S ** dim, prepare)
+
+
+def _dual_domain_fill(ctx: KernelContext, span: list):
+    """ddmp: (prepare, fill). prepare() scatters the nodal volumes V_j = sum_q V_q N_j(x_q) (linear weights) onto
+    their own scalar grid; fill(base) is the smallest V_j / (geometric dual-domain volume) over the real nodes of a
+    stencil starting at `base` (1 where every dual domain is full, 0 where a node has no material)."""
+    from .grid import Grid   # only ddmp allocates it
+
+    dim, dx, basis, n_cells, lower = ctx.dim, ctx.dx, ctx.basis, ctx.n_cells, ctx.lower
+    x, F, vol0 = ctx.x, ctx.F, ctx.vol0
+    S = span[0]
+    grid = Grid(dim, ctx.grid.shape, ctx.grid.sparse, [])
+    vol = grid.m
+    cell = float(dx ** dim)
+    inv_dx = 1.0 / dx
+
+    @ti.kernel
+    def scatter():
+        for p in x:
+            u = (x[p] - lower) * inv_dx
+            base = ti.Vector.zero(int, dim)
+            W = ti.Matrix.zero(float, dim, S)
+            for a in ti.static(range(dim)):
+                b, w, dw = basis.weights_1d(u[a], n_cells[a], 0.0)
+                base[a] = b
+                for k in ti.static(range(S)):
+                    W[a, k] = w[k]
+            Vp = vol0[p] * F[p].determinant()
+            for off in ti.static(ti.grouped(ti.ndrange(*span))):
+                w = 1.0
+                for a in ti.static(range(dim)):
+                    w *= W[a, off[a]]
+                if w > 0:
+                    vol[base + off] += w * Vp
+
+    @ti.func
+    def fill(base):
+        f = 1.0
+        for off in ti.static(ti.grouped(ti.ndrange(*span))):
+            I = base + off
+            geo = cell
+            real = True
+            for a in ti.static(range(dim)):
+                c = I[a] - 1                          # storage index i holds node i - 1
+                if c < 0 or c > n_cells[a]:
+                    real = False                      # a ghost node: no dual domain, no smoothed gradient
+                elif c == 0 or c == n_cells[a]:
+                    geo *= 0.5                        # a wall node's dual domain is half a cell wide
+            if real:
+                f = ti.min(f, vol[I] / geo)
+        return ti.min(f, 1.0)
+
+    def prepare():
+        grid.clear()
+        scatter()
+
+    return prepare, fill
 
 
 def _cpdi_stencil(ctx: KernelContext) -> Stencil:

@@ -112,7 +112,7 @@ def test_stencil_identities_1d():
 F_PARALLELOGRAM = (np.array([[math.cos(math.pi / 6), -math.sin(math.pi / 6)],
                              [math.sin(math.pi / 6), math.cos(math.pi / 6)]])
                    @ np.array([[1.1, 0.15], [0.0, 0.95]]))   # R(30 deg) times stretch and shear
-REACH = {"linear": 1.0, "quadratic": 1.5, "cubic": 2.0, "cpdi": 1.0}   # support half-width of a node, cells
+REACH = {"linear": 1.0, "quadratic": 1.5, "cubic": 2.0, "cpdi": 1.0, "ddmp": 2.0}   # support half-width of a node, cells
 
 
 def parallelogram_force(basis, gimp_domain="uniform", shifts=11, F=F_PARALLELOGRAM):
@@ -172,17 +172,17 @@ def test_parallelogram_interior_force_other_bases():
     """The same body with the tensor-product bases (numbers reported in docs/accuracy.md): every one leaves an
     interior force orders above CPDI's round-off, gimp deforming included (it stretches by the diagonal of F
     only, which cannot tile a rotated body)."""
-    got = {name: parallelogram_force(name, gimp_domain=dom)
+    got = {f"{name} {dom}": parallelogram_force(name, gimp_domain=dom)
            for name, dom in [("linear", "uniform"), ("gimp", "uniform"), ("gimp", "deforming"),
-                             ("quadratic", "uniform"), ("cubic", "uniform")]}
+                             ("quadratic", "uniform"), ("cubic", "uniform"), ("ddmp", "uniform")]}
     print({k: f"{v:.3g}" for k, v in got.items()})
     assert min(got.values()) > 1e-4
 
 
 # ---------------------------------------------------------------- conservation
-def moving_block(dim=2, transfer="apic", update="usl", steps=20):
-    """A block drifting, spinning and breathing (as tests/test_conservation.py), cpdi, free walls."""
-    cfg = make_cfg(dim, basis="cpdi", transfer=transfer, update=update, dx=0.05, E=1e4,
+def moving_block(dim=2, transfer="apic", update="usl", steps=20, basis="cpdi"):
+    """A block drifting, spinning and breathing (as tests/test_conservation.py), free walls."""
+    cfg = make_cfg(dim, basis=basis, transfer=transfer, update=update, dx=0.05, E=1e4,
                    lower=[0.35] * dim, upper=[0.65] * dim, boundaries="free")
     sim = tm.Simulation(cfg)
     X = sim.scene.x
