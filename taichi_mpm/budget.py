@@ -107,11 +107,11 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
     floats = 2 * d + d * d + 1                                   # x, v, F, vol0
     floats += d * d if apic or viscous else 0                    # C (APIC's B_p or C_p, or grad v)
     floats += d if body_force else 0
-    floats += 1 if cfg.solver.basis == "gimp" and len(spacings) > 1 else 0
+    floats += 1 if cfg.solver.basis in ("gimp", "cpdi") and len(spacings) > 1 else 0   # domain half-widths
     n = floats * size + (1 if len(mats) > 1 else 0)
     if cfg.crack is not None:
         has_law = any(m.tensile_strength is not None and m.model != "fluid" for m in mats)
-        stencil_nodes = make_basis(cfg.solver.basis).stencil ** d
+        stencil_nodes = make_basis(cfg.solver.basis).contributions(d)
         floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0)
         n += floats * size + 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4
     return n

@@ -227,12 +227,19 @@ class Domain(Strict):
     boundaries: Boundaries = Boundaries()
 
 
+class Cpdi(Strict):
+    # cpdi1: parallelogram / parallelepiped domains r_a = F r_a0 (Sadeghirad et al. 2011); cpdi2: corners tracked
+    # as their own points (Sadeghirad et al. 2013), not implemented yet
+    variant: Literal["cpdi1", "cpdi2"] = "cpdi1"
+
+
 class Solver(Strict):
-    basis: Literal["linear", "gimp", "quadratic", "cubic"] = "quadratic"
+    basis: Literal["linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp"] = "quadratic"
     transfer: Literal["pic", "flip", "apic"] = "apic"
     update: Literal["usl", "musl"] = "usl"
     flip_blend: Annotated[float, Field(ge=0, le=1)] = 0.99
     gimp_domain: Literal["uniform", "deforming"] = "uniform"
+    cpdi: Cpdi = Cpdi()
     cfl: PositiveFloat = 0.4
     dt: Optional[PositiveFloat] = None
     end_time: PositiveFloat
@@ -545,6 +552,9 @@ class Config(Strict):
         if self.crack is not None and self.solver.volumetric == "fbar":
             raise _Located("solver.volumetric", "fbar cannot be combined with the crack finder (section 'crack'): "
                                                 "its modified shape functions are not averaged; use standard")
+        if self.solver.basis == "cpdi" and self.solver.cpdi.variant == "cpdi2":
+            raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
+                                                  "2013) is not implemented yet; use cpdi1")
         self._check_probes()
         if self.crack is None and any(b.interface or b.damage_regions for b in self.bodies):
             pass  # allowed: damage/interface flags are stored but only act with a crack section

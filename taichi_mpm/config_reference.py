@@ -43,11 +43,17 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     **{f"domain.boundaries.{f}": ("", f"wall at the {'lower' if f.endswith('min') else 'upper'} {f[0]} face; null "
                                       "takes `default`") for f in FACE_NAMES.split(", ")},
     "solver": ("", "time integration and the MPM scheme"),
-    "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines"),
+    "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines, cpdi (CPDI1 "
+                         "particle domains over linear grid functions) or ddmp (linear functions, dual-domain "
+                         "smoothed gradient); docs/bases.md"),
+    "solver.cpdi": ("", "options of basis cpdi"),
+    "solver.cpdi.variant": ("", "cpdi1: parallelogram / parallelepiped domains with half-edges F r0 (Sadeghirad et "
+                                "al. 2011); cpdi2 (corners tracked as points) is not implemented yet"),
     "solver.transfer": ("", "particle-grid velocity transfer: pic, flip or apic"),
     "solver.update": ("", "usl (update stress last) or musl (F from re-mapped velocities, Sulsky 1995)"),
     "solver.flip_blend": ("1", "FLIP fraction of the velocity update when transfer is flip (1: pure FLIP)"),
-    "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa)"),
+    "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa only; "
+                               "superseded by basis cpdi, which follows the full F)"),
     "solver.cfl": ("1", "adaptive time step: the smallest of cfl dx / (wave speed + max speed), cfl sqrt(dx / max "
                         "acceleration) for gravity and body forces, cfl rho dx^2 / (2 d mu) for viscosity"),
     "solver.dt": ("s", "fixed time step instead of the CFL rule; null: adaptive"),

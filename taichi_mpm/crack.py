@@ -23,6 +23,8 @@ Only built when the config has a `crack` section: a scene without one allocates 
 """
 
 import math
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import taichi as ti
@@ -35,6 +37,19 @@ STANDARD, MODIFIED, CONTACT = 0, 1, 2   # particle states: unmodified, cut (tens
 S_FLOOR = 1e-3                          # a family whose kept weights sum below this keeps standard functions
 MAX_CELLS = 1 << 26
 CELL_SPLIT = 2                          # cell list cells of r/2: a query scans 5^d cells, (2.5 r)^d, not (3 r)^d
+
+
+@dataclass(frozen=True)
+class CrackHooks:
+    """The @ti.funcs the solver's kernels call for particles near a discontinuity, and the kernels that replace
+    the solver's grid update and MUSL remap (node mass is a tensor there). st: the particle's stencil data."""
+    modified: Callable          # (p) -> the particle uses modified functions
+    degrade: Callable           # (p, tau) -> damaged stress
+    degrade_energy: Callable    # (p, F, psi, tau) -> damaged strain energy density
+    p2g: Callable               # (p, st, mp, stress, vp, Ap, force_density, dt)
+    p2g_momentum: Callable      # (p, st, mp, vp, Ap): MUSL's remap
+    g2p: Callable               # (p, st, deform) -> (v_pic, FLIP increment, APIC B, velocity gradient)
+    kernels: dict               # grid_update, grid_remap
 
 
 def grid_fields(dim: int) -> list[str]:
@@ -52,7 +67,8 @@ class CrackFinder:
         self.dim = d
         self.spacing = float(np.min(sim.scene.spacing))
         # a particle whose stencil reaches across the discontinuity must see it: the support radius is at
-        # least the stencil reach (S/2 cells) plus one particle spacing
+        # least the stencil reach (S/2 cells) plus one particle spacing (cpdi: its undeformed domains' reach,
+        # 1.5 cells; a domain stretched beyond it sees the discontinuity only once it is within that reach)
         self.reach = 0.5 * sim.basis.stencil * sim.dx
         self.radius = max(cc.kernel_radius * self.spacing, self.reach + self.spacing)
         extent = sim.upper - sim.lower
@@ -63,7 +79,7 @@ class CrackFinder:
                               "raise crack.kernel_radius or shrink the domain", key="crack.kernel_radius")
         self.laws = [rankine_params(m, sim.dx) for m in sim._materials]
         self.has_law = any(law is not None for law in self.laws)
-        self.n_nodes = sim.basis.stencil ** d
+        self.n_nodes = sim.basis.contributions(d)       # contributions per particle (stencils.py)
         self.apic = sim.feat["apic"]
         # per particle
         self.d = ti.field(float, n)                     # damage d_p
@@ -128,14 +144,16 @@ class CrackFinder:
         self._k["particle_masks"]()
 
     # ------------------------------------------------------------------ kernels
-    def build(self, stencil, node_weight, node_offset, inertia, kirchhoff, wall, gravity, has_gravity, vgrad, basis,
-              mat):
-        """Build the crack finder's funcs and kernels from the solver's stencil and material funcs.
-        Returns self; the solver calls modified(p), degrade(p, tau), p2g(...), p2g_momentum(...), g2p(...)
-        and takes grid_update / grid_remap from `grid_kernels()`."""
+    def build(self, ctx) -> CrackHooks:
+        """Build the crack finder's funcs and kernels from the solver's kernel context (stencils.KernelContext):
+        its stencil of (node, weight, gradient, offset) contributions, material funcs and wall conditions.
+        Returns the hooks the solver calls (CrackHooks)."""
         sim, cc = self.sim, self.cc
-        dim, S = self.dim, sim.basis.stencil
-        span = [S] * dim
+        dim = self.dim
+        sten = ctx.stencil
+        span = sten.span
+        kirchhoff, wall, gravity, has_gravity = ctx.kirchhoff, ctx.wall, ctx.gravity, ctx.has_gravity
+        vgrad, basis, mat = ctx.vgrad, ctx.basis, ctx.mat
         grid = sim.grid
         gm, gv = grid.m, grid.vec["v"]
         gv_old, gv2 = grid.vec.get("v_old"), grid.vec.get("v2")
@@ -310,6 +328,13 @@ class CrackFinder:
                             break
                     ids[s0 + j + 1] = key
 
+        @ti.func
+        def mark_stencil(p):
+            sd = sten.at(p)
+            for off in ti.grouped(ti.ndrange(*span)):
+                I, w, gw, r = sten.node(sd, off)
+                node_mark[I] = 1.0
+
         @ti.kernel
         def particle_normals():
             for p in x:
@@ -332,9 +357,7 @@ class CrackFinder:
                 normal[p] = nrm
                 state[p] = st
                 if st != STANDARD:
-                    base, W, DW, R = stencil(p)
-                    for off in ti.grouped(ti.ndrange(*span)):
-                        node_mark[base + off] = 1.0
+                    mark_stencil(p)
 
         @ti.kernel
         def band_normals():
@@ -372,9 +395,7 @@ class CrackFinder:
                             e = -e
                         normal[p] = e
                         state[p] = MODIFIED
-                        base, W, DW, R = stencil(p)
-                        for off in ti.grouped(ti.ndrange(*span)):
-                            node_mark[base + off] = 1.0
+                        mark_stencil(p)
 
         @ti.kernel
         def node_normals():
@@ -392,19 +413,12 @@ class CrackFinder:
                     if gn < gthr and val >= dthr:
                         node_mark[I] = 2.0   # the node lies on the discontinuity: both sides leave it
 
-        @ti.func
-        def stencil_index(off):
-            k = 0
-            for a in ti.static(range(dim)):
-                k = k * S + off[a]
-            return k
-
         @ti.kernel
         def particle_masks():
             for p in x:
                 if state[p] != STANDARD:
                     n = normal[p]
-                    base, W, DW, R = stencil(p)
+                    sd = sten.at(p)
                     m = ti.cast(0, mask_t)
                     St, Sx = 0.0, 0.0   # weights of the nodes on p's side / across
                     Gt = ti.Vector.zero(float, dim)
@@ -412,11 +426,9 @@ class CrackFinder:
                     ct = ti.Vector.zero(float, dim)
                     cx = ti.Vector.zero(float, dim)
                     for off in ti.grouped(ti.ndrange(*span)):
-                        w, gw = node_weight(W, DW, off)
-                        I = base + off
-                        r = node_offset(R, off)
+                        I, w, gw, r = sten.node(sd, off)
                         if node_mark[I] > 1.5 or n.dot(node_n[I]) < -thr:
-                            m |= ti.cast(1, mask_t) << ti.cast(stencil_index(off), mask_t)
+                            m |= ti.cast(1, mask_t) << ti.cast(sten.index(off), mask_t)
                             Sx += w
                             Gx += gw
                             cx += w * r
@@ -487,7 +499,7 @@ class CrackFinder:
         def weights(fam, off, w, gw):
             """Rescaled tangential and normal functions of one node: (Nt, Nn, grad Nt, grad Nn)."""
             m, contact_state, St, Sn, Gt, Gn = fam
-            across = (m >> ti.cast(stencil_index(off), mask_t)) & ti.cast(1, mask_t)
+            across = (m >> ti.cast(sten.index(off), mask_t)) & ti.cast(1, mask_t)
             wt, wn = w, w
             gt, gn = gw, gw
             if across != 0:
@@ -512,17 +524,16 @@ class CrackFinder:
             return ct, cn
 
         @ti.func
-        def split_momentum(vp, Ap, R, off, ct, cn):
+        def split_momentum(vp, Ap, r, ct, cn):
             """Velocity a node sees through the tangential and normal parts (APIC about each part's centroid)."""
             mom_t, mom_n = vp, vp
             if ti.static(apic):
-                r = node_offset(R, off)
                 mom_t = vp + Ap @ (r - ct)
                 mom_n = vp + Ap @ (r - cn)
             return mom_t, mom_n
 
         @ti.func
-        def p2g(p, base, W, DW, R, mp, stress, vp, Ap, force_density, dt):
+        def p2g(p, st, mp, stress, vp, Ap, force_density, dt):
             """P2G of a particle near a discontinuity: mass, momentum (APIC about the kept nodes'
             centroid, so sum_i W_ip mom_i = v_p exactly), stress force and body force."""
             Pt, Pn, n = frame(p)
@@ -530,10 +541,9 @@ class CrackFinder:
             fam = family(p)
             contact_state = fam[1]
             for off in ti.grouped(ti.ndrange(*span)):
-                w, gw = node_weight(W, DW, off)
-                I = base + off
+                I, w, gw, r = sten.node(st, off)
                 wt, wn, gt, gn = weights(fam, off, w, gw)
-                mom_t, mom_n = split_momentum(vp, Ap, R, off, ct, cn)
+                mom_t, mom_n = split_momentum(vp, Ap, r, ct, cn)
                 gm[I] += wt * mp
                 if contact_state:
                     for a in ti.static(range(dim)):
@@ -544,19 +554,18 @@ class CrackFinder:
                     gv_old[I] += mp * (wt * (Pt @ vp) + wn * (Pn @ vp))
 
         @ti.func
-        def p2g_momentum(p, base, W, DW, R, mp, vp, Ap):
+        def p2g_momentum(p, st, mp, vp, Ap):
             Pt, Pn, n = frame(p)
             ct, cn = centroids(p)
             fam = family(p)
             for off in ti.grouped(ti.ndrange(*span)):
-                w, gw = node_weight(W, DW, off)
-                I = base + off
+                I, w, gw, r = sten.node(st, off)
                 wt, wn, gt, gn = weights(fam, off, w, gw)
-                mom_t, mom_n = split_momentum(vp, Ap, R, off, ct, cn)
+                mom_t, mom_n = split_momentum(vp, Ap, r, ct, cn)
                 gv2[I] += mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n))
 
         @ti.func
-        def g2p(p, base, W, DW, R, deform: ti.template()):
+        def g2p(p, st, deform: ti.template()):
             """(v_pic, FLIP increment, APIC B, velocity gradient G) with the modified functions.
             APIC's affine C of such a particle is its velocity gradient: B = G D_p makes the solver's
             C = B D_p^-1 equal G."""
@@ -566,8 +575,7 @@ class CrackFinder:
             dv = ti.Vector.zero(float, dim)
             G = ti.Matrix.zero(float, dim, dim)
             for off in ti.grouped(ti.ndrange(*span)):
-                w, gw = node_weight(W, DW, off)
-                I = base + off
+                I, w, gw, r = sten.node(st, off)
                 wt, wn, gt, gn = weights(fam, off, w, gw)
                 vi = gv[I]
                 v_pic += wt * (Pt @ vi) + wn * (Pn @ vi)
@@ -578,7 +586,7 @@ class CrackFinder:
                 if ti.static(deform):  # MUSL's deform pass reads the remapped velocities
                     vg = vgrad[I]
                 G += (Pt @ vg).outer_product(gt) + (Pn @ vg).outer_product(gn)
-            return v_pic, dv, G @ inertia(W, R), G
+            return v_pic, dv, G @ sten.inertia(st), G
 
         # ---- grid update with tensor node mass ----------------------------------
         @ti.func
@@ -631,14 +639,14 @@ class CrackFinder:
         def partition_check(out: ti.types.ndarray()):
             """Per particle: state, sum Nt, sum Nn, |sum grad Nt|_inf, |sum grad Nn|_inf, |sum W_ip - I|_inf."""
             for p in x:
-                base, W, DW, R = stencil(p)
+                st = sten.at(p)
                 st_ = state[p]
                 swt, swn = 0.0, 0.0
                 sgt = ti.Vector.zero(float, dim)
                 sgn = ti.Vector.zero(float, dim)
                 Wsum = ti.Matrix.zero(float, dim, dim)
                 for off in ti.grouped(ti.ndrange(*span)):
-                    w, gw = node_weight(W, DW, off)
+                    I, w, gw, r = sten.node(st, off)
                     wt, wn, gt, gn = w, w, gw, gw
                     if st_ != STANDARD:
                         wt, wn, gt, gn = weights(family(p), off, w, gw)
@@ -662,12 +670,9 @@ class CrackFinder:
         self._k = dict(prepare=prepare, particle_normals=particle_normals, band_normals=band_normals, node_normals=node_normals,
                        particle_masks=particle_masks, grid_update=grid_update, grid_remap=grid_remap,
                        partition_check=partition_check)
-        self.modified, self.degrade, self.degrade_energy = modified, degrade, degrade_energy
-        self.p2g, self.p2g_momentum, self.g2p = p2g, p2g_momentum, g2p
-        return self
-
-    def grid_kernels(self) -> dict:
-        return {"grid_update": self._k["grid_update"], "grid_remap": self._k["grid_remap"]}
+        return CrackHooks(modified=modified, degrade=degrade, degrade_energy=degrade_energy, p2g=p2g,
+                          p2g_momentum=p2g_momentum, g2p=g2p, kernels={"grid_update": grid_update,
+                                                                       "grid_remap": grid_remap})
 
     def partition_check(self) -> np.ndarray:
         """(N, 7) per particle in creation order: state, sum Nt, sum Nn, max|sum grad Nt|, max|sum grad Nn|,

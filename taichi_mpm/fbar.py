@@ -23,8 +23,6 @@ Created by the Simulation only when the option is on; fields and kernels exist o
 Physics code only: no CLI, rendering or file I/O here.
 """
 
-import itertools
-
 import taichi as ti
 
 from .grid import Grid
@@ -49,41 +47,38 @@ class FBar:
     def bytes_per_particle(self) -> int:
         return 8 if self.sim.cfg.precision == "f64" else 4
 
-    def build(self, stencil, node_weight):
-        """Compile the kernels with the solver's stencil (weights at a particle's position) and node weight."""
+    def build(self, ctx):
+        """Compile the kernels with the solver's stencil (stencils.KernelContext)."""
         sim = self.sim
-        dim, S = sim.dim, sim.basis.stencil
+        dim = sim.dim
         x, F, vol0, J_start = sim.x, sim.F, sim.vol0, self.J_start
         vol_new, vol_old = self.grids[0].m, self.grids[1].m
-        outer = [1] * dim if sim._unroll() else [S] * dim     # the solver's stencil loop (see Simulation.unroll)
-        inner = ([ti.Vector(list(o)) for o in itertools.product(range(S), repeat=dim)] if sim._unroll()
-                 else [ti.Vector([0] * dim)])
+        sten = ctx.stencil
+        outer, inner = sten.outer, sten.inner     # the solver's stencil loop (see Simulation.unroll)
 
         @ti.kernel
         def scatter():
             for p in x:
-                base, W, DW, R = stencil(p)
+                st = sten.at(p)
                 Vn = vol0[p] * J_start[p]
                 new = vol0[p] * F[p].determinant()
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil)
-                    off = o + inner[k]
-                    w, gw = node_weight(W, DW, off)
-                    vol_new[base + off] += w * new
-                    vol_old[base + off] += w * Vn
+                    I, w, gw, r = sten.node(st, o + inner[k])
+                    vol_new[I] += w * new
+                    vol_old[I] += w * Vn
 
         @ti.kernel
         def gather():
             for p in x:
-                base, W, DW, R = stencil(p)
+                st = sten.at(p)
                 dJbar = 0.0
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111
-                    off = o + inner[k]
-                    w, gw = node_weight(W, DW, off)
-                    old = vol_old[base + off]
+                    I, w, gw, r = sten.node(st, o + inner[k])
+                    old = vol_old[I]
                     if old > 0:                      # w > 0 implies old > 0; w = 0 at a support's edge
-                        dJbar += w * vol_new[base + off] / old
+                        dJbar += w * vol_new[I] / old
                 Fp = F[p]
                 Fp *= ti.pow(J_start[p] * dJbar / Fp.determinant(), 1.0 / dim)
                 F[p] = Fp

@@ -12,7 +12,6 @@ velocities give the velocity gradient for F (Sulsky et al. 1995; Nairn 2003).
 Physics code only: no CLI, rendering or file I/O here.
 """
 
-import itertools
 import math
 import warnings
 from typing import Callable, Optional
@@ -22,6 +21,7 @@ import taichi as ti
 
 from . import budget
 from .basis import make_basis
+from .stencils import KernelContext, make_corner_check, make_stencil
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
 from . import fbar
@@ -34,7 +34,8 @@ from .scene import Scene, build_scene
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                2: "non-finite value (NaN or infinity) in velocity or deformation",
                3: "particle left the domain",
-               4: "fluid volume collapse"}
+               4: "fluid volume collapse",
+               5: "particle domain corner left the domain (cpdi)"}
 ENERGY_GROWTH = "energy growth beyond the work done on the system"
 NUMERICAL_FRACTURE = "numerical fracture (a body tore apart on the grid)"
 CAUSES = (*FAIL_CAUSES.values(), ENERGY_GROWTH, NUMERICAL_FRACTURE)  # every InstabilityError.cause the solver raises
@@ -146,7 +147,8 @@ class Simulation:
             store_grad_v=c.solver.transfer == "apic" or uses_viscosity,  # C: APIC B_p or C_p, or grad v
             multi_material=len(self._materials) > 1,
             body_force=self.body_force is not None,
-            gimp_per_particle=c.solver.basis == "gimp" and len(spacing) > 1,
+            # particle domains of more than one size (gimp, cpdi) keep a per-particle half-width
+            domain_per_particle=c.solver.basis in ("gimp", "cpdi") and len(spacing) > 1,
             gravity=any(g != 0 for g in c.gravity),
             viscosity=uses_viscosity,
             tractions=bool(s.loads),             # particle forces of bodies[].tractions
@@ -165,7 +167,7 @@ class Simulation:
         self.C = ti.Matrix.field(d, d, float, n) if f["store_grad_v"] else None
         self.mat = ti.field(ti.u8, n) if f["multi_material"] else None
         self.body_acc = ti.Vector.field(d, float, n) if f["body_force"] else None
-        self.half_width = ti.field(float, n) if f["gimp_per_particle"] else None
+        self.half_width = ti.field(float, n) if f["domain_per_particle"] else None
         self.load = ti.Vector.field(d, float, n) if f["tractions"] else None
         n_loaded = sum(len(l.particles) for l in self.scene.loads)
         self.load_slot = ti.field(ti.i32, n_loaded) if f["tractions"] else None      # solver slot of each loaded
@@ -204,7 +206,7 @@ class Simulation:
     def _unroll(self) -> bool:
         """Unroll the stencil loop: always for `solver.unroll: true`, for auto when it has at most 16 nodes."""
         u = self.cfg.solver.unroll
-        return u is True or (u == "auto" and self.basis.stencil ** self.dim <= 16)
+        return u is True or (u == "auto" and self.basis.contributions(self.dim) <= 16)
 
     def _bytes_per_particle(self) -> int:
         size = 8 if self.cfg.precision == "f64" else 4
@@ -271,23 +273,20 @@ class Simulation:
     def _build_kernels(self):
         dim, dx, inv_dx = self.dim, self.dx, 1.0 / self.dx
         basis, f = self.basis, self.feat
-        S = basis.stencil
         n_cells = self.n_cells
         lower = ti.Vector(self.lower.tolist())
         upper = ti.Vector(self.upper.tolist())
         gravity = ti.Vector(list(self.cfg.gravity))
         mats = [(MODELS[m.model], m.mu, m.lam, m.viscosity, m.density) for m in self._materials]
         alpha = self.cfg.solver.flip_blend
-        gimp_deforming = self.cfg.solver.gimp_domain == "deforming"
-        gimp_lp0 = 0.5 * float(self.scene.spacing[0]) / dx
         x, v, F, C, vol0, mat = self.x, self.v, self.F, self.C, self.vol0, self.mat
+        body_acc = self.body_acc
+        has_C, has_body_acc = C is not None, body_acc is not None
         load, stress0, has_load, has_stress0 = self.load, self.stress0, f["tractions"], f["initial_stress"]
         load_slot, load_index, load_force = self.load_slot, self.load_index, self.load_force
         grip_slot, grip_index, grip_v, grip_impulse = self.grip_slot, self.grip_index, self.grip_v, self.grip_impulse
         has_grips = f["grips"]
         grip_given = self.loads.grip_given()
-        body_acc, half_width = self.body_acc, self.half_width
-        has_C, has_body_acc, has_half_width = C is not None, body_acc is not None, half_width is not None
         store_B = f["apic"] and not basis.apic_gradient  # the C field holds APIC's B_p (see affine())
         grid = self.grid
         gm, gv = grid.m, grid.vec["v"]
@@ -296,7 +295,6 @@ class Simulation:
         fail, vmax2 = self.fail, self.vmax2
         work, body_id, moments = self.work, self.body_id, self.moments
         has_body_id = body_id is not None
-        d_min = (1e-5 if self.cfg.precision == "f32" else 1e-10) * dx * dx  # smallest D_p entry inverted
         n_codes = _CODES
         out_tol = 1e-6 * dx  # a particle on a wall that round-off moves a hair beyond it has not left the domain
         fluid_j_min = FLUID_J_MIN
@@ -305,14 +303,19 @@ class Simulation:
         friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
         moving = (self.loads.wall_given(), self.wall_v, self.work) if f["moving_walls"] else None
         wall = make_wall_condition(dim, n_cells, faces, basis, friction, self.wall_reaction, moving)
-        span = [S] * dim
         # The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))`
         # with off = o + inner[k]. Unrolled, the outer range is a single point and `inner` lists every node, so
         # the weights stay in registers (3D quadratic: P2G 37 against 43 ms, G2P 7.5 against 11 ms CPU time for
         # 65k particles) but compiling takes 29 s instead of 3 s cold; otherwise the loop runs at run time.
-        unroll = self._unroll()
-        outer = [1] * dim if unroll else span
-        inner = [ti.Vector(list(o)) for o in itertools.product(range(S), repeat=dim)] if unroll else [ti.Vector([0] * dim)]
+        ctx = self.ctx = KernelContext(
+            dim=dim, dx=dx, lower=lower, upper=upper, n_cells=n_cells, basis=basis, feat=f,
+            precision=self.cfg.precision, x=x, v=v, F=F, C=C, vol0=vol0, mat=mat, half_width=self.half_width,
+            domain_lp0=0.5 * float(self.scene.spacing[0]) / dx if self.n else 0.5,
+            gimp_deforming=self.cfg.solver.gimp_domain == "deforming", unroll=self._unroll(), grid=self.grid,
+            wall=wall, gravity=gravity, has_gravity=f["gravity"])
+        sten = ctx.stencil = make_stencil(ctx)
+        outer, inner = sten.outer, sten.inner
+        corner_outside = make_corner_check(ctx)
 
         @ti.func
         def density(p):
@@ -408,95 +411,23 @@ class Simulation:
             return res
 
         @ti.func
-        def stencil(p):
-            """Stencil origin (storage index), per-axis weights W[a, k], x-derivatives DW[a, k] and node offsets
-            R[a, k] = (x_i - x_p)_a, so the node loop only multiplies."""
-            u = (x[p] - lower) * inv_dx
-            base = ti.Vector.zero(int, dim)
-            W = ti.Matrix.zero(float, dim, S)
-            DW = ti.Matrix.zero(float, dim, S)
-            R = ti.Matrix.zero(float, dim, S)
-            for a in ti.static(range(dim)):
-                lp = 0.0
-                if ti.static(basis.name == "gimp"):
-                    lp = gimp_lp0
-                    if ti.static(has_half_width):
-                        lp = half_width[p]
-                    if ti.static(gimp_deforming):
-                        lp = ti.min(lp * ti.abs(F[p][a, a]), 0.5)
-                    # a particle's domain ends at the walls: otherwise interior nodes keep weight on a particle
-                    # at the wall and carry it through (sticky wall: out at step 1; slip floor at Mach 3)
-                    lp = ti.max(ti.min(lp, u[a], n_cells[a] - u[a]), 1e-6)
-                b, w, dw = basis.weights_1d(u[a], n_cells[a], lp)
-                base[a] = b
-                for k in ti.static(range(S)):
-                    W[a, k] = w[k]
-                    DW[a, k] = dw[k] * inv_dx
-                    R[a, k] = (basis.coord(b + k, n_cells[a]) - u[a]) * dx
-            return base, W, DW, R
-
-        @ti.func
-        def node_weight(W, DW, off):
-            w = 1.0
-            grad = ti.Vector.zero(float, dim)
-            for a in ti.static(range(dim)):
-                w *= W[a, off[a]]
-            for a in ti.static(range(dim)):
-                g = DW[a, off[a]]
-                for b in ti.static(range(dim)):
-                    if ti.static(b != a):
-                        g *= W[b, off[b]]
-                grad[a] = g
-            return w, grad
-
-        @ti.func
-        def node_offset(R, off):
-            """x_i - x_p of the node at stencil offset `off`."""
-            d = ti.Vector.zero(float, dim)
-            for a in ti.static(range(dim)):
-                d[a] = R[a, off[a]]
-            return d
-
-        @ti.func
-        def inertia(W, R):
-            """APIC's D_p = sum_i w_ip (x_i - x_p)(x_i - x_p)^T: diagonal for tensor-product weights."""
-            D = ti.Matrix.zero(float, dim, dim)
-            for a in ti.static(range(dim)):
-                s = 0.0
-                for k in ti.static(range(S)):
-                    s += W[a, k] * R[a, k] * R[a, k]
-                D[a, a] = s
-            return D
-
-        @ti.func
-        def inertia_inverse(W, R):
-            """D_p^-1; zero along an axis where D_p vanishes (a B-spline particle exactly on a wall sits on
-            the wall's control point: D_p = 0 there and B_p = 0 too, so the affine part is zero, not 0/0)."""
-            Dinv = ti.Matrix.zero(float, dim, dim)
-            D = inertia(W, R)
-            for a in ti.static(range(dim)):
-                if D[a, a] > d_min:
-                    Dinv[a, a] = 1.0 / D[a, a]
-            return Dinv
-
-        @ti.func
-        def affine(p, W, R):
+        def affine(p, st):
             """APIC's C_p at the particle's current position. Where D_p varies with position (GIMP, B-splines
             next to walls) the field stores B_p and C_p = B_p D_p^-1 uses the current D_p: the affine part's
             angular momentum, eps : B_p, is then carried exactly when the particle moves (Jiang et al. 2015)."""
             A = ti.Matrix.zero(float, dim, dim)
             if ti.static(store_B):
-                A = C[p] @ inertia_inverse(W, R)
+                A = C[p] @ sten.inertia_inverse(st)
             elif ti.static(f["apic"]):
                 A = C[p]
             return A
 
         @ti.func
-        def node_momentum(vp, Ap, R, off):
-            """Particle velocity seen by a node: v_p, plus C_p (x_i - x_p) with APIC."""
+        def node_momentum(vp, Ap, r):
+            """Particle velocity seen by a node at r = x_i - x_p: v_p, plus C_p r with APIC."""
             mom = vp
             if ti.static(f["apic"]):
-                mom += Ap @ node_offset(R, off)
+                mom += Ap @ r
             return mom
 
         @ti.func
@@ -504,27 +435,26 @@ class Simulation:
             """grad v of the last step (viscosity reads it)."""
             L = C[p]
             if ti.static(store_B):
-                base, W, DW, R = stencil(p)
-                L = affine(p, W, R)
+                L = affine(p, sten.at(p))
             return L
 
+        ctx.density, ctx.kirchhoff = density, kirchhoff
         if self.fbar is not None:
-            self.fbar.build(stencil, node_weight)
+            self.fbar.build(ctx)
         crack = self.crack is not None  # crack finder (crack.py): modified shape functions near discontinuities
-        crk = self.crack.build(stencil, node_weight, node_offset, inertia, kirchhoff, wall, gravity, f["gravity"],
-                               gv2 if f["musl"] else gv, basis, mat) if crack else None
+        crk = self.crack.build(ctx) if crack else None  # its hooks (crack.CrackHooks)
 
         @ti.kernel
         def p2g(dt: float):
             for p in x:
-                base, W, DW, R = stencil(p)
+                st = sten.at(p)
                 Fp = F[p]
                 mp = density(p) * vol0[p]
                 stress = -vol0[p] * kirchhoff(p, Fp)
                 if ti.static(crack):
                     stress = -crk.degrade(p, -stress)
                 vp = v[p]
-                Ap = affine(p, W, R)
+                Ap = affine(p, st)
                 force_density = ti.Vector.zero(float, dim)  # the external force on the particle (N)
                 if ti.static(has_body_acc):
                     force_density = mp * body_acc[p]
@@ -536,15 +466,13 @@ class Simulation:
                     work[1] += dt * vol0[p] * viscous_power(p, Fp)
                 if ti.static(crack):
                     if crk.modified(p):
-                        crk.p2g(p, base, W, DW, R, mp, stress, vp, Ap, force_density, dt)
+                        crk.p2g(p, st, mp, stress, vp, Ap, force_density, dt)
                         continue
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
-                    off = o + inner[k]
-                    w, gw = node_weight(W, DW, off)
-                    I = base + off
+                    I, w, gw, r = sten.node(st, o + inner[k])
                     gm[I] += w * mp
-                    mom = node_momentum(vp, Ap, R, off)
+                    mom = node_momentum(vp, Ap, r)
                     gv[I] += w * mp * mom + dt * (stress @ gw + w * force_density)
                     if ti.static(f["flip"]):
                         gv_old[I] += w * mp * vp
@@ -611,30 +539,29 @@ class Simulation:
             """Mark every node in the support (w > 0) of a gripped particle with its grip (the largest wins)."""
             for e in grip_slot:
                 p = grip_slot[e]
-                base, W, DW, R = stencil(p)
-                for off in ti.grouped(ti.ndrange(*span)):
-                    w, gw = node_weight(W, DW, off)
+                st = sten.at(p)
+                for o in ti.grouped(ti.ndrange(*outer)):
+                  for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
+                    I, w, gw, r = sten.node(st, o + inner[k])
                     if w > 0:
-                        ti.atomic_max(grid.vec["grip"][base + off][0], ti.cast(grip_index[e], float))
+                        ti.atomic_max(grid.vec["grip"][I][0], ti.cast(grip_index[e], float))
 
         @ti.kernel
         def p2g_momentum():
             """MUSL: map the updated particle momentum back to the grid (same weights as the first P2G)."""
             for p in x:
-                base, W, DW, R = stencil(p)
+                st = sten.at(p)
                 mp = density(p) * vol0[p]
                 vp = v[p]
-                Ap = affine(p, W, R)
+                Ap = affine(p, st)
                 if ti.static(crack):
                     if crk.modified(p):
-                        crk.p2g_momentum(p, base, W, DW, R, mp, vp, Ap)
+                        crk.p2g_momentum(p, st, mp, vp, Ap)
                         continue
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
-                    off = o + inner[k]
-                    w, gw = node_weight(W, DW, off)
-                    I = base + off
-                    mom = node_momentum(vp, Ap, R, off)
+                    I, w, gw, r = sten.node(st, o + inner[k])
+                    mom = node_momentum(vp, Ap, r)
                     gv2[I] += w * mp * mom
 
         @ti.kernel
@@ -652,29 +579,27 @@ class Simulation:
             deform: positions (with this step's grid velocity), F = (I + dt grad v) F, and checks.
             USL does both in one pass; MUSL does them in two passes around the momentum remap."""
             for p in x:
-                base, W, DW, R = stencil(p)
+                st = sten.at(p)
                 v_pic = ti.Vector.zero(float, dim)
                 dv = ti.Vector.zero(float, dim)
                 B = ti.Matrix.zero(float, dim, dim)
                 G = ti.Matrix.zero(float, dim, dim)
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
-                    off = o + inner[k]
-                    w, gw = node_weight(W, DW, off)
-                    I = base + off
+                    I, w, gw, r = sten.node(st, o + inner[k])
                     vi = gv[I]
                     v_pic += w * vi
                     if ti.static(velocity and f["flip"]):
                         dv += w * (vi - gv_old[I])
                     if ti.static(velocity and f["apic"] and not basis.apic_gradient):
-                        B += w * vi.outer_product(node_offset(R, off))
+                        B += w * vi.outer_product(r)
                     if ti.static(deform):
                         G += vgrad[I].outer_product(gw)
                     elif ti.static(f["apic"] and basis.apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
                         G += vi.outer_product(gw)
                 if ti.static(crack):
                     if crk.modified(p):
-                        v_pic, dv, B, G = crk.g2p(p, base, W, DW, R, deform)
+                        v_pic, dv, B, G = crk.g2p(p, st, deform)
                 if ti.static(velocity):
                     if ti.static(f["flip"]):
                         v[p] = alpha * (v[p] + dv) + (1.0 - alpha) * v_pic
@@ -708,6 +633,8 @@ class Simulation:
                         code = 1
                     elif (xp < lower - out_tol).any() or (xp > upper + out_tol).any():
                         code = 3
+                    elif corner_outside(p, xp, Fp):
+                        code = 5
                     elif J < fluid_j_min:
                         if is_fluid(p):
                             code = 4
@@ -765,10 +692,9 @@ class Simulation:
                         v3[a] = v[p][a]
                     Lp = mp * x3.cross(v3)
                     if ti.static(f["apic"]):
-                        base, W, DW, R = stencil(p)
                         B = C[p]  # store_B: the affine part's angular momentum is eps : B
                         if ti.static(not store_B):
-                            B = C[p] @ inertia(W, R)  # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
+                            B = C[p] @ sten.inertia(sten.at(p))  # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
                         B3 = ti.Matrix.zero(float, 3, 3)
                         for a, b in ti.static(ti.ndrange(dim, dim)):
                             B3[a, b] = B[a, b]
@@ -791,7 +717,7 @@ class Simulation:
                        energies=energies, momenta=momenta, cauchy_stress=cauchy_stress, body_moments=body_moments,
                        flag_grip_nodes=flag_grip_nodes, apply_loads=apply_loads, set_motion=set_motion)
         if crack:
-            self._k.update(crk.grid_kernels())
+            self._k.update(crk.kernels)
 
     # ------------------------------------------------------------------ stepping
     def _check_live(self):
@@ -876,6 +802,8 @@ class Simulation:
         self._body_acc_now()
         self._prescribe(dt)
         self.grid.clear()
+        if self.ctx.stencil.prepare is not None:
+            self.ctx.stencil.prepare()   # stencils that read grid state (ddmp's nodal volumes)
         if self.crack is not None:
             self.crack.update()
         k["p2g"](dt)
@@ -922,7 +850,13 @@ class Simulation:
         cause = FAIL_CAUSES[kind]
         s = self.cfg.solver
         detail = f"dt={dt:.3g}, max speed={self._vmax:.3g}; {self._hint(dt)}"
-        if kind == 1 and s.basis == "linear":
+        if kind == 1 and s.basis == "cpdi":
+            detail += ("; the particle's CPDI domain (half-edges F r0) inverted: det F <= 0; fix: lower solver.cfl")
+        elif kind == 5:
+            detail += ("; a corner x_p + F r0 of the particle's CPDI domain crossed a wall, where the linear grid "
+                       "functions end; fix: keep bodies half a particle spacing off walls they stretch towards, "
+                       "or a larger domain")
+        elif kind == 1 and s.basis == "linear":
             detail += ("; the linear basis inverts particles that cross a cell boundary under stress (the node "
                        "they enter has a tiny mass and a full weight gradient): use basis quadratic or gimp, or "
                        "solver.update: musl")
@@ -1030,7 +964,7 @@ class Simulation:
                             f"gradients account for (mean F {np.array2string(Fm, precision=3)}): its particles "
                             f"separated by more than a grid cell (stretched material that no longer shares grid "
                             f"nodes stops feeling its own tension). Fix: a finer grid (smaller domain.dx) or more "
-                            f"particles_per_cell, basis gimp with solver.gimp_domain: deforming, or a crack section "
+                            f"particles_per_cell, basis cpdi (particle domains that follow F), or a crack section "
                             f"if the body is meant to break"))
 
     def _body_shapes(self) -> dict:

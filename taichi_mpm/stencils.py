@@ -1,0 +1,403 @@
+"""A particle's stencil as (node, weight, gradient, offset) contributions, and the context kernel builders share.
+
+Every kernel that couples particles and nodes loops over a particle's contributions:
+
+    st = ctx.stencil.at(p)                                  # per-particle data, computed once
+    for o in ti.grouped(ti.ndrange(*ctx.stencil.outer)):
+        for k in ti.static(range(len(ctx.stencil.inner))):
+            I, w, grad, r = ctx.stencil.node(st, o + ctx.stencil.inner[k])   # r = x_i - x_p
+
+so that transfers, F-bar and the crack finder are written once for every basis. A node may appear in several
+contributions (CPDI: once per corner that reaches it); sums over contributions are what the method defines.
+
+- tensor (linear, gimp, quadratic, cubic): the contribution index is the node offset per axis; `at` computes the
+  per-axis weights, derivatives and offsets once, `node` multiplies them (the same work as before this interface).
+  ddmp is a tensor stencil too (4 nodes per axis) whose gradient blends the linear one with the dual-domain one:
+      grad_a S_ip = alpha dN_a prod_{b != a} N_b + (1 - alpha) Ds_a prod_{b != a} Ns_b,  alpha = prod_a 4 t_a (1 - t_a)
+  (basis.make_ddmp; derivation in docs/bases.md). Where a node of the smoothed stencil has a partly filled dual
+  domain (free surfaces), the blend moves to the linear gradient: alpha_p = max(alpha_p, 1 - min fill), fill =
+  sum_q V_q N_j(x_q) / (the dual domain's volume), from a nodal-volume pass before P2G (`Stencil.prepare`), so that
+  no node without material receives force.
+- cpdi (CPDI1, Sadeghirad, Brannon & Burghardt 2011, IJNME 86): the particle domain is the parallelogram /
+  parallelepiped x_p + A xi, xi in [-1, 1]^d, with half-edge vectors A = F A0 (A0 = half the initial spacing per
+  axis; full F, rotation included). Linear grid functions N_i are replaced over the domain by their multilinear
+  interpolant from the 2^d corners x_c = x_p + A s_c (s_c in {-1, 1}^d), which gives
+      S_ip      = 2^-d sum_c N_i(x_c)
+      grad S_ip = 2^-d sum_c N_i(x_c) A^-T s_c          (the domain average of the interpolant's gradient)
+  The contribution index is (corner bits, node offset bits): 4^d contributions. While the corners are inside the
+  grid, sum S = 1, sum S x_i = x_p, sum grad S = 0 and sum x_i (x) grad S = I exactly (tests/test_cpdi.py), and
+  APIC's D_p = 2^-d sum_c diag(t (1 - t)) dx^2 + A A^T (t: corner's position in its cell) is never singular.
+
+Physics code only: no CLI, rendering or file I/O here.
+"""
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
+
+import taichi as ti
+
+
+@dataclass
+class KernelContext:
+    """What a kernel builder (solver, F-bar, crack finder) may use: compile-time constants, the particle and grid
+    fields, the stencil, and the solver's material and wall funcs. Built once by `Simulation._build_kernels`."""
+    dim: int
+    dx: float
+    lower: Any                       # ti.Vector, domain lower corner
+    upper: Any
+    n_cells: list
+    basis: Any                       # basis.Basis
+    feat: dict                       # Simulation._features()
+    precision: str
+    # particle fields
+    x: Any
+    v: Any
+    F: Any
+    C: Any
+    vol0: Any
+    mat: Any
+    half_width: Any                  # per-particle domain half-width (grid units) or None
+    domain_lp0: float                # domain half-width (grid units) when every particle has the same one
+    gimp_deforming: bool
+    unroll: bool
+    # grid
+    grid: Any
+    stencil: "Stencil" = None
+    # solver funcs (@ti.func), set once the solver has defined them
+    density: Optional[Callable] = None
+    kirchhoff: Optional[Callable] = None       # (p, F) -> Kirchhoff stress
+    wall: Optional[Callable] = None            # (I, v) -> v with wall conditions
+    gravity: Any = None
+    has_gravity: bool = False
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def gm(self):
+        return self.grid.m
+
+    @property
+    def gv(self):
+        return self.grid.vec["v"]
+
+    @property
+    def gv_old(self):
+        return self.grid.vec.get("v_old")
+
+    @property
+    def gv2(self):
+        return self.grid.vec.get("v2")
+
+    @property
+    def vgrad(self):
+        """The grid velocity F's update reads: MUSL's remapped one, else the updated one."""
+        return self.gv2 if self.feat["musl"] else self.gv
+
+
+@dataclass
+class Stencil:
+    span: list                  # extents of the contribution index (ti.ndrange(*span) visits every contribution)
+    outer: list                 # the loop split by `unroll`: ndrange(*outer) at run time, `inner` unrolled
+    inner: list
+    at: Callable                # @ti.func (p) -> per-particle stencil data st
+    node: Callable              # @ti.func (st, off) -> (storage index I, w, grad w, x_i - x_p)
+    inertia: Callable           # @ti.func (st) -> APIC's D_p = sum w (x_i - x_p)(x_i - x_p)^T
+    inertia_inverse: Callable   # @ti.func (st) -> D_p^-1 (zero along an axis where D_p vanishes)
+    index: Callable             # @ti.func (off) -> flat contribution number 0..count-1
+    count: int
+    prepare: Optional[Callable] = None   # per step before P2G, for stencils that read grid state (ddmp)
+
+
+def make_stencil(ctx: KernelContext) -> Stencil:
+    build = {"tensor": _tensor_stencil, "cpdi": _cpdi_stencil}[ctx.basis.kind]
+    return build(ctx)
+
+
+def _loops(span: list, unroll: bool):
+    """Unrolled: the run-time loop is one point and `inner` lists every contribution (weights stay in registers);
+    otherwise the loop runs at run time over `span`."""
+    if unroll:
+        return [1] * len(span), [ti.Vector(list(o)) for o in itertools.product(*[range(s) for s in span])]
+    return list(span), [ti.Vector([0] * len(span))]
+
+
+def _flat_index(span):
+    @ti.func
+    def index(off):
+        k = 0
+        for a in ti.static(range(len(span))):
+            k = k * span[a] + off[a]
+        return k
+    return index
+
+
+def _domain_half_width(ctx: KernelContext):
+    """@ti.func (p) -> the particle's initial domain half-width in grid units."""
+    half_width, lp0 = ctx.half_width, ctx.domain_lp0
+    per_particle = half_width is not None
+
+    @ti.func
+    def lp(p):
+        res = ti.cast(lp0, float)
+        if ti.static(per_particle):
+            res = half_width[p]
+        return res
+    return lp
+
+
+def _tensor_stencil(ctx: KernelContext) -> Stencil:
+    dim, dx, inv_dx = ctx.dim, ctx.dx, 1.0 / ctx.dx
+    basis, n_cells, lower = ctx.basis, ctx.n_cells, ctx.lower
+    S = basis.stencil
+    x, F = ctx.x, ctx.F
+    gimp, gimp_deforming = basis.name == "gimp", ctx.gimp_deforming
+    smooth = basis.smooth_1d is not None   # ddmp
+    half_width = _domain_half_width(ctx)
+    d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * dx * dx  # smallest D_p entry inverted
+    span = [S] * dim
+    prepare, fill = _dual_domain_fill(ctx, span) if smooth else (None, None)
+
+    @ti.func
+    def at(p):
+        """Stencil origin (storage index), per-axis weights W[a, k], x-derivatives DW[a, k] and node offsets
+        R[a, k] = (x_i - x_p)_a, so the node loop only multiplies."""
+        u = (x[p] - lower) * inv_dx
+        base = ti.Vector.zero(int, dim)
+        W = ti.Matrix.zero(float, dim, S)
+        DW = ti.Matrix.zero(float, dim, S)
+        R = ti.Matrix.zero(float, dim, S)
+        WS = ti.Matrix.zero(float, dim, S)    # ddmp: smoothed weights and derivatives, blend (unused otherwise)
+        DS = ti.Matrix.zero(float, dim, S)
+        alpha = 1.0
+        for a in ti.static(range(dim)):
+            lp = 0.0
+            if ti.static(gimp):
+                lp = half_width(p)
+                if ti.static(gimp_deforming):
+                    lp = ti.min(lp * ti.abs(F[p][a, a]), 0.5)
+                # a particle's domain ends at the walls: otherwise interior nodes keep weight on a particle
+                # at the wall and carry it through (sticky wall: out at step 1; slip floor at Mach 3)
+                lp = ti.max(ti.min(lp, u[a], n_cells[a] - u[a]), 1e-6)
+            b, w, dw = basis.weights_1d(u[a], n_cells[a], lp)
+            base[a] = b
+            for k in ti.static(range(S)):
+                W[a, k] = w[k]
+                DW[a, k] = dw[k] * inv_dx
+                R[a, k] = (basis.coord(b + k, n_cells[a]) - u[a]) * dx
+            if ti.static(smooth):
+                ws, ds, al = basis.smooth_1d(u[a], n_cells[a])
+                alpha *= al
+                for k in ti.static(range(S)):
+                    WS[a, k] = ws[k]
+                    DS[a, k] = ds[k] * inv_dx
+        if ti.static(smooth):
+            alpha = ti.max(alpha, 1.0 - fill(base))
+        return base, W, DW, R, WS, DS, alpha
+
+    @ti.func
+    def node(st, off):
+        base, W, DW, R, WS, DS, alpha = st
+        w = 1.0
+        grad = ti.Vector.zero(float, dim)
+        r = ti.Vector.zero(float, dim)
+        for a in ti.static(range(dim)):
+            w *= W[a, off[a]]
+            r[a] = R[a, off[a]]
+        for a in ti.static(range(dim)):
+            g = DW[a, off[a]]
+            for b in ti.static(range(dim)):
+                if ti.static(b != a):
+                    g *= W[b, off[b]]
+            if ti.static(smooth):
+                gs = DS[a, off[a]]
+                for b in ti.static(range(dim)):
+                    if ti.static(b != a):
+                        gs *= WS[b, off[b]]
+                g = alpha * g + (1.0 - alpha) * gs
+            grad[a] = g
+        return base + off, w, grad, r
+
+    @ti.func
+    def inertia(st):
+        """D_p: diagonal for tensor-product weights."""
+        base, W, DW, R, WS, DS, alpha = st
+        D = ti.Matrix.zero(float, dim, dim)
+        for a in ti.static(range(dim)):
+            s = 0.0
+            for k in ti.static(range(S)):
+                s += W[a, k] * R[a, k] * R[a, k]
+            D[a, a] = s
+        return D
+
+    @ti.func
+    def inertia_inverse(st):
+        """D_p^-1; zero along an axis where D_p vanishes (a B-spline particle exactly on a wall sits on
+        the wall's control point: D_p = 0 there and B_p = 0 too, so the affine part is zero, not 0/0)."""
+        Dinv = ti.Matrix.zero(float, dim, dim)
+        D = inertia(st)
+        for a in ti.static(range(dim)):
+            if D[a, a] > d_min:
+                Dinv[a, a] = 1.0 / D[a, a]
+        return Dinv
+
+    outer, inner = _loops(span, ctx.unroll)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), S ** dim, prepare)
+
+
+def _dual_domain_fill(ctx: KernelContext, span: list):
+    """ddmp: (prepare, fill). prepare() scatters the nodal volumes V_j = sum_q V_q N_j(x_q) (linear weights) onto
+    their own scalar grid; fill(base) is the smallest V_j / (geometric dual-domain volume) over the real nodes of a
+    stencil starting at `base` (1 where every dual domain is full, 0 where a node has no material)."""
+    from .grid import Grid   # only ddmp allocates it
+
+    dim, dx, basis, n_cells, lower = ctx.dim, ctx.dx, ctx.basis, ctx.n_cells, ctx.lower
+    x, F, vol0 = ctx.x, ctx.F, ctx.vol0
+    S = span[0]
+    grid = Grid(dim, ctx.grid.shape, ctx.grid.sparse, [])
+    vol = grid.m
+    cell = float(dx ** dim)
+    inv_dx = 1.0 / dx
+
+    @ti.kernel
+    def scatter():
+        for p in x:
+            u = (x[p] - lower) * inv_dx
+            base = ti.Vector.zero(int, dim)
+            W = ti.Matrix.zero(float, dim, S)
+            for a in ti.static(range(dim)):
+                b, w, dw = basis.weights_1d(u[a], n_cells[a], 0.0)
+                base[a] = b
+                for k in ti.static(range(S)):
+                    W[a, k] = w[k]
+            Vp = vol0[p] * F[p].determinant()
+            for off in ti.static(ti.grouped(ti.ndrange(*span))):
+                w = 1.0
+                for a in ti.static(range(dim)):
+                    w *= W[a, off[a]]
+                if w > 0:
+                    vol[base + off] += w * Vp
+
+    @ti.func
+    def fill(base):
+        f = 1.0
+        for off in ti.static(ti.grouped(ti.ndrange(*span))):
+            I = base + off
+            geo = cell
+            real = True
+            for a in ti.static(range(dim)):
+                c = I[a] - 1                          # storage index i holds node i - 1
+                if c < 0 or c > n_cells[a]:
+                    real = False                      # a ghost node: no dual domain, no smoothed gradient
+                elif c == 0 or c == n_cells[a]:
+                    geo *= 0.5                        # a wall node's dual domain is half a cell wide
+            if real:
+                f = ti.min(f, vol[I] / geo)
+        return ti.min(f, 1.0)
+
+    def prepare():
+        grid.clear()
+        scatter()
+
+    return prepare, fill
+
+
+def _cpdi_stencil(ctx: KernelContext) -> Stencil:
+    dim, dx, inv_dx = ctx.dim, ctx.dx, 1.0 / ctx.dx
+    basis, n_cells, lower = ctx.basis, ctx.n_cells, ctx.lower
+    nc = 2 ** dim                      # corners
+    share = 1.0 / nc
+    x, F = ctx.x, ctx.F
+    half_width = _domain_half_width(ctx)
+    # corner c = sum_a bit_a 2^a has sign s_a = 2 bit_a - 1
+    signs = ti.Matrix([[2.0 * ((c >> a) & 1) - 1.0 for a in range(dim)] for c in range(nc)])
+
+    @ti.func
+    def corner_sign(c):
+        s = ti.Vector.zero(float, dim)
+        for a in ti.static(range(dim)):
+            s[a] = signs[c, a]
+        return s
+
+    @ti.func
+    def at(p):
+        """Per corner: first node of its linear stencil (storage index), the weight of that node per axis
+        (the other node has 1 - that) and the gradient direction 2^-d A^-T s_c; the particle position."""
+        A = F[p] * (half_width(p) * dx)           # half-edge vectors r_a = F r_a0 as columns
+        G = A.inverse().transpose() * share
+        base = ti.Matrix.zero(int, nc, dim)
+        W0 = ti.Matrix.zero(float, nc, dim)
+        GS = ti.Matrix.zero(float, nc, dim)
+        xp = x[p]
+        for c in ti.static(range(nc)):
+            s = corner_sign(c)
+            u = (xp + A @ s - lower) * inv_dx
+            g = G @ s
+            for a in ti.static(range(dim)):
+                b, w, dw = basis.weights_1d(u[a], n_cells[a], 0.0)
+                base[c, a] = b
+                W0[c, a] = w[0]
+                GS[c, a] = g[a]
+        return base, W0, GS, xp, A
+
+    @ti.func
+    def node(st, off):
+        """off = (corner bits, node offset bits): node base_c + offset, w = 2^-d N_i(x_c), grad = N_i(x_c) times
+        corner c's gradient direction."""
+        base, W0, GS, xp, A = st
+        c = 0
+        for a in ti.static(range(dim)):
+            c += off[a] << a
+        I = ti.Vector.zero(int, dim)
+        N = 1.0
+        grad = ti.Vector.zero(float, dim)
+        r = ti.Vector.zero(float, dim)
+        for a in ti.static(range(dim)):
+            k = off[dim + a]
+            I[a] = base[c, a] + k
+            w0 = W0[c, a]
+            N *= w0 + ti.cast(k, float) * (1.0 - 2.0 * w0)   # k = 0: w0, k = 1: 1 - w0
+            grad[a] = GS[c, a]
+            r[a] = lower[a] + basis.coord(I[a], n_cells[a]) * dx - xp[a]
+        return I, share * N, N * grad, r
+
+    @ti.func
+    def inertia(st):
+        """D_p = 2^-d sum_c diag(t (1 - t)) dx^2 + A A^T (t: the corner's coordinate within its cell, i.e. the
+        linear hat's own second moment at x_c, plus the corners' spread about x_p)."""
+        base, W0, GS, xp, A = st
+        D = A @ A.transpose()
+        for c in ti.static(range(nc)):
+            for a in ti.static(range(dim)):
+                D[a, a] += share * W0[c, a] * (1.0 - W0[c, a]) * dx * dx
+        return D
+
+    @ti.func
+    def inertia_inverse(st):
+        return inertia(st).inverse()   # positive definite while det F > 0 (>= A A^T)
+
+    span = [2] * (2 * dim)
+    outer, inner = _loops(span, ctx.unroll)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 4 ** dim)
+
+
+def make_corner_check(ctx: KernelContext):
+    """@ti.func (p, xp, Fp) -> True when a corner of the particle's domain lies beyond a wall (by more than tol);
+    False for bases without particle domains."""
+    dim, dx = ctx.dim, ctx.dx
+    cpdi = ctx.basis.kind == "cpdi"
+    half_width = _domain_half_width(ctx)
+    lower, upper = ctx.lower, ctx.upper
+    tol = 1e-6 * dx
+
+    @ti.func
+    def outside(p, xp, Fp):
+        res = False
+        if ti.static(cpdi):
+            A = Fp * (half_width(p) * dx)
+            for c in ti.static(range(2 ** dim)):
+                s = ti.Vector([2.0 * ((c >> a) & 1) - 1.0 for a in range(dim)])
+                xc = xp + A @ s
+                if (xc < lower - tol).any() or (xc > upper + tol).any():
+                    res = True
+        return res
+    return outside
