@@ -266,31 +266,21 @@ def test_mms_2d_large_amplitude_converges():
 
 
 # ---------------------------------------------------------------- crack finder
-def test_crack_finder_partition_of_unity_cpdi():
-    """The crack finder works on contributions, so its modified functions are built from CPDI's: both rescaled
-    families of every masked particle sum to 1, their gradients to 0, sum_i W_ip = I (tests/test_crack.py's check),
-    for blocks pulled apart (cut) and pushed together (contact)."""
-    apart = tc._check_partition(tc.blocks_cfg(2, "cpdi", v=0.2))
-    assert (apart[:, 0] == 1).sum() > 0
-    closing = tc._check_partition(tc.blocks_cfg(2, "cpdi", v=-0.2))
-    assert (closing[:, 0] == 2).sum() > 0
-
-
-@pytest.mark.slow
-def test_crack_finder_separates_blocks_cpdi():
-    """As tests/test_crack.py with quadratic: each block keeps its velocity within 5 %, the gap opens at the
-    relative speed within 10 %."""
-    sim, p, b, gaps, t, smax = tc._pull(tc.blocks_cfg(basis="cpdi", crack=True), steps=40)
-    va, vb = p["v"][b == 0, 0].mean(), p["v"][b == 1, 0].mean()
-    print("cpdi blocks", va, vb, (gaps[-1] - gaps[0]) / (t[-1] - t[0]))
-    assert abs(va + 0.2) < 0.05 * 0.2 and abs(vb - 0.2) < 0.05 * 0.2
-    assert (gaps[-1] - gaps[0]) / (t[-1] - t[0]) == pytest.approx(vb - va, rel=0.10)
+@pytest.mark.parametrize("basis", ["cpdi", "ddmp"])
+def test_crack_finder_with_new_bases_is_a_config_error(basis):
+    """The crack finder runs on stencil contributions and its modified functions kept the partition of unity with
+    cpdi (checked before this was disabled), but two interface blocks pulled apart stayed joined with cpdi (block
+    velocities +-0.134 against -+0.2 imposed) and ddmp is not validated: a config error says so."""
+    cfg = tc.blocks_cfg(2, basis, v=0.2)
+    with pytest.raises(ConfigError) as e:
+        tm.load_config(cfg)
+    assert e.value.key == "crack" and basis in str(e.value)
 
 
 @pytest.mark.slow
 def test_apic_angular_momentum_spinning_disk_cpdi():
     """tests/test_conservation.py's spinning disk (200 steps, USL): B D^-1 with CPDI's full D_p carries the affine
-    angular momentum exactly; measured change reported in docs/bases.md."""
+    angular momentum exactly; measured 5.7e-13 relative (docs/bases.md)."""
     L0, L1 = tcons.spinning_disk("cpdi", "usl", steps=200)
     print("cpdi spinning disk dL/L", (L1 - L0) / L0)
     assert abs(L1 - L0) < 1e-10 * abs(L0)

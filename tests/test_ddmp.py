@@ -107,12 +107,3 @@ def test_mms_1d_large_amplitude_converges():
     print("ddmp 1D G=0.05", errs, tcp.lsq_rate(cells, errs))
     assert tcp.lsq_rate(cells[:3], errs[:3]) >= 1.8
     assert errs[-1] < 2.4e-4
-
-
-@pytest.mark.slow
-def test_crack_finder_partition_of_unity_ddmp():
-    """The crack finder's modified functions built from ddmp's contributions (16 per particle in 2D) keep the
-    partition of unity (tests/test_crack.py's check)."""
-    import test_crack as tc
-    apart = tc._check_partition(tc.blocks_cfg(2, "ddmp", v=0.2))
-    assert (apart[:, 0] == 1).sum() > 0
