@@ -22,7 +22,8 @@ from . import materials as material_models
 
 
 SHAPE_TYPES = ("box", "sphere", "ring", "cylinder", "mesh")
-# particle fields the writers know (output.fields); velocity, stress, von_mises, J, body and damage are always written
+# particle fields the writers know (output.fields); velocity, stress, von_mises, J, body, damage and the material
+# models' states (plastic_strain, Jp) are always written (the last ones when present)
 FIELDS = ("velocity", "stress", "von_mises", "J", "body", "damage", "speed", "pressure", "displacement",
           "F", "C", "mass", "volume", "material", "interface", *material_models.output_states())
 

@@ -92,7 +92,7 @@ def key_descriptions(prefix: str = "materials.<name>.") -> dict[str, tuple[str, 
             units = dict.fromkeys(u for u, _ in variants)
             unit = next(iter(units)) if len(units) == 1 else "; ".join(f"{u} ({', '.join(ms)})"
                                                                       for (u, _), ms in variants.items())
-            out[prefix + key] = (unit, "; ".join(meaning for _, meaning in variants))
+            out[prefix + key] = (unit, "; ".join(f"{', '.join(ms)}: {meaning}" for (_, meaning), ms in variants.items()))
     return out
 
 

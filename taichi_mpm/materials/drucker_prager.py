@@ -1,4 +1,4 @@
-"""drucker_prager: frictional granular material (sand), after Klar et al. 2016, "Drucker-Prager elastoplasticity for
+"""frictional granular material (sand), after Klar et al. 2016, "Drucker-Prager elastoplasticity for
 sand animation" (ACM TOG 35(4), SIGGRAPH), with cohesion and optional dilatancy.
 
 Elasticity as von_mises: quadratic in the Hencky strain eps = ln V_e of the elastic left stretch (the solver's F
@@ -19,7 +19,9 @@ mapping in principal Hencky strains, after the update (K = lam + 2 mu / 3):
 
 Klar's hardening of the friction angle is not modelled (phi is fixed). The equivalent plastic strain
 (`plastic_strain`) accumulates sqrt(2/3) |d eps_p| and the plastic volume ratio J_p (`Jp`) the volume the
-return mapping adds (apex projections, dilatancy): the particle's volume is V0 det(F_e) J_p. Sand carries no
+return mapping adds (apex projections, dilatancy): the particle's volume is V0 det(F_e) J_p. The plastic dissipation
+is the plastic work of the returned stress, tau : deps_p (zero at the apex without cohesion: sand torn apart does no
+work; >= 0 for dilatancy <= friction_angle). Sand carries no
 tension beyond the apex, so the crack finder's Rankine damage does not apply (no tensile_strength key).
 """
 from __future__ import annotations
@@ -53,9 +55,9 @@ class DruckerPrager(Model):
 
     class Params(ElasticModuli):
         model: Literal["drucker_prager"]
-        friction_angle: Angle = param(..., "deg", "drucker_prager: internal friction angle phi", gt=0, lt=90)
-        cohesion: NonNegative = param(0.0, "Pa", "drucker_prager: cohesion c (0: dry sand, no tensile strength)")
-        dilatancy: Angle = param(0.0, "deg", "drucker_prager: dilatancy angle psi <= friction_angle of the plastic "
+        friction_angle: Angle = param(..., "deg", "internal friction angle phi", gt=0, lt=90)
+        cohesion: NonNegative = param(0.0, "Pa", "cohesion c (0: dry sand, no tensile strength)")
+        dilatancy: Angle = param(0.0, "deg", "dilatancy angle psi <= friction_angle of the plastic "
                                              "flow (0: volume-preserving flow)", ge=0, lt=90)
 
         @model_validator(mode="after")
@@ -138,7 +140,7 @@ class DruckerPrager(Model):
                 if ti.static(dim < 3):
                     qn[Z] = F3n[2, 2]
                 Fn = top_left(F3n, dim)
-                diss = hencky_energy(eps, mu, lam) - hencky_energy(eps_n, mu, lam)
+                diss = (2.0 * mu * eps_n + lam * eps_n.sum()).dot(eps - eps_n)  # plastic work of the returned stress
             return Fn, qn, diss
 
         @ti.func

@@ -1,4 +1,4 @@
-"""snow: Stomakhin et al. 2013, "A material point method for snow simulation" (ACM TOG 32(4), SIGGRAPH).
+"""Stomakhin et al. 2013, "A material point method for snow simulation" (ACM TOG 32(4), SIGGRAPH).
 
 Fixed-corotated elasticity of the elastic part F_e (the solver's F field) with moduli hardened by the plastic
 volume change J_p = det F_p:  mu = mu0 h, lam = lam0 h,  h = exp(hardening (1 - J_p)) (capped at max_hardening),
@@ -7,20 +7,23 @@ volume change J_p = det F_p:  mu = mu0 h, lam = lam0 h,  h = exp(hardening (1 - 
 
 After the update the singular values of F_e are clamped to [1 - critical_compression, 1 + critical_stretch]; what
 is clamped away moves into F_p (J_p *= prod(sigma_trial / sigma_clamped)). Snow compacts (J_p < 1) and hardens, and
-breaks in tension (J_p > 1: softer). The energy the clamp releases is counted as dissipated; since h changes with
-J_p that "dissipation" can be negative (compaction stiffens): the model is not thermodynamically consistent, but the
-solver's energy balance stays closed. In 2D and 1D the held axes keep stretch 1, inside the clamp, so the model
+breaks in tension (J_p > 1: softer). Dissipation (the energy balance's): the plastic work of the returned stress,
+tau : ln(sigma_trial / sigma_clamped), plus the stored energy the change of h removes at fixed F_e; the second term
+is negative when compaction hardens, so the model can create energy (it is not thermodynamically consistent), and
+the balance counts that. In 2D and 1D the held axes keep stretch 1, inside the clamp, so the model
 works in d dimensions directly. The crack finder's Rankine damage applies on top (tensile_strength).
 """
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Annotated, Literal
+
+from pydantic import BeforeValidator
 
 from .base import ElasticParams, Funcs, Model, NonNegative, finish, param, register
 from .drucker_prager import JP
 from .von_mises import PLASTIC_STRAIN
-from ..schema import PositiveFloat
+from ..schema import PositiveFloat, _no_bool
 
 
 @register
@@ -32,11 +35,11 @@ class Snow(Model):
 
     class Params(ElasticParams):
         model: Literal["snow"]
-        critical_compression: PositiveFloat = param(2.5e-2, "1", "snow: theta_c, singular values of F_e stay >= 1 - "
+        critical_compression: PositiveFloat = param(2.5e-2, "1", "theta_c, singular values of F_e stay >= 1 - "
                                                                  "theta_c", lt=1)
-        critical_stretch: PositiveFloat = param(7.5e-3, "1", "snow: theta_s, singular values of F_e stay <= 1 + theta_s")
-        hardening: NonNegative = param(10.0, "1", "snow: hardening coefficient xi of h = exp(xi (1 - J_p))")
-        max_hardening: PositiveFloat = param(10.0, "1", "snow: cap of the hardening factor h (the CFL rule takes the "
+        critical_stretch: PositiveFloat = param(7.5e-3, "1", "theta_s, singular values of F_e stay <= 1 + theta_s")
+        hardening: NonNegative = param(10.0, "1", "hardening coefficient xi of h = exp(xi (1 - J_p))")
+        max_hardening: Annotated[float, BeforeValidator(_no_bool)] = param(10.0, "1", "cap of the hardening factor h (the CFL rule takes the "
                                                         "wave speed of the stiffest snow, sqrt(max_hardening) x)",
                                              ge=1)
 
@@ -104,7 +107,10 @@ class Snow(Model):
                     jp *= ratio[i]
                 qn[JPS] = jp
                 qn[P] = q[P] + r23 * ti.log(ratio).norm()
-                diss = energy(F, q) - energy(Fn, qn)
+                # plastic work of the returned stress (coaxial: tau : Q diag(ln(sigma_tr / sigma_c)) Q^T), plus the
+                # stored energy the change of J_p removes at fixed F_e (negative when compaction hardens)
+                diss = (kirchhoff(Fn, ti.Matrix.zero(float, F.n, F.n), qn) * principal_matrix(Q, ti.log(ratio))).sum() \
+                    + energy(Fn, q) - energy(Fn, qn)
             return Fn, qn, diss
 
         @ti.func

@@ -1,4 +1,4 @@
-"""von_mises: J2 plasticity at finite strain with isotropic linear hardening.
+"""J2 plasticity at finite strain with isotropic linear hardening.
 
 Multiplicative split F = F_e F_p; the solver's F field holds F_e. Elasticity is quadratic in the Hencky strain of
 the elastic left stretch, eps = ln V_e (psi = mu |eps|^2 + lam/2 (tr eps)^2, tau = 2 mu eps + lam tr(eps) I), so
@@ -10,7 +10,10 @@ Peric & Owen 2008, ch. 14): after the update F_e^trial = (I + dt grad v) F_e,
 
 and F_e = Q diag(exp(eps - eps_tr)) Q^T F_e^trial (Q: principal directions of b_e). Plastic flow is isochoric
 (det F_p = 1). alpha is the equivalent plastic strain, output `plastic_strain`. Stored energy: psi + hardening
-alpha^2 / 2; the energy the return releases is the plastic dissipation (reported to the energy balance).
+alpha^2 / 2. Plastic dissipation (the energy balance's): the plastic work of the returned stress minus the hardening
+energy stored, tau : deps_p - d(H alpha^2 / 2) = yield_stress dalpha + H dalpha^2 / 2 per step. (The stored energy
+the return releases, psi(eps_tr) - psi(eps), is larger by deps_p : C : deps_p / 2: energy the elastic trial step
+never took from the motion, since the explicit step's stress power uses the stress at the start of the step.)
 In 1D and 2D the particle is a 3D particle with held axes (uniaxial / plane strain): the elastic stretch of the
 held axes changes by plastic flow and is kept per particle (`held_stretch`).
 """
@@ -37,8 +40,8 @@ class VonMises(Model):
 
     class Params(ElasticParams):
         model: Literal["von_mises"]
-        yield_stress: PositiveFloat = param(..., "Pa", "von_mises: initial uniaxial yield stress sigma_y")
-        hardening: NonNegative = param(0.0, "Pa", "von_mises: linear isotropic hardening modulus H: the yield stress is "
+        yield_stress: PositiveFloat = param(..., "Pa", "initial uniaxial yield stress sigma_y")
+        hardening: NonNegative = param(0.0, "Pa", "linear isotropic hardening modulus H: the yield stress is "
                                                   "sigma_y + H alpha (alpha: equivalent plastic strain); uniaxial "
                                                   "plastic slope E H / (E + H)")
 
@@ -95,14 +98,16 @@ class VonMises(Model):
             Fn, qn, diss = F, q, 0.0
             if f > 0:
                 dg = f / (2.0 * mu + 2.0 / 3.0 * H)
-                F3n = rescale_principal(F3, Q, eps, eps - (dg / en) * e)
+                dep = (dg / en) * e                        # plastic strain increment
+                eps_n = eps - dep
+                F3n = rescale_principal(F3, Q, eps, eps_n)
                 alpha_n = alpha + r23 * dg
                 qn[A] = alpha_n
                 if ti.static(dim < 3):
                     qn[Z] = F3n[2, 2]
                 Fn = top_left(F3n, dim)
-                # released stored energy: mu (|e|^2 - |e_new|^2) - H (alpha_n^2 - alpha^2) / 2
-                diss = mu * dg * (2.0 * en - dg) - 0.5 * H * (alpha_n - alpha) * (alpha_n + alpha)
+                # plastic work of the returned stress minus the hardening energy stored: sigma_y dalpha + H dalpha^2 / 2
+                diss = (2.0 * mu * eps_n + lam * eps_n.sum()).dot(dep) - 0.5 * H * (alpha_n - alpha) * (alpha_n + alpha)
             return Fn, qn, diss
 
         @ti.func
