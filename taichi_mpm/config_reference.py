@@ -109,8 +109,9 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "output.formats": ("", "vtu and npz snapshots, png frames, mp4 or gif movie"),
     "output.fields": ("", "particle fields written besides the ones always written (see Output fields below)"),
     "output.render": ("", "off-screen frames"),
-    "output.render.color_by": ("", "colour field: speed, von_mises, J, body, damage, pressure, vx, vy, vz, or a "
-                                   "stress component sxx, syy, szz, sxy, ..."),
+    "output.render.color_by": ("", "colour field: speed, von_mises, J, body, damage, pressure, plastic_strain, Jp, "
+                                   "vx, vy, vz, or a stress component sxx, syy, szz, sxy, ... (any scalar of Output "
+                                   "fields below)"),
     "output.render.size": ("px", "[width, height] of a frame"),
     "output.render.camera": ("", "3D view: iso, xy, xz, yz, front, side, top (1D and 2D are always seen along z)"),
     "output.render.point_size": ("px", "particle size on screen; null: from the particle spacing"),
