@@ -59,8 +59,21 @@ def collapse(aspect, dx=0.005, end=None, overrides=None, verbose=False):
     front = float(np.percentile(x[:, 0], 99.5))
     wall = x[x[:, 0] < dx]
     top = float(np.percentile(wall[:, 1], 99.5)) if len(wall) else 0.0
-    return dict(aspect=aspect, runout=(front - L0) / L0, height=top / L0, time=sim.time, steps=sim.n_steps,
-                particles=sim.n)
+    return dict(aspect=aspect, runout=(front - L0) / L0, height=top / L0, slope=surface_slope(x, dx), time=sim.time,
+                steps=sim.n_steps, particles=sim.n)
+
+
+def surface_slope(x, dx):
+    """Angle (degrees) of the deposit's free surface: a line fitted to the top of each column of width dx where the
+    surface lies between 20 % and 80 % of the deposit's height (the flank, without the plateau and the thin toe)."""
+    bins = np.floor(x[:, 0] / dx).astype(int)
+    cols = np.unique(bins)
+    top = np.array([x[bins == b, 1].max() for b in cols])
+    xc = (cols + 0.5) * dx
+    sel = (top > 0.2 * top.max()) & (top < 0.8 * top.max())
+    if sel.sum() < 3:
+        return float("nan")
+    return float(np.degrees(np.arctan(-np.polyfit(xc[sel], top[sel], 1)[0])))
 
 
 def plot(rows, path):
@@ -105,7 +118,7 @@ def main(argv=None):
         r["lube_runout"] = ref
         rows.append(r)
         print(f"a={aspect:g}: run-out {r['runout']:.3f} (Lube {ref:.3f}, {r['runout'] / ref - 1:+.0%}), "
-              f"height {r['height']:.3f} L0, t={r['time']:.2f} s, {r['steps']} steps, {r['particles']} particles")
+              f"height {r['height']:.3f} L0, slope {r['slope']:.1f} deg, t={r['time']:.2f} s, {r['steps']} steps, {r['particles']} particles")
     if a.plot:
         plot(rows, a.plot)
     return rows

@@ -8,7 +8,8 @@ field holds F_e). The yield surface in Kirchhoff stress (tension positive) is th
                                               k = sqrt(2/3) 6 c cos(phi) / (3 - sin(phi))
 
 (the Drucker-Prager cone through the compression meridian of Mohr-Coulomb with friction angle phi and cohesion c;
-Klar's alpha is a, and k = 0 there). The plastic potential has the dilatancy angle psi in place of phi
+Klar's alpha is a, and k = 0 there; `fit: plane_strain` takes instead the cone with Mohr-Coulomb's limit loads in
+plane strain, a weaker one: a = 0.236 against 0.327 at phi = 30 deg). The plastic potential has the dilatancy angle psi in place of phi
 (b = sqrt(2/3) 2 sin(psi) / (3 - sin(psi)); psi = 0, the default, is Klar's volume-preserving flow). Return
 mapping in principal Hencky strains, after the update (K = lam + 2 mu / 3):
 
@@ -60,6 +61,11 @@ class DruckerPrager(Model):
         dilatancy: Angle = param(0.0, "deg", "dilatancy angle psi <= friction_angle of the plastic "
                                              "flow (0: volume-preserving flow)", ge=0, lt=90)
 
+        fit: Literal["compression", "plane_strain"] = param(
+            "compression", "", "how the cone matches Mohr-Coulomb of friction_angle and cohesion: compression (its "
+                               "compression meridian, as Klar et al.) or plane_strain (the same limit loads in plane "
+                               "strain; a weaker cone, for 2D geomechanics)")
+
         @model_validator(mode="after")
         def _dilatancy_below_friction(self):
             if self.dilatancy > self.friction_angle:
@@ -68,10 +74,20 @@ class DruckerPrager(Model):
 
         @property
         def cone(self) -> tuple[float, float, float]:
-            """(a, k, b) of the yield cone and the plastic potential."""
-            phi = math.radians(self.friction_angle)
-            k = math.sqrt(2.0 / 3.0) * 6.0 * self.cohesion * math.cos(phi) / (3.0 - math.sin(phi))
-            return cone(self.friction_angle), k, cone(self.dilatancy)
+            """(a, k, b) of the yield cone |dev tau| + a tr(tau) <= k and of the plastic potential."""
+            phi, psi = math.radians(self.friction_angle), math.radians(self.dilatancy)
+            r = math.sqrt(2.0 / 3.0)
+            if self.fit == "compression":
+                return cone(self.friction_angle), r * 6.0 * self.cohesion * math.cos(phi) / (3.0 - math.sin(phi)), \
+                    cone(self.dilatancy)
+            # plane strain (e.g. the Abaqus manual, "Matching Mohr-Coulomb in plane strain"): in p-q form
+            # tan(beta) = sqrt(3) sin(phi) / sqrt(1 + sin(psi)^2 / 3), d = sqrt(3) c cos(phi) / sqrt(...), and
+            # tan(psi_dp) = sqrt(3) sin(psi) / sqrt(...); |dev tau| = sqrt(2/3) q, tr(tau) = -3 p
+            root = math.sqrt(1.0 + math.sin(psi) ** 2 / 3.0)
+            tan_beta = math.sqrt(3.0) * math.sin(phi) / root
+            d = math.sqrt(3.0) * self.cohesion * math.cos(phi) / root
+            tan_psi = math.sqrt(3.0) * math.sin(psi) / root
+            return r * tan_beta / 3.0, r * d, r * tan_psi / 3.0
 
     @classmethod
     def state(cls, dim):
