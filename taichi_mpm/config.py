@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
-from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, TypeAdapter, ValidationError,
+from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapter, ValidationError,
                       field_validator, model_serializer, model_validator)
 
 from .errors import ConfigError

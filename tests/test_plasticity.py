@@ -28,8 +28,8 @@ def material(model, **over):
     return Material(model=model, density=1000.0, E=E, nu=NU, **{**PARAMS[model], **over})
 
 
-def _init():
-    ti.init(arch=ti.cpu, default_fp=ti.f64, offline_cache=True, log_level=ti.ERROR)
+def _init(fp=ti.f64):
+    ti.init(arch=ti.cpu, default_fp=fp, offline_cache=True, log_level=ti.ERROR)
 
 
 def random_F(dim, n, seed=0, lo=-3.0, hi=-0.3):
@@ -49,9 +49,9 @@ def random_F(dim, n, seed=0, lo=-3.0, hi=-0.3):
     return out
 
 
-def run_projection(model, dim, F, q0, **over):
+def run_projection(model, dim, F, q0, fp=ti.f64, **over):
     """Each sample through the model's projection: (F_new, q_new, dissipated, tau3 trial, tau3 returned)."""
-    _init()
+    _init(fp)
     m = material(model, **over)
     cls = MODELS[model]
     nq = max(1, len(cls.state(dim)))
@@ -143,6 +143,31 @@ def test_return_mapping_lands_on_or_inside_the_yield_surface(model, dim):
         assert (diss[outside] > 0).all() or model == "drucker_prager"
         if model == "drucker_prager":
             assert 0 < at_apex[outside].sum() < outside.sum()         # both the cone and the apex returns occur
+
+
+@pytest.mark.parametrize("model", PLASTIC)
+def test_return_mapping_in_f32(model):
+    """f32 (the default precision): the same random trials in 3D land inside the yield surface to 1e-5 relative
+    (plus the stress resolution of f32: Hencky strains ln(b)/2 with b near 1 carry absolute errors ~1e-7, a few 1e-7 E
+    in stress, so 5e-6 E)."""
+    n = 500
+    rng = np.random.default_rng(5)
+    F = random_F(3, n, seed=5)
+    q, names = initial_state(model, 3, n, rng)
+    Fn, qn, diss, t_tr, t_new = run_projection(model, 3, F, q, fp=ti.f32)
+    assert np.isfinite(Fn).all() and np.isfinite(qn).all() and np.isfinite(t_new).all()
+    p = PARAMS[model]
+    if model == "snow":
+        s_new = np.linalg.svd(Fn.astype(np.float64), compute_uv=False)
+        assert s_new.min() > (1 - p["critical_compression"]) * (1 - 1e-5)
+        assert s_new.max() < (1 + p["critical_stretch"]) * (1 + 1e-5)
+    elif model == "von_mises":
+        k_new = math.sqrt(2 / 3) * (p["yield_stress"] + p["hardening"] * qn[:, 0])
+        assert (dev_norm(t_new) - k_new <= 1e-5 * np.abs(t_tr).max((1, 2)) + 5e-6 * E).all()
+    else:
+        a, k, b = material(model).cone
+        f_new = dev_norm(t_new) + a * np.trace(t_new, axis1=1, axis2=2) - k
+        assert (f_new <= 1e-5 * np.maximum(np.abs(t_tr).max((1, 2)), k) + 5e-6 * E).all()
 
 
 # ---------------------------------------------------------------- J2: uniaxial stress against the closed form

@@ -114,12 +114,32 @@ class Funcs:
     extra: dict = field(default_factory=dict)
 
 
+# `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
+ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = hencky = rescale_principal = None
+hencky_energy = None
+
+TENSOR_NAMES = ("embed3", "embed_held", "top_left", "rotation", "eigh", "principal_matrix", "hencky",
+                "rescale_principal", "hencky_energy")
+
+
+def use_taichi(namespace: dict):
+    """Bind `ti` and the tensor helpers (materials/tensor.py) as globals of a model module, called by its build():
+    Taichi resolves the names a func uses through its module's globals (closure variables of a build() have been
+    seen to go missing when one process builds many models), and importing Taichi only in build() keeps config
+    validation Taichi-free."""
+    import taichi
+
+    from . import tensor
+
+    namespace["ti"] = taichi
+    for name in TENSOR_NAMES:
+        namespace[name] = getattr(tensor, name)
+
+
 def finish(funcs: Funcs, params, model) -> Funcs:
     """Fill a Funcs' defaults: kirchhoff3 as the model's own stress at embed3(F, 1) (dimension-generic models),
     volume_ratio = det F."""
-    import taichi as ti
-
-    from .tensor import embed3
+    use_taichi(globals())
 
     if funcs.kirchhoff3 is None:
         kirchhoff = funcs.kirchhoff

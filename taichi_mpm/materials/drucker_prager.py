@@ -33,7 +33,7 @@ from typing import Annotated, Literal
 from pydantic import BeforeValidator, model_validator
 
 from ..schema import _no_bool
-from .base import ElasticModuli, Funcs, Model, NonNegative, State, finish, param, register
+from .base import use_taichi, ElasticModuli, Funcs, Model, NonNegative, State, finish, param, register
 from .von_mises import HELD_STRETCH, PLASTIC_STRAIN
 
 JP = State("Jp", 1.0, "1", "plastic volume ratio J_p = det F_p (drucker_prager: dilation and tension cut-off; snow: "
@@ -44,6 +44,10 @@ def cone(angle_deg: float) -> float:
     """a (or b) of the cone for a friction (or dilatancy) angle in degrees."""
     s = math.sin(math.radians(angle_deg))
     return math.sqrt(2.0 / 3.0) * 2.0 * s / (3.0 - s)
+
+# `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
+ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = hencky = rescale_principal = None
+hencky_energy = None
 
 
 @register
@@ -95,9 +99,8 @@ class DruckerPrager(Model):
 
     @classmethod
     def build(cls, m, dim, nq):
-        import taichi as ti
+        use_taichi(globals())
 
-        from .tensor import embed_held, hencky, hencky_energy, principal_matrix, rescale_principal, top_left
 
         mu, lam = float(m.mu), float(m.lam)
         K = lam + 2.0 * mu / 3.0

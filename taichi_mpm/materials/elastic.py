@@ -4,7 +4,11 @@ from __future__ import annotations
 
 from typing import Literal
 
-from .base import ElasticParams, Funcs, Model, finish, register
+from .base import use_taichi, ElasticParams, Funcs, Model, finish, register
+
+# `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
+ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = hencky = rescale_principal = None
+hencky_energy = None
 
 
 class _Elastic(Model):
@@ -28,7 +32,7 @@ class LinearElastic(_Elastic):
 
     @staticmethod
     def funcs(mu, lam):
-        import taichi as ti
+        use_taichi(globals())
 
         @ti.func
         def kirchhoff(F, L, q):
@@ -55,7 +59,7 @@ class NeoHookean(_Elastic):
 
     @staticmethod
     def funcs(mu, lam):
-        import taichi as ti
+        use_taichi(globals())
 
         @ti.func
         def kirchhoff(F, L, q):
@@ -82,9 +86,8 @@ class FixedCorotated(_Elastic):
 
     @staticmethod
     def funcs(mu, lam):
-        import taichi as ti
+        use_taichi(globals())
 
-        from .tensor import rotation
 
         @ti.func
         def kirchhoff(F, L, q):

@@ -6,7 +6,11 @@ from typing import Annotated, Literal
 from pydantic import BeforeValidator
 
 from ..schema import PositiveFloat, _no_bool
-from .base import Funcs, MaterialParams, Model, finish, param, register
+from .base import use_taichi, Funcs, MaterialParams, Model, finish, param, register
+
+# `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
+ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = hencky = rescale_principal = None
+hencky_energy = None
 
 
 @register
@@ -30,7 +34,7 @@ class Fluid(Model):
 
     @classmethod
     def build(cls, m, dim, nq):
-        import taichi as ti
+        use_taichi(globals())
 
         K, visc = float(m.K), float(m.viscosity)
 

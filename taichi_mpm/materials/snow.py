@@ -20,10 +20,14 @@ from typing import Annotated, Literal
 
 from pydantic import BeforeValidator
 
-from .base import ElasticParams, Funcs, Model, NonNegative, finish, param, register
+from .base import use_taichi, ElasticParams, Funcs, Model, NonNegative, finish, param, register
 from .drucker_prager import JP
 from .von_mises import PLASTIC_STRAIN
 from ..schema import PositiveFloat, _no_bool
+
+# `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
+ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = hencky = rescale_principal = None
+hencky_energy = None
 
 
 @register
@@ -53,9 +57,8 @@ class Snow(Model):
 
     @classmethod
     def build(cls, m, dim, nq):
-        import taichi as ti
+        use_taichi(globals())
 
-        from .tensor import eigh, principal_matrix, rotation
 
         mu0, lam0 = float(m.mu), float(m.lam)
         lo, hi = 1.0 - float(m.critical_compression), 1.0 + float(m.critical_stretch)

@@ -22,13 +22,17 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from .base import ElasticParams, Funcs, Model, NonNegative, State, finish, param, register
+from .base import use_taichi, ElasticParams, Funcs, Model, NonNegative, State, finish, param, register
 from ..schema import PositiveFloat
 
 PLASTIC_STRAIN = State("plastic_strain", 0.0, "1", "equivalent plastic strain: the integral of sqrt(2/3 dep:dep) "
                                                    "(von_mises, drucker_prager, snow)")
 HELD_STRETCH = State("held_stretch", 1.0, "1", "elastic stretch of the held axes (z in 2D, y and z in 1D) of a "
                                                "plastic model", output=False)
+
+# `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
+ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = hencky = rescale_principal = None
+hencky_energy = None
 
 
 @register
@@ -51,9 +55,8 @@ class VonMises(Model):
 
     @classmethod
     def build(cls, m, dim, nq):
-        import taichi as ti
+        use_taichi(globals())
 
-        from .tensor import embed_held, hencky, hencky_energy, principal_matrix, rescale_principal, top_left
 
         mu, lam = float(m.mu), float(m.lam)
         sy, H = float(m.yield_stress), float(m.hardening)
