@@ -20,6 +20,7 @@ import numpy as np
 from .basis import make_basis
 from .config import Config, ConfigError
 from .grid import LEAF, MAX_TOP_POINTERS, _pow2
+from . import materials as material_models
 from .materials import wave_speed
 from .scene import base_dir_of, shape_bounds, shape_volume
 
@@ -102,15 +103,17 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
     d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
     mats = _used_materials(cfg)
     apic = cfg.solver.transfer == "apic"
-    viscous = any(m.model == "fluid" and m.viscosity > 0 for m in mats)
+    viscous = any(getattr(m, "viscosity", 0.0) > 0 for m in mats)
     spacings = {cfg.domain.dx / b.particles_per_cell for b in cfg.bodies}
     floats = 2 * d + d * d + 1                                   # x, v, F, vol0
     floats += d * d if apic or viscous else 0                    # C (APIC's B_p or C_p, or grad v)
     floats += d if body_force else 0
     floats += 1 if cfg.solver.basis in ("gimp", "cpdi") and len(spacings) > 1 else 0   # domain half-widths
+    floats += material_models.state_size(mats, d)                 # plastic strain, J_p, ... (materials/)
     n = floats * size + (1 if len(mats) > 1 else 0)
     if cfg.crack is not None:
-        has_law = any(m.tensile_strength is not None and m.model != "fluid" for m in mats)
+        has_law = any(getattr(m, "tensile_strength", None) is not None and material_models.MODELS[m.model].damage
+                      for m in mats)
         stencil_nodes = make_basis(cfg.solver.basis).contributions(d)
         floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0)
         n += floats * size + 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4

@@ -14,20 +14,14 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
 import yaml
-from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, field_validator,
-                      model_serializer, model_validator)
+from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapter, ValidationError,
+                      field_validator, model_serializer, model_validator)
 
 from .errors import ConfigError
 from .expressions import parse as parse_expression
 
-
-def _no_bool(v):
-    if isinstance(v, bool):  # YAML `true` would otherwise pass as 1.0
-        raise ValueError(f"expected a number, got {str(v).lower()}")
-    return v
-
-
-Real = Annotated[float, BeforeValidator(_no_bool)]
+from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
+from . import materials as material_models
 
 
 SPACE, TIME = ("x", "y", "z"), ("t",)  # the variables of initial fields and of time functions
@@ -60,13 +54,12 @@ def _expression(variables, nullable=False):
 SpaceExpr = Annotated[Union[float, str], BeforeValidator(_expression(SPACE))]   # number or expression of x, y, z
 TimeExpr = Annotated[Union[float, str], BeforeValidator(_expression(TIME))]     # number or expression of t
 FreeTimeExpr = Annotated[Optional[Union[float, str]], BeforeValidator(_expression(TIME, nullable=True))]
-PositiveFloat = Annotated[float, BeforeValidator(_no_bool), Field(gt=0)]
-Vec = list[Real]
 
 SHAPE_TYPES = ("box", "sphere", "ring", "cylinder", "mesh")
-# particle fields the writers know (output.fields); velocity, stress, von_mises, J, body and damage are always written
+# particle fields the writers know (output.fields); velocity, stress, von_mises, J, body, damage and the material
+# models' states (plastic_strain, Jp) are always written (the last ones when present)
 FIELDS = ("velocity", "stress", "von_mises", "J", "body", "damage", "speed", "pressure", "displacement",
-          "F", "C", "mass", "volume", "material", "interface")
+          "F", "C", "mass", "volume", "material", "interface", *material_models.output_states())
 
 
 MAX_NAME = 100
@@ -77,10 +70,6 @@ def plain_name(v) -> bool:
     folder, NUL or other control characters, nor longer than most file systems allow)."""
     return (isinstance(v, str) and 0 < len(v) <= MAX_NAME and not v.startswith((".", " ")) and not v.endswith(" ")
             and not any(c in "/\\" or not c.isprintable() for c in v))
-
-
-class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=False, allow_inf_nan=False)
 
 
 # ---------------------------------------------------------------- shapes
@@ -267,35 +256,15 @@ class Crack(Strict):
     gradient_threshold: Annotated[float, Field(ge=0)] = 0.1
 
 
-class Material(Strict):
-    model: Literal["linear_elastic", "neo_hookean", "fixed_corotated", "fluid"]
-    density: PositiveFloat
-    E: Optional[PositiveFloat] = None
-    nu: Annotated[float, BeforeValidator(_no_bool), Field(ge=0, lt=0.5)] = 0.3
-    K: Optional[PositiveFloat] = None
-    viscosity: Annotated[float, Field(ge=0)] = 0.0
-    # damage law (crack growth); unused unless the scene has a crack section
-    tensile_strength: Optional[PositiveFloat] = None
-    fracture_energy: Optional[PositiveFloat] = None
+# one material: the schema of its model, picked by `model` (the registry in taichi_mpm/materials/)
+AnyMaterial = material_models.schema()
+MODEL_NAMES = material_models.names()
+_material_adapter = TypeAdapter(AnyMaterial)
 
-    @model_validator(mode="after")
-    def _moduli(self):
-        if self.model == "fluid":
-            if self.K is None:
-                raise ValueError("a fluid needs a bulk modulus K")
-        elif self.E is None:
-            raise ValueError(f"model {self.model} needs Young's modulus E")
-        return self
 
-    @property
-    def mu(self) -> float:
-        return 0.0 if self.model == "fluid" else self.E / (2 * (1 + self.nu))
-
-    @property
-    def lam(self) -> float:
-        if self.model == "fluid":
-            return self.K
-        return self.E * self.nu / ((1 + self.nu) * (1 - 2 * self.nu))
+def Material(**keys):
+    """A validated material (the schema of its `model`), e.g. Material(model="neo_hookean", density=1000, E=1e4)."""
+    return _material_adapter.validate_python(keys)
 
 
 class DamageRegion(Strict):
@@ -481,7 +450,7 @@ class Config(Strict):
     domain: Domain
     solver: Solver
     crack: Optional[Crack] = None
-    materials: dict[str, Material]
+    materials: dict[str, AnyMaterial]
     bodies: Annotated[list[Body], Field(min_length=1)]
     output: Output = Output()
     limits: Limits = Limits()
@@ -614,14 +583,6 @@ def _keep_explicit_nulls(model: BaseModel, out: dict) -> dict:
         elif isinstance(value, BaseModel) and isinstance(out.get(name), dict):
             _keep_explicit_nulls(value, out[name])
     return out
-
-
-class _Located(ValueError):
-    """A cross-field error that knows its key path."""
-
-    def __init__(self, key, message):
-        self.key = str(key)  # a YAML key may be a number or a boolean
-        super().__init__(message)
 
 
 def _need_len(key, v, d):
@@ -897,12 +858,13 @@ def _describe(err, data) -> tuple[str, str]:
         return key, "keys must be text (a key here is a number, a boolean or null)"
     if kind == "missing":
         return key, "required key is missing"
-    if kind == "union_tag_invalid":
-        return key + ".type", (f"unknown shape type {err['ctx'].get('tag')!r} "
-                               f"(expected one of {', '.join(SHAPE_TYPES)})")
-    if kind == "union_tag_not_found":
-        return key, f"a shape needs a 'type' (one of {', '.join(SHAPE_TYPES)})"
-    if any(s not in SHAPE_TYPES for s in skipped):  # a number-or-list union: one message for both branches
+    if kind in ("union_tag_invalid", "union_tag_not_found"):
+        tag = str((err.get("ctx") or {}).get("discriminator", "")).strip("'")
+        what, names = ("model", MODEL_NAMES) if tag == "model" else ("shape type", SHAPE_TYPES)
+        if kind == "union_tag_invalid":
+            return key + "." + tag, (f"unknown {what} {err['ctx'].get('tag')!r} (expected one of {', '.join(names)})")
+        return key, f"a {'material' if tag == 'model' else 'shape'} needs a '{tag}' (one of {', '.join(names)})"
+    if any(s not in SHAPE_TYPES and s not in MODEL_NAMES for s in skipped):  # a number-or-list union: one message
         return key, f"must be a number or a list of numbers (got {_brief(value)})"
     if kind == "value_error":
         return key, msg[len("Value error, "):] if msg.startswith("Value error, ") else msg

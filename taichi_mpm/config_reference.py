@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from . import config, fields, io
+from . import config, fields, io, materials
 
 FACE_NAMES = "x_min, x_max, y_min, y_max, z_min, z_max"
 SHAPE_KEYS = "box, sphere, ring, cylinder or mesh"
@@ -78,17 +78,7 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                       "discontinuity"),
     "materials": ("", "named materials; bodies refer to them by name"),
     "materials.<name>": ("", "one material"),
-    "materials.<name>.model": ("", "constitutive model: linear_elastic (small strain), neo_hookean, "
-                                   "fixed_corotated, fluid (weakly compressible)"),
-    "materials.<name>.density": ("kg/m^3", "initial mass density"),
-    "materials.<name>.E": ("Pa", "Young's modulus (every model but fluid)"),
-    "materials.<name>.nu": ("1", "Poisson's ratio"),
-    "materials.<name>.K": ("Pa", "bulk modulus of a fluid (pressure K (1 - J))"),
-    "materials.<name>.viscosity": ("Pa s", "dynamic viscosity of a fluid"),
-    "materials.<name>.tensile_strength": ("Pa", "Rankine damage: principal stress at which damage starts (needs "
-                                                "a crack section); null: no damage law"),
-    "materials.<name>.fracture_energy": ("J/m^2", "energy per crack area of the linear softening (crack band); "
-                                                  "null: brittle"),
+    # materials.<name>.*: from the models' schemas (taichi_mpm/materials/), added below DESCRIPTIONS
     "bodies": ("", "the bodies, at least one; particles fill each shape"),
     "bodies[].name": ("", "label of the body for the reader (bodies are numbered in list order); null: unnamed"),
     "bodies[].shape": ("", f"region filled with particles: {SHAPE_KEYS}, chosen by `type`"),
@@ -151,8 +141,9 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "output.formats": ("", "vtu and npz snapshots, png frames, mp4 or gif movie"),
     "output.fields": ("", "particle fields written besides the ones always written (see Output fields below)"),
     "output.render": ("", "off-screen frames"),
-    "output.render.color_by": ("", "colour field: speed, von_mises, J, body, damage, pressure, vx, vy, vz, or a "
-                                   "stress component sxx, syy, szz, sxy, ..."),
+    "output.render.color_by": ("", "colour field: speed, von_mises, J, body, damage, pressure, plastic_strain, Jp, "
+                                   "vx, vy, vz, or a stress component sxx, syy, szz, sxy, ... (any scalar of Output "
+                                   "fields below)"),
     "output.render.size": ("px", "[width, height] of a frame"),
     "output.render.camera": ("", "3D view: iso, xy, xz, yz, front, side, top (1D and 2D are always seen along z)"),
     "output.render.point_size": ("px", "particle size on screen; null: from the particle spacing"),
@@ -172,6 +163,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "output.probe_every": ("s", "time between probe samples (taken at the first step on or after each multiple); "
                                 "step: after every step; null: at every output. t = 0 is always sampled"),
 }
+
+DESCRIPTIONS.update(materials.key_descriptions())  # each model's keys: unit and meaning from its schema
 
 PROBES_DOC = """\
 Each probe writes `probes/NAME.csv` in the run folder: a header row of `column [unit]` names, then one row per
@@ -385,7 +378,8 @@ def _walk_variants(variants, prefix, seen):
         default = row[2]
         if len(set(have.values())) > 1:  # the variants differ: name each one's default
             default = "; ".join(f"{d} ({t})" for t, d in have.items())
-        yield (row[0], row[1], default, row[3], ", ".join(have) if have else row[4])
+        every = len(have) == len(tags)  # a key of every variant (a material's density) needs no list of them
+        yield (row[0], row[1], default, row[3], "" if every else ", ".join(have) if have else row[4])
 
 
 def keys() -> list[str]:
@@ -420,7 +414,8 @@ def render() -> str:
             "both as `stress` (N, d, d) and `stress3` (N, 3, 3).", "",
             "| field | unit | kind | always written | meaning |", "| --- | --- | --- | --- | --- |"]
     for name, f in fields.REGISTRY.items():
-        always = "yes" + (" (when present)" if name == "damage" else "") if name in fields.ALWAYS else ""
+        present = name == "damage" or name in fields.STATES
+        always = "yes" + (" (when present)" if present else "") if name in fields.ALWAYS else ""
         out.append(f"| `{name}` | {_cell(f.unit)} | {f.kind} | {always} | {_cell(f.meaning)} |")
     out += ["", "## Probes", "", PROBES_DOC, "",
             "## diagnostics.csv", "",

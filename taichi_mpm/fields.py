@@ -2,7 +2,7 @@
 (io.py), the frame renderer (render.py) and the interactive window (gui.py) all read.
 
 Every field is a function of a particle dict: `Simulation.particles()` (x, v, F, C, stress, stress3, mass, volume,
-body, damage), optionally completed by `with_scene` (x0, material, interface, the scene's damage), or a state read
+body, damage, and the material models' states such as plastic_strain and Jp), optionally completed by `with_scene` (x0, material, interface, the scene's damage), or a state read
 back from a VTU file. Stress-derived fields use the full 3x3 Cauchy stress `stress3`: 2D is plane strain, so
 sigma_zz is not zero; 1D is uniaxial strain, so sigma_yy = sigma_zz is the lateral stress.
 """
@@ -13,8 +13,10 @@ from typing import Callable
 
 import numpy as np
 
-# written to every VTU snapshot (damage only when the state has it)
-ALWAYS = ("velocity", "stress", "von_mises", "J", "body", "damage")
+from . import materials as material_models
+
+# written to every VTU snapshot (damage and the material states such as plastic_strain only when the state has them)
+ALWAYS = ("velocity", "stress", "von_mises", "J", "body", "damage", *material_models.output_states())
 
 
 @dataclass(frozen=True)
@@ -95,6 +97,13 @@ _field("material", "", "index of the particle's material (materials numbered in 
        lambda p: np.asarray(p["material"]), "label", ["material"])
 _field("interface", "", "1 for interface (surface) particles of bodies with interface: true, else 0",
        lambda p: np.asarray(p["interface"]).astype(np.int32), "label", ["interface"])
+
+
+# the material models' per-particle state (taichi_mpm/materials/: plastic_strain, Jp, ...), present in scenes whose
+# models have it
+for _state in material_models.output_states().values():
+    _field(_state.name, _state.unit, _state.meaning, lambda p, n=_state.name: np.asarray(p[n], float), needs=[_state.name])
+STATES = tuple(material_models.output_states())  # in ALWAYS: written with every snapshot when present, like damage
 
 
 def with_scene(p: dict, scene) -> dict:

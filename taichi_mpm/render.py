@@ -167,7 +167,7 @@ class FrameRenderer:
         self._clim = [lo, hi]
         if hi - lo < 1e-6 * max(1.0, abs(hi)):  # a flat field (e.g. a uniform speed at t = 0)
             pad = 0.5 * abs(hi) if hi != 0 else 1.0
-            nonneg = self.color_by in ("speed", "von_mises", "damage") and lo >= 0
+            nonneg = self.color_by in ("speed", "von_mises", "damage", "plastic_strain") and lo >= 0
             return [0.0 if nonneg else lo - pad, hi + pad]
         return self._clim
 

@@ -28,6 +28,7 @@ from . import fbar
 from .errors import InstabilityError
 from .grid import Grid, make_wall_condition
 from .loads import Loads
+from . import materials as material_models
 from .materials import MODELS, embed3, wave_speed
 from .scene import Scene, build_scene
 
@@ -138,7 +139,7 @@ class Simulation:
     # ------------------------------------------------------------------ fields
     def _features(self):
         c, s = self.cfg, self.scene
-        uses_viscosity = any(m.model == "fluid" and m.viscosity > 0 for m in self._materials)
+        uses_viscosity = any(getattr(m, "viscosity", 0.0) > 0 for m in self._materials)
         spacing = np.unique(s.spacing)
         return dict(
             apic=c.solver.transfer == "apic",
@@ -155,6 +156,7 @@ class Simulation:
             grips=bool(s.grips),                 # bodies[].prescribed_velocity on the nodes the grip touches
             initial_stress=s.stress is not None,  # bodies[].stress, a stored stress added to the model's
             moving_walls=bool(self.loads.walls),  # domain.boundaries faces of type velocity
+            plastic=any(MODELS[m.model].plastic for m in self._materials),  # a return mapping after the F update
         )
 
     def _allocate(self):
@@ -180,6 +182,10 @@ class Simulation:
         self.grip_v = ti.Vector.field(d, float, n_grips) if f["grips"] else None
         self.grip_impulse = ti.Vector.field(d, ti.f64, n_grips) if f["grips"] else None
         self.wall_v = ti.Vector.field(d, float, 2 * d) if f["moving_walls"] else None
+        # per-particle material state (plastic strain, J_p, ...): only when a model of the scene has any (materials/)
+        self.state_layout = material_models.state_layout(self._materials, d)
+        self.n_state = material_models.state_size(self._materials, d)
+        self.state = ti.Vector.field(self.n_state, float, n) if self.n_state else None
         vec = ["v"] + (["v_old"] if f["flip"] else []) + (["v2"] if f["musl"] else [])
         vec += ["grip"] if f["grips"] else []  # component 0: the grip (from 1) whose particles touch the node
         vec += crack_finder.grid_fields(d) if self.cfg.crack is not None else []  # tensor node mass rows
@@ -190,8 +196,9 @@ class Simulation:
         self.fail = ti.field(ti.i32, ())
         self.vmax2 = ti.field(float, ())
         self.diag = ti.field(ti.f64, 8)  # reduction slots for energies and momenta
-        # accumulated per step: external work (body forces, tractions, prescribed velocities), viscous dissipation
-        self.work = ti.field(ti.f64, 2)
+        # accumulated per step: external work (body forces, tractions, prescribed velocities), viscous and plastic
+        # dissipation (the energy the return mappings released)
+        self.work = ti.field(ti.f64, 3)
         self.body_id = ti.field(ti.i32, n) if self.scene.body.max(initial=0) > 0 else None
         self.n_bodies = int(self.scene.body.max(initial=0)) + 1
         self.moments = ti.field(ti.f64, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
@@ -217,6 +224,7 @@ class Simulation:
         floats += 1 if self.half_width is not None else 0
         floats += d if self.load is not None else 0
         floats += d * d if self.stress0 is not None else 0
+        floats += self.n_state
         return floats * size + (1 if self.mat is not None else 0)
 
     def _block_order(self) -> np.ndarray:
@@ -266,6 +274,8 @@ class Simulation:
                                                        for k, g in enumerate(s.grips)]))
             self.grip_impulse.fill(0)
         self._motion_time = None  # when grip and wall velocities were last uploaded
+        if self.state is not None:
+            self.state.from_numpy(self._to_solver(self._initial_state()))
         if self.crack is not None:
             self.crack.upload()
 
@@ -277,7 +287,13 @@ class Simulation:
         lower = ti.Vector(self.lower.tolist())
         upper = ti.Vector(self.upper.tolist())
         gravity = ti.Vector(list(self.cfg.gravity))
-        mats = [(MODELS[m.model], m.mu, m.lam, m.viscosity, m.density) for m in self._materials]
+        # each material's Taichi funcs, its parameters compile-time constants (materials/: the model registry)
+        nq = max(1, self.n_state)
+        mats = [MODELS[m.model].build(m, dim, nq) for m in self._materials]
+        projects = [m.project is not None for m in mats]       # which materials have a return mapping
+        viscous = [m.viscous_power is not None for m in mats]
+        state, has_state = self.state, self.state is not None
+        has_fbar = self.fbar is not None
         alpha = self.cfg.solver.flip_blend
         x, v, F, C, vol0, mat = self.x, self.v, self.F, self.C, self.vol0, self.mat
         body_acc = self.body_acc
@@ -319,14 +335,22 @@ class Simulation:
 
         @ti.func
         def density(p):
-            rho = ti.cast(mats[0][4], float)
+            rho = ti.cast(mats[0].density, float)
             if ti.static(len(mats) > 1):
                 for k in ti.static(range(1, len(mats))):
                     if mat[p] == k:
-                        rho = mats[k][4]
+                        rho = mats[k].density
             return rho
 
         # Material dispatch: a single-material scene compiles one model and stores no material index.
+        @ti.func
+        def state_of(p):
+            """The particle's material state vector (a dummy when no model of the scene has state)."""
+            q = ti.Vector.zero(float, nq)
+            if ti.static(has_state):
+                q = state[p]
+            return q
+
         @ti.func
         def kirchhoff(p, Fp):
             Lp = ti.Matrix.zero(float, dim, dim)
@@ -340,7 +364,15 @@ class Simulation:
             Lp = ti.Matrix.zero(float, dim, dim)
             if ti.static(f["viscosity"]):
                 Lp = velocity_gradient(p)
-            return model_kirchhoff(p, embed3(F[p], 1.0), embed3(Lp, 0.0)) + embed3(initial_kirchhoff(p, F[p]), 0.0)
+            tau = ti.Matrix.zero(float, 3, 3)
+            q = state_of(p)
+            if ti.static(len(mats) == 1):
+                tau = mats[0].kirchhoff3(F[p], Lp, q)
+            else:
+                for k in ti.static(range(len(mats))):
+                    if mat[p] == k:
+                        tau = mats[k].kirchhoff3(F[p], Lp, q)
+            return tau + embed3(initial_kirchhoff(p, F[p]), 0.0)
 
         @ti.func
         def initial_kirchhoff(p, Fp):
@@ -363,37 +395,70 @@ class Simulation:
         @ti.func
         def model_kirchhoff(p, Fp, Lp):
             tau = ti.Matrix.zero(float, Fp.n, Fp.n)
+            q = state_of(p)
             if ti.static(len(mats) == 1):
-                tau = mats[0][0].kirchhoff(Fp, Lp, mats[0][1], mats[0][2], mats[0][3])
+                tau = mats[0].kirchhoff(Fp, Lp, q)
             else:
                 for k in ti.static(range(len(mats))):
                     if mat[p] == k:
-                        tau = mats[k][0].kirchhoff(Fp, Lp, mats[k][1], mats[k][2], mats[k][3])
+                        tau = mats[k].kirchhoff(Fp, Lp, q)
             return tau
 
         @ti.func
         def strain_energy(p, Fp):
             psi = 0.0
+            q = state_of(p)
             if ti.static(len(mats) == 1):
-                psi = mats[0][0].energy(Fp, mats[0][1], mats[0][2])
+                psi = mats[0].energy(Fp, q)
             else:
                 for k in ti.static(range(len(mats))):
                     if mat[p] == k:
-                        psi = mats[k][0].energy(Fp, mats[k][1], mats[k][2])
+                        psi = mats[k].energy(Fp, q)
             return psi
 
         @ti.func
+        def volume_ratio(p):
+            """Current / initial volume: det F, times J_p where the return mapping changes volume (materials/)."""
+            J = F[p].determinant()
+            if ti.static(has_state):
+                q = state_of(p)
+                if ti.static(len(mats) == 1):
+                    J = mats[0].volume_ratio(F[p], q)
+                else:
+                    for k in ti.static(range(len(mats))):
+                        if mat[p] == k:
+                            J = mats[k].volume_ratio(F[p], q)
+            return J
+
+        @ti.func
         def viscous_power(p, Fp):
-            """Viscous dissipation per reference volume, tau_visc : L = J mu (L + L^T) : L (Fluid.kirchhoff)."""
+            """Viscous dissipation per reference volume and time (the models' viscous_power, e.g. the fluid's)."""
             Lp = velocity_gradient(p)
             P = 0.0
             for k in ti.static(range(len(mats))):
-                if ti.static(mats[k][0].fluid and mats[k][3] > 0):
+                if ti.static(viscous[k]):
                     if ti.static(len(mats) == 1):
-                        P = Fp.determinant() * mats[k][3] * ((Lp + Lp.transpose()) * Lp).sum()
+                        P = mats[k].viscous_power(Fp, Lp)
                     elif mat[p] == k:
-                        P = Fp.determinant() * mats[k][3] * ((Lp + Lp.transpose()) * Lp).sum()
+                        P = mats[k].viscous_power(Fp, Lp)
             return P
+
+        @ti.func
+        def project(p, Fp):
+            """After the F update: the model's return mapping (plastic models); writes the particle's state and adds
+            the energy it releases to the plastic dissipation (work[2])."""
+            q = state_of(p)
+            diss = 0.0
+            for k in ti.static(range(len(mats))):
+                if ti.static(projects[k]):
+                    if ti.static(len(mats) == 1):
+                        Fp, q, diss = mats[k].project(Fp, q)
+                    elif mat[p] == k:
+                        Fp, q, diss = mats[k].project(Fp, q)
+            if ti.static(has_state):
+                state[p] = q
+            work[2] += vol0[p] * diss
+            return Fp
 
         @ti.func
         def is_fluid(p):
@@ -401,11 +466,11 @@ class Simulation:
             # which had left fluids keeping their shear F
             res = 0
             if ti.static(len(mats) == 1):
-                if ti.static(mats[0][0].fluid):
+                if ti.static(mats[0].fluid):
                     res = 1
             else:
                 for k in ti.static(range(len(mats))):
-                    if ti.static(mats[k][0].fluid):
+                    if ti.static(mats[k].fluid):
                         if mat[p] == k:
                             res = 1
             return res
@@ -620,6 +685,8 @@ class Simulation:
                     J = Fp.determinant()
                     if is_fluid(p):
                         Fp = ti.Matrix.identity(float, dim) * ti.pow(ti.abs(J), 1.0 / dim)
+                    if ti.static(f["plastic"] and not has_fbar):  # with F-bar: after its average (project_all)
+                        Fp = project(p, Fp)
                     x[p] = xp
                     F[p] = Fp
                     if ti.static(has_C and not f["apic"]):
@@ -707,15 +774,27 @@ class Simulation:
             """(N, 3, 3) Cauchy stress, out-of-plane normal stresses included (plane strain in 2D, uniaxial strain
             in 1D); the upper-left d x d block is the stress the step uses."""
             for p in x:
-                tau = kirchhoff3(p) / F[p].determinant()
+                tau = kirchhoff3(p) / volume_ratio(p)
                 if ti.static(crack):
                     tau = crk.degrade(p, tau)
                 for a, b in ti.static(ti.ndrange(3, 3)):
                     out[p, a, b] = tau[a, b]
 
+        @ti.kernel
+        def volume_ratios(out: ti.types.ndarray()):
+            for p in x:
+                out[p] = volume_ratio(p)
+
+        @ti.kernel
+        def project_all():
+            """The return mappings after F-bar's volume average (solver.volumetric: fbar)."""
+            for p in x:
+                F[p] = project(p, F[p])
+
         self._k = dict(p2g=p2g, grid_update=grid_update, g2p=g2p, p2g_momentum=p2g_momentum, grid_remap=grid_remap,
                        energies=energies, momenta=momenta, cauchy_stress=cauchy_stress, body_moments=body_moments,
-                       flag_grip_nodes=flag_grip_nodes, apply_loads=apply_loads, set_motion=set_motion)
+                       flag_grip_nodes=flag_grip_nodes, apply_loads=apply_loads, set_motion=set_motion,
+                       volume_ratios=volume_ratios, project_all=project_all)
         if crack:
             self._k.update(crk.kernels)
 
@@ -737,7 +816,7 @@ class Simulation:
         if g + b > 0:
             out["body_force" if b > g else "gravity"] = cfl * math.sqrt(dx / (g + b))
         for m in self._materials:
-            if m.model == "fluid" and m.viscosity > 0:
+            if getattr(m, "viscosity", 0.0) > 0:
                 dt_v = cfl * m.density * dx * dx / (VISCOUS_DIFFUSION * self.dim * m.viscosity)
                 out["viscosity"] = min(out.get("viscosity", math.inf), dt_v)
         return out
@@ -821,6 +900,9 @@ class Simulation:
             k["g2p"](dt, True, True)
         if self.fbar is not None:
             self.fbar.apply()  # F-bar: the step's volume change averaged over the grid
+            if self.feat["plastic"]:
+                k["project_all"]()  # return mappings after the average, and F-bar's J^n from the projected F
+                self.fbar.sync()
         self.dt = dt
         self.n_steps += 1
         self.time += dt
@@ -881,7 +963,7 @@ class Simulation:
     def _energy_balance_reference(self) -> dict:
         e, w = self._energy_parts()
         floor = self._energy_floor(e[3])
-        return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1], scale=max(e[5], floor),
+        return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1] + w[2], scale=max(e[5], floor),
                     floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time)
 
     def _energy_floor(self, potential_scale: float) -> float:
@@ -891,20 +973,21 @@ class Simulation:
         return (1e-8 if f32 else 1e-12) * stiffness + (1e-6 if f32 else 1e-12) * potential_scale + 1e-300
 
     def _stiffness_per_particle(self) -> np.ndarray:
-        mod = np.array([m.lam + 2 * m.mu for m in self._materials])
+        mod = np.array([m.modulus for m in self._materials])
         return mod[self.scene.material] if len(mod) > 1 else np.full(self.n, mod[0])
 
     def energy_balance(self) -> dict:
         """The energy balance since its reference time (first step, or the last set_particles/set_state):
         growth = E(t) + dissipated - E(ref) - work, with E = kinetic + strain + gravity potential, work the
-        external work (body forces, tractions, grips and velocity walls), dissipated the viscous dissipation;
+        external work (body forces, tractions, grips and velocity walls), dissipated the viscous and plastic
+        dissipation (the energy the return mappings released);
         scale = largest kinetic + strain energy seen.
         Walls and PIC/APIC/FLIP transfers only remove energy, so growth > 0 is numerical."""
         self._check_live()
         ref = self._balance or self._energy_balance_reference()
         e, w = self._energy_parts()
         total = e[0] + e[1] + e[2]
-        work, dissipated = w[0] - ref["work"], w[1] - ref["dissipated"]
+        work, dissipated = w[0] - ref["work"], w[1] + w[2] - ref["dissipated"]
         scale = max(ref["scale"], e[5])
         growth = total + dissipated - ref["total"] - work
         return dict(growth=growth, ratio=growth / scale, scale=scale, work=work, dissipated=dissipated,
@@ -928,6 +1011,7 @@ class Simulation:
             terms += ["tractions"] if self.load is not None else []
             terms += ["prescribed velocities"] if self.grip_v is not None or self.wall_v is not None else []
             terms += ["viscous dissipation"] if self.feat["viscosity"] else []
+            terms += ["plastic dissipation"] if self.feat["plastic"] else []
             raise InstabilityError(
                 ENERGY_GROWTH, self.n_steps, self.time, particle=int(np.argmax(speed)),
                 detail=(f"total energy {bal['total']:.4g} exceeds initial {bal['initial']:.4g} + work "
@@ -973,7 +1057,8 @@ class Simulation:
         self._k["body_moments"]()
         m = self.moments.to_numpy()
         d = self.dim
-        fluid = np.array([mm.model == "fluid" for mm in self._materials])
+        # fluids and plastic models: F (the elastic part) does not predict the shape, so no fracture check
+        fluid = np.array([MODELS[mm.model].fluid or MODELS[mm.model].plastic for mm in self._materials])
         out = {}
         for b in range(self.n_bodies):
             mass = m[b, 0]
@@ -1064,7 +1149,8 @@ class Simulation:
     def particles(self) -> dict:
         """Particle state as numpy arrays in creation order: x, v, F, C (when stored), stress (N, d, d), stress3
         (N, 3, 3: the full Cauchy stress, out-of-plane normal stresses of plane strain / uniaxial strain included),
-        mass, volume, body, damage (with a crack section)."""
+        mass, volume, body, damage (with a crack section), and the output states of the scene's material models
+        (plastic_strain, Jp: materials/) when any has state; particles of other materials hold the initial value."""
         self._check_live()
         s = self.scene
         out = {name: self._read(name) for name in self._state_fields()}
@@ -1072,10 +1158,44 @@ class Simulation:
         self._k["cauchy_stress"](stress3)
         stress3 = self._to_creation(stress3)
         d = self.dim
+        if self.state is None:
+            J = np.linalg.det(out["F"])
+        else:  # plastic volume change (J_p) included
+            J = np.zeros(self.n, dtype=np.float64)
+            self._k["volume_ratios"](J)
+            J = self._to_creation(J)
+            out.update(self._output_states())
         out.update(stress=np.ascontiguousarray(stress3[:, :d, :d]), stress3=stress3, mass=s.mass.copy(),
-                   volume=s.volume * np.linalg.det(out["F"]), body=s.body.copy())
+                   volume=s.volume * J, body=s.body.copy())
         if self.crack is not None:
             out["damage"] = self.crack.damage()
+        return out
+
+    # ------------------------------------------------------------------ material state (materials/: State)
+    def _initial_state(self) -> np.ndarray:
+        """(N, n_state) initial material state in creation order: each material's State.init in its slots."""
+        q = np.zeros((self.n, self.n_state))
+        for k, layout in enumerate(self.state_layout):
+            sel = self.scene.material == k
+            for j, st in enumerate(layout):
+                q[sel, j] = st.init
+        return q
+
+    def _material_state(self) -> np.ndarray:
+        return self._to_creation(self.state.to_numpy().reshape(self.n, self.n_state))
+
+    def _output_states(self) -> dict:
+        """name -> (N,) of every output state of the scene's models (the initial value where a material lacks it)."""
+        q = self._material_state()
+        out = {}
+        for st in dict.fromkeys(st for layout in self.state_layout for st in layout if st.output):
+            a = np.full(self.n, st.init)
+            for k, layout in enumerate(self.state_layout):
+                names = [x.name for x in layout]
+                if st.name in names:
+                    sel = self.scene.material == k
+                    a[sel] = q[sel, names.index(st.name)]
+            out[st.name] = a
         return out
 
     def _state_fields(self) -> dict:
@@ -1125,7 +1245,10 @@ class Simulation:
         """Everything needed to continue bit for bit: particle fields (creation order), clock, CFL speed estimate."""
         self._check_live()
         state = {name: self._read(name) for name in self._state_fields()}
-        state.update(time=self.time, n_steps=self.n_steps, dt=self.dt, vmax=self._vmax)
+        state.update(time=self.time, n_steps=self.n_steps, dt=self.dt, vmax=self._vmax,
+                     work=self.work.to_numpy().astype(np.float64))
+        if self.state is not None:
+            state["material_state"] = self._material_state()  # plastic strain, J_p, ... (materials/: State)
         if self.crack is not None:
             state.update(self.crack.get_state())  # damage (and the damage law's history)
         return state
@@ -1149,16 +1272,36 @@ class Simulation:
             for k in ("damage", "damage_kappa"):
                 if k in state and np.shape(state[k]) != (self.n,):
                     raise ValueError(f"state {k} must have shape {(self.n,)}, got {np.shape(state[k])}")
+        q = None
+        if self.state is not None:
+            if "material_state" not in state:
+                raise ValueError("state lacks material_state (the plastic models' per-particle history)")
+            q = np.asarray(state["material_state"], dtype=np.float64)
+            if q.shape != (self.n, self.n_state) or not np.isfinite(q).all():
+                raise ValueError(f"state material_state must be finite with shape {(self.n, self.n_state)}, "
+                                 f"got {q.shape}")
+        work = None
+        if "work" in state:
+            work = np.asarray(state["work"], dtype=np.float64)
+            if work.shape != (self.work.shape[0],) or not np.isfinite(work).all():
+                raise ValueError(f"state work must be {self.work.shape[0]} finite numbers, got {work.shape}")
+        if q is not None:
+            self.state.from_numpy(self._to_solver(q))
+        if work is not None:
+            self.work.from_numpy(work)
         self.set_particles(**particles)
         self.time, self.n_steps, self.dt, self._vmax = clock["time"], clock["n_steps"], clock["dt"], clock["vmax"]
         if self.crack is not None:
             self.crack.set_state(state)
 
     def energy(self) -> dict:
-        """Kinetic, strain (the degraded energy where the crack finder damaged a particle), gravity potential."""
+        """Kinetic, strain (the stored energy: the degraded energy where the crack finder damaged a particle, the
+        hardening energy of plastic models), gravity potential; dissipated: viscous + plastic dissipation since the
+        start (plastic: the energy the return mappings released)."""
         self._check_live()
-        e, _ = self._energy_parts()
-        return {"kinetic": float(e[0]), "strain": float(e[1]), "gravity": float(e[2])}
+        e, w = self._energy_parts()
+        return {"kinetic": float(e[0]), "strain": float(e[1]), "gravity": float(e[2]),
+                "dissipated": float(w[1] + w[2]), "plastic": float(w[2])}
 
     def momentum(self) -> dict:
         """Total linear momentum (dim) and angular momentum about the origin (3 components)."""

@@ -42,3 +42,11 @@ def test_memory_benchmark_minimal_scene_is_small():
 def test_subprocess_benchmarks_run(script):
     rows = load(script).main(["--tiny"])
     assert len(rows) >= 2
+
+
+def test_materials_benchmark_reports_every_model():
+    from taichi_mpm.materials import MODELS
+
+    rows = load("materials").main(["--tiny", "--dims", "2"])
+    assert [r["model"] for r in rows][0] == "fixed_corotated" and {r["model"] for r in rows} == set(MODELS)
+    assert rows[0]["cost_vs_fixed_corotated"] == 1.0 and all(r["ns_per_particle_step"] > 0 for r in rows)

@@ -115,7 +115,8 @@ def test_registry_is_the_config_field_list(tmp_path):
     sim = tm.Simulation(make_cfg(2, dx=0.1))
     p = io.derived_fields(sim.particles(), sim.scene)
     data = io.point_data(p, config.FIELDS)
-    assert set(data) == set(config.FIELDS) - {"damage"}  # no damage without a crack section or damage regions
+    # no damage without a crack section or damage regions, no plastic strain without a plastic model
+    assert set(data) == set(config.FIELDS) - {"damage", *fields.STATES}
     assert data["stress"].shape == (sim.n, 9) and data["F"].shape == (sim.n, 9)
     np.testing.assert_allclose(data["F"].reshape(-1, 3, 3)[:, 2, 2], 1.0)  # plane strain: F_zz = 1
     io.write_npz(tmp_path / "s.npz", p, config.FIELDS)
