@@ -125,9 +125,9 @@ def test_jelly_drop_quick_free_fall(tmp_path):
 
 
 def test_granular_collapse_quick(tmp_path):
-    """A coarse column (dx 0.02: 5 cells across) in 0.25 s: the sand slumps and spreads, yielding all along the
+    """A coarse column (dx 0.025: 4 cells across) in 0.25 s: the sand slumps and spreads, yielding all along the
     failure wedge; every particle stays finite and on or above the floor."""
-    sim = load_demo("granular_collapse").main(quick(tmp_path, 0.02, 0.25))
+    sim = load_demo("granular_collapse").main(quick(tmp_path, 0.025, 0.25))
     p = sim.particles()
     x = p["x"]
     assert np.all(np.isfinite(x)) and x[:, 1].min() > -1e-6
