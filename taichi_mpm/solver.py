@@ -197,7 +197,7 @@ class Simulation:
         self.vmax2 = ti.field(float, ())
         self.diag = ti.field(ti.f64, 8)  # reduction slots for energies and momenta
         # accumulated per step: external work (body forces, tractions, prescribed velocities), viscous and plastic
-        # dissipation (the energy the return mappings released)
+        # dissipation (the plastic work of the return mappings, docs/materials.md)
         self.work = ti.field(ti.f64, 3)
         self.body_id = ti.field(ti.i32, n) if self.scene.body.max(initial=0) > 0 else None
         self.n_bodies = int(self.scene.body.max(initial=0)) + 1
@@ -446,7 +446,7 @@ class Simulation:
         @ti.func
         def project(p, Fp):
             """After the F update: the model's return mapping (plastic models); writes the particle's state and adds
-            the energy it releases to the plastic dissipation (work[2])."""
+            its dissipation (the plastic work of the returned stress) to the plastic dissipation (work[2])."""
             q = state_of(p)
             diss = 0.0
             for k in ti.static(range(len(mats))):
@@ -980,7 +980,7 @@ class Simulation:
         """The energy balance since its reference time (first step, or the last set_particles/set_state):
         growth = E(t) + dissipated - E(ref) - work, with E = kinetic + strain + gravity potential, work the
         external work (body forces, tractions, grips and velocity walls), dissipated the viscous and plastic
-        dissipation (the energy the return mappings released);
+        dissipation (the plastic work of the return mappings);
         scale = largest kinetic + strain energy seen.
         Walls and PIC/APIC/FLIP transfers only remove energy, so growth > 0 is numerical."""
         self._check_live()
@@ -1297,7 +1297,7 @@ class Simulation:
     def energy(self) -> dict:
         """Kinetic, strain (the stored energy: the degraded energy where the crack finder damaged a particle, the
         hardening energy of plastic models), gravity potential; dissipated: viscous + plastic dissipation since the
-        start (plastic: the energy the return mappings released)."""
+        start (plastic: the plastic work of the return mappings, docs/materials.md)."""
         self._check_live()
         e, w = self._energy_parts()
         return {"kinetic": float(e[0]), "strain": float(e[1]), "gravity": float(e[2]),

@@ -326,7 +326,7 @@ def test_checkpoint_carries_the_plastic_state(model, tmp_path):
     part = start()
     for _ in range(15):
         part.step()
-    io.save_checkpoint(tmp_path / "checkpoint.npz", part.get_state(), {})
+    io.save_checkpoint(tmp_path / "checkpoint.npz", part.get_state(), {"config": cfg, "outputs": 0})
     n = part.n
     state = io.load_checkpoint(tmp_path / "checkpoint.npz")[0]
     assert state["material_state"].shape == (n, len(MODELS[model].state(2)))

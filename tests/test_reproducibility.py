@@ -57,7 +57,7 @@ def test_deterministic_runs_and_resumed_runs_are_bit_identical(dim, tmp_path):
     part = tm.Simulation(cut)
     part.advance_to(end)
     assert part.n_steps == first["n_steps"] // 2 and part.time < end
-    io.save_checkpoint(tmp_path / "checkpoint.npz", part.get_state(), {})
+    io.save_checkpoint(tmp_path / "checkpoint.npz", part.get_state(), {"config": cfg})  # load_checkpoint needs the config
     resumed = tm.Simulation(cfg)
     resumed.set_state(io.load_checkpoint(tmp_path / "checkpoint.npz")[0])
     resumed.advance_to(end)
