@@ -17,6 +17,7 @@ def load(name):
     return mod
 
 
+@pytest.mark.slow  # cold compile time: the default suite keeps a cheaper test of the same feature
 def test_reference_benchmark_runs_both_kernels():
     rows = load("reference").main(["--tiny", "--sparse", "true"])
     assert rows[0]["case"].startswith("mpm3d") and len(rows) == 3
@@ -38,12 +39,13 @@ def test_memory_benchmark_minimal_scene_is_small():
     assert rows[1]["bytes_per_particle"] > minimal["bytes_per_particle"]  # APIC adds C
 
 
-@pytest.mark.parametrize("script", ["sparse_domain", "compile_time"])
+@pytest.mark.parametrize("script", [pytest.param("sparse_domain", marks=pytest.mark.slow), "compile_time"])
 def test_subprocess_benchmarks_run(script):
     rows = load(script).main(["--tiny"])
     assert len(rows) >= 2
 
 
+@pytest.mark.slow  # cold compile time: the default suite keeps a cheaper test of the same feature
 def test_materials_benchmark_reports_every_model():
     from taichi_mpm.materials import MODELS
 

@@ -200,6 +200,7 @@ def moving_block(dim=2, transfer="apic", update="usl", steps=20, basis="cpdi"):
     return m0, m1, scale
 
 
+@pytest.mark.slow  # cold compile time: the default suite keeps a cheaper test of the same feature
 def test_momentum_apic_musl():
     """Linear momentum to 1e-10 of sum m |v|; APIC's angular momentum too (B D^-1 with CPDI's full D_p, which is
     never singular): measured ~3e-14 relative."""
@@ -217,6 +218,7 @@ def test_momentum_every_transfer(transfer, update):
 
 
 # ---------------------------------------------------------------- checks
+@pytest.mark.slow  # cold compile time: the default suite keeps a cheaper test of the same feature
 def test_corner_leaving_the_domain_raises():
     """A block near the x_max wall stretched along x: a corner crosses the wall before its particle does."""
     cfg = make_cfg(2, basis="cpdi", dx=0.1, lower=[0.6, 0.4], upper=[0.95, 0.6], boundaries="free")

@@ -291,6 +291,7 @@ def test_load_to_failure_crack_grows():
     assert np.abs(p["stress"][section, 0, 0]).mean() < 0.1 * 500.0
 
 
+@pytest.mark.slow  # cold compile time: the default suite keeps a cheaper test of the same feature
 def test_state_round_trip_keeps_damage():
     """get_state/set_state (checkpoints) carry the grown damage and the damage law's history. Deterministic (one
     thread): with several, P2G's atomic adds in a varying order could differ by rounding, and a damage threshold

@@ -69,7 +69,7 @@ def test_free_surface_blends_to_linear():
     assert got[edge, c + 1] == pytest.approx(-1.0 / dx, rel=1e-12)
 
 
-@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("dim", [1, 2, pytest.param(3, marks=pytest.mark.slow)])  # 3D: ~60 s of cold compile
 def test_stencil_identities(dim):
     """Partition of unity, linear reproduction, zero gradient sum and sum x_i (x) grad S = I to 1e-12 at random
     positions, walls included (there the dual domains are one-sided)."""
@@ -82,6 +82,7 @@ def test_stencil_identities(dim):
     assert tcp.stencil_sums(sim)[:, :4].max() < 1e-12   # (column 4, D_p, is 0 / 0 for a particle on a node)
 
 
+@pytest.mark.slow  # cold compile time: the default suite keeps a cheaper test of the same feature
 def test_momentum_apic():
     m0, m1, scale = tcp.moving_block(basis="ddmp", transfer="apic")
     assert np.abs(m1["linear"] - m0["linear"]).max() < 1e-10 * scale
