@@ -205,7 +205,11 @@ def estimate(cfg: Config, body_force: bool = False) -> Estimate:
     for i, b in enumerate(cfg.bodies):
         key = f"bodies.{i}.shape"
         h = dx / b.particles_per_cell
-        per_body.append(int(round(shape_volume(b.shape, d, base_dir, key) / h**d)))
+        count = shape_volume(b.shape, d, base_dir, key) / h**d if h**d > 0 else math.inf
+        if not math.isfinite(count):  # dx so small that h^d underflows (found by tests/test_fuzz.py)
+            raise ConfigError(f"domain.dx = {dx:g} gives body {i} more particles than can be counted: check the units",
+                              key="domain.dx")
+        per_body.append(int(round(count)))
         lo, hi = shape_bounds(b.shape, d, base_dir, key)
         lattice = max(lattice, math.prod(int(math.ceil(e / h)) + 1 for e in hi - lo) * d * 8 * 3)
     grid_bytes, grid_detail, cells = _grid_bytes(cfg, base_dir)
