@@ -128,6 +128,42 @@ def hencky_energy(eps, mu, lam):
     return mu * eps.dot(eps) + 0.5 * lam * tr * tr
 
 
+def hencky_elasticity(mu: float, lam: float, dim: int, held: int):
+    """The elastic part shared by the Hencky-strain plastic models (von_mises, drucker_prager), as Taichi funcs of the
+    elastic F and the state q: `full` (the 3D elastic F; in 1D/2D the held axes' elastic stretch is state slot `held`),
+    the model's `kirchhoff3`/`kirchhoff` (tau = Q (2 mu eps + lam tr eps) Q^T of the full F) and `energy` (the
+    elastic energy density)."""
+
+    @ti.func
+    def full(F, q):
+        F3 = ti.Matrix.identity(float, 3)
+        if ti.static(dim == 3):
+            F3 = F
+        else:
+            F3 = embed_held(F, q[held])
+        return F3
+
+    @ti.func
+    def tau3(F3):
+        eps, Q = hencky(F3)
+        return principal_matrix(Q, 2.0 * mu * eps + lam * eps.sum())
+
+    @ti.func
+    def kirchhoff3(F, L, q):
+        return tau3(full(F, q))
+
+    @ti.func
+    def kirchhoff(F, L, q):
+        return top_left(tau3(full(F, q)), dim)
+
+    @ti.func
+    def energy(F, q):
+        eps, Q = hencky(full(F, q))
+        return hencky_energy(eps, mu, lam)
+
+    return full, kirchhoff3, kirchhoff, energy
+
+
 # ---------------------------------------------------------------- damage law (crack growth, crack.py)
 @ti.func
 def sym_eig(A):

@@ -32,7 +32,7 @@ HELD_STRETCH = State("held_stretch", 1.0, "1", "elastic stretch of the held axes
 
 # `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
 ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = hencky = rescale_principal = None
-hencky_energy = None
+hencky_energy = hencky_elasticity = None
 
 
 @register
@@ -63,32 +63,11 @@ class VonMises(Model):
         r23 = math.sqrt(2.0 / 3.0)
         A, Z = 0, 1  # state slots: alpha, held stretch
 
-        @ti.func
-        def full(F, q):
-            F3 = ti.Matrix.identity(float, 3)
-            if ti.static(dim == 3):
-                F3 = F
-            else:
-                F3 = embed_held(F, q[Z])
-            return F3
-
-        @ti.func
-        def tau3(F3):
-            eps, Q = hencky(F3)
-            return principal_matrix(Q, 2.0 * mu * eps + lam * eps.sum())
-
-        @ti.func
-        def kirchhoff3(F, L, q):
-            return tau3(full(F, q))
-
-        @ti.func
-        def kirchhoff(F, L, q):
-            return top_left(tau3(full(F, q)), dim)
+        full, kirchhoff3, kirchhoff, elastic_energy = hencky_elasticity(mu, lam, dim, Z)
 
         @ti.func
         def energy(F, q):
-            eps, Q = hencky(full(F, q))
-            return hencky_energy(eps, mu, lam) + 0.5 * H * q[A] * q[A]
+            return elastic_energy(F, q) + 0.5 * H * q[A] * q[A]
 
         @ti.func
         def project(F, q):
