@@ -181,23 +181,8 @@ def test_parallelogram_interior_force_other_bases():
 
 # ---------------------------------------------------------------- conservation
 def moving_block(dim=2, transfer="apic", update="usl", steps=20, basis="cpdi"):
-    """A block drifting, spinning and breathing (as tests/test_conservation.py), free walls."""
-    cfg = make_cfg(dim, basis=basis, transfer=transfer, update=update, dx=0.05, E=1e4,
-                   lower=[0.35] * dim, upper=[0.65] * dim, boundaries="free")
-    sim = tm.Simulation(cfg)
-    X = sim.scene.x
-    r = X - 0.5
-    v = np.full_like(X, 0.05) + 0.4 * r + 0.1 * np.sin(7.0 * X)
-    v[:, 0] += -0.5 * r[:, 1]
-    v[:, 1] += 0.5 * r[:, 0]
-    sim.set_particles(v=v)
-    m0 = sim.momentum()
-    for _ in range(steps):
-        sim.step()
-    m1 = sim.momentum()
-    scale = np.sum(sim.scene.mass[:, None] * np.abs(v))
-    assert np.abs(sim.particles()["F"] - np.eye(dim)).max() > 1e-3   # it did deform
-    return m0, m1, scale
+    """tests/test_conservation.py's drifting, spinning, breathing block with a cpdi (or other) basis."""
+    return tcons.moving_block(dim, basis, transfer, update, steps=steps)
 
 
 @pytest.mark.slow  # cold compile time: the default suite keeps a cheaper test of the same feature
