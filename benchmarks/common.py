@@ -109,3 +109,16 @@ def positions_scene(cfg, x: np.ndarray):
     return c, Scene(x=x.astype(np.float64), v=np.zeros((n, d)), volume=vol, mass=vol * rho,
                     body=z.astype(np.int32), material=z.astype(np.int32), damage=z, interface=z.astype(np.int32),
                     spacing=np.full(n, 0.5 * dx), materials=[next(iter(c.materials))])
+
+
+def te_scene_config(res: int, arch: str = "cpu"):
+    """taichi_elements' benchmark scene: an elastic (fixed-corotated) cube 0.4^3 falling in a unit box, res^3 cells,
+    8 particles per cell, E = 1e6, nu = 0.2, rho = 1000, dt = 2e-2 dx (taichi_elements' default_dt), f32."""
+    dx = 1.0 / res
+    return {"name": "te_scene", "dim": 3, "precision": "f32", "arch": arch,
+            "domain": {"lower": [0.0] * 3, "upper": [1.0] * 3, "dx": dx, "sparse": True},
+            "solver": {"basis": "quadratic", "transfer": "apic", "dt": 2e-2 * dx, "end_time": 10.0,
+                       "gravity": [0.0, -9.8, 0.0]},
+            "materials": {"e": {"model": "fixed_corotated", "E": 1e6, "nu": 0.2, "density": 1000.0}},
+            "bodies": [{"name": "cube", "shape": {"type": "box", "lower": [0.3] * 3, "upper": [0.7] * 3},
+                        "material": "e", "particles_per_cell": 2}]}

@@ -52,3 +52,32 @@ def test_materials_benchmark_reports_every_model():
     rows = load("materials").main(["--tiny", "--dims", "2"])
     assert [r["model"] for r in rows][0] == "fixed_corotated" and {r["model"] for r in rows} == set(MODELS)
     assert rows[0]["cost_vs_fixed_corotated"] == 1.0 and all(r["ns_per_particle_step"] > 0 for r in rows)
+
+
+def test_device_capacity_per_feature_set():
+    # no run: counts from the solver's own size estimate; more state per particle must mean fewer particles
+    rows = load("device").main(["--arch", "cpu", "--quick", "--sections", "capacity", "--capacity", "140"])
+    count = {r["case"]: r["particles"] for r in rows}
+    assert count["PIC elastic f32"] > count["APIC elastic f32"] > count["APIC elastic f64"] > 0
+    assert count["APIC elastic f32 + crack"] < count["APIC elastic f32"]
+    assert all(r["particles"] < 2**31 for r in rows)  # Taichi's i32 index
+
+
+def test_device_refuses_an_absent_arch():
+    from taichi_mpm.solver import available_archs
+
+    if "cuda" in available_archs():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(SystemExit, match="not available"):
+        load("device").main(["--arch", "cuda", "--sections", "capacity", "--capacity", "1"])
+
+
+@pytest.mark.slow  # compiles every basis and the crack finder in 3D: the script a GPU session runs, on CPU
+def test_device_script_runs_every_section_on_cpu(tmp_path):
+    rows = load("device").main(["--arch", "cpu", "--quick", "--bases", "quadratic", "linear", "--fill-memory", "0.05",
+                                "--budget-s", "3000", "--json", str(tmp_path / "d.json")])
+    assert not [r for r in rows if "error" in r and r["case"] != "taichi_elements (peer)"], rows
+    sections = {r["section"] for r in rows}
+    assert {"mpm3d", "elements", "bases", "crack", "long", "fill"} <= sections
+    assert all(r["particle_steps_per_s"] > 0 for r in rows if "particle_steps_per_s" in r)
+    assert next(r for r in rows if r["case"].startswith("quadratic APIC fluid"))["vs_mpm3d"] > 0
