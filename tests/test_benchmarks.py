@@ -39,7 +39,8 @@ def test_memory_benchmark_minimal_scene_is_small():
     assert rows[1]["bytes_per_particle"] > minimal["bytes_per_particle"]  # APIC adds C
 
 
-@pytest.mark.parametrize("script", [pytest.param("sparse_domain", marks=pytest.mark.slow), "compile_time"])
+@pytest.mark.parametrize("script", [pytest.param("sparse_domain", marks=pytest.mark.slow), "compile_time",
+                                    pytest.param("threads", marks=pytest.mark.slow)])
 def test_subprocess_benchmarks_run(script):
     rows = load(script).main(["--tiny"])
     assert len(rows) >= 2
