@@ -261,8 +261,12 @@ class _StepClock:
         first = self.first[0] - self.t0 - (self.first[1] - self.out0)
         stepping = now - self.first[0] - (run.output_seconds - self.first[1])
         rate = f"{sim.n * (steps - 1) / stepping:.3g} particle-steps/s" if steps > 1 and stepping > 0 else "-"
-        return (text + f"): first step (JIT compile) {first:.1f} s, stepping {stepping:.1f} s at {rate}, "
-                f"outputs {run.output_seconds - self.out0:.1f} s")
+        text += (f"): first step (JIT compile) {first:.1f} s, stepping {stepping:.1f} s at {rate}, "
+                 f"outputs {run.output_seconds - self.out0:.1f} s")
+        if run.frames_rendered:
+            text += (f" (of which rendering {run.frames_rendered} frames and the movie "
+                     f"{run.render_seconds:.1f} s, {run.render_seconds / run.frames_rendered:.2f} s per frame)")
+        return text
 
 
 def _run_config(cfg, args) -> int:
