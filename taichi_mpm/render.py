@@ -103,19 +103,19 @@ def _label(name):
 # ---------------------------------------------------------------- renderer
 def surface_particles(x, spacing: float) -> np.ndarray:
     """Mask of the 3D particles that can be seen from outside: those with an empty neighbouring voxel in one of
-    the six axis directions, on voxels of the particle spacing. Conservative: a stretched or jumbled body leaves
+    the six axis directions within two voxels, on voxels of the particle spacing. Conservative: a stretched or jumbled body leaves
     more voxels empty, and then more particles are drawn, never fewer of the visible ones (an occupied voxel
     holds a particle that covers the one behind it)."""
     x = np.asarray(x, float).reshape(len(x), -1)
     if len(x) < 64 or not spacing > 0:
         return np.ones(len(x), bool)
-    ijk = np.floor((x - x.min(axis=0)) / spacing).astype(np.int64) + 1
-    dims = ijk.max(axis=0) + 2
+    ijk = np.floor((x - x.min(axis=0)) / spacing).astype(np.int64) + 2
+    dims = ijk.max(axis=0) + 3
     occupied = np.zeros(tuple(dims), bool)
     occupied[tuple(ijk.T)] = True
     hidden = np.ones(len(x), bool)
     for a in range(3):
-        for s in (-1, 1):
+        for s in (-2, -1, 1, 2):  # two layers: a deformed lattice's voxels leave gaps one layer would show through
             n = ijk.copy()
             n[:, a] += s
             hidden &= occupied[tuple(n.T)]
@@ -265,7 +265,7 @@ class FrameRenderer:
         else:
             self._mesh = pv.PolyData(self._points3(x))
         self._mesh["value"] = np.zeros(n)
-        bar = dict(title="", color="black", fmt="%.3g", n_labels=5, vertical=False, position_x=0.2, position_y=0.0,
+        bar = dict(title="", color="black", fmt="%.3g", n_labels=5 if self.size[0] >= 560 else 3, vertical=False, position_x=0.2, position_y=0.0,
                    width=0.6, height=0.085, label_font_size=14)
         if self.categorical:  # one tab10 colour per body, each labelled on the bar
             import matplotlib.colors

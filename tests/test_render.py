@@ -142,3 +142,89 @@ def test_render_run_rejects_unknown_field_before_rendering(tmp_path):
     with pytest.raises(ConfigError, match="unknown colour field"):
         render_run(run, color_by="temperature")
     assert not (run / "frames").exists()
+
+
+# ---------------------------------------------------------------- colour ranges that show the physics
+def colormap_positions(img, cmap_name, min_chroma=40):
+    """Where on the colour map each coloured pixel of a frame lies, in [0, 1]: the colour map entry that best
+    matches the pixel up to a brightness factor (the 3D lighting scales a particle's colour; 2D discs are unlit).
+    Grey pixels (background, floor, outline, text) are left out by their low chroma."""
+    import matplotlib
+
+    rgb = img[..., :3].reshape(-1, 3).astype(float)
+    rgb = rgb[np.ptp(rgb, axis=1) >= min_chroma]
+    table = matplotlib.colormaps[cmap_name](np.linspace(0, 1, 256))[:, :3] * 255
+    scale = np.clip(rgb @ table.T / np.sum(table**2, axis=1), 0.3, 1.5)          # (pixels, 256) best factors
+    residual = np.sum(rgb**2, axis=1)[:, None] - 2 * scale * (rgb @ table.T) + scale**2 * np.sum(table**2, axis=1)
+    return np.argmin(residual, axis=1) / 255.0
+
+
+def map_coverage(positions, bins=10, min_share=0.01):
+    """Fraction of the colour map's bins that hold at least min_share of the particle pixels."""
+    h, _ = np.histogram(positions, bins=bins, range=(0, 1))
+    return float(np.mean(h >= min_share * max(len(positions), 1)))
+
+
+def impact_states(dim, n_frames=4):
+    """A plate hit in its middle: a von Mises stress wave (a ring of ~1 kPa running outwards over a near-zero
+    background) plus a few contact particles at 100 kPa, the distribution that leaves a min-max colour range
+    one flat colour (issue 13: sphere_impact's plate)."""
+    h = 0.02
+    axes = [np.arange(0.1, 0.9, h) + h / 2, np.arange(0.0, 0.16, h) + h / 2] + ([np.arange(0.1, 0.9, h) + h / 2]
+                                                                              if dim == 3 else [])
+    x = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, dim)
+    centre = np.array([0.5, 0.16] + ([0.5] if dim == 3 else []))
+    r = np.linalg.norm(x - centre, axis=1)
+    rng = np.random.default_rng(1)
+    states = []
+    for k in range(n_frames):
+        front = 0.1 + 0.08 * k
+        vm = 1e3 * np.exp(-((r - front) / 0.08) ** 2) + 20 * rng.random(len(x))
+        vm[np.argsort(r)[:3]] = 1e5                                  # the contact
+        stress3 = np.zeros((len(x), 3, 3))
+        stress3[:, 0, 0] = vm                                        # uniaxial: von Mises = |sxx|
+        states.append(dict(x=x, v=np.zeros_like(x), stress3=stress3, stress=stress3[:, :dim, :dim],
+                           volume=np.full(len(x), h**dim), mass=np.full(len(x), h**dim)))
+    return states
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_robust_colour_range_spreads_particles_over_the_map(tmp_path, dim):
+    """Issue 13's check: the particle pixels of a frame span at least 40 % of the colour map for a heavy-tailed
+    field, with the range the renderer chooses for the whole sequence; the min-max range of the old renderer
+    puts them all into the bottom bin (so the check can fail)."""
+    from taichi_mpm.render import FrameRenderer, sequence_bounds, sequence_limits
+
+    states = impact_states(dim)
+    rc = {"color_by": "von_mises", "size": [400, 300], "colormap": "viridis"}
+    values = [field_values(s, "von_mises", dim) for s in states]
+    lim = sequence_limits(rc, values)
+    assert lim[0] == 0.0 and 5e2 < lim[1] < 2e3     # the wave's amplitude sets the top, not the contact's 1e5
+    bounds = sequence_bounds([s["x"] for s in states], 0.02, dim) if dim == 3 else None
+    coverage = {}
+    for name, limits in (("robust", lim), ("min-max", [0.0, max(float(v.max()) for v in values)])):
+        r = FrameRenderer(rc, dim, [0.0] * dim, [1.0] * dim, limits=limits, bounds=bounds)
+        out = r.render(states[2], 0.1, tmp_path / f"{name}.png")
+        r.close()
+        img = imageio.imread(out)
+        img = img[40: int(0.8 * img.shape[0])]                  # the scene only: not the colour bar below it
+        pos = colormap_positions(img, "viridis")
+        assert len(pos) > 0.02 * img.shape[0] * img.shape[1]     # particles fill a real part of the frame
+        coverage[name] = map_coverage(pos)
+    assert coverage["robust"] >= 0.4, coverage
+    assert coverage["min-max"] <= 0.2, coverage
+
+
+def test_log_scale_limits_and_positions():
+    from taichi_mpm.colour_range import normalise, robust_limits
+
+    v = np.concatenate([np.logspace(0, 5, 1001), [0.0, -1.0]])       # a log-uniform field with zeros
+    lo, hi = robust_limits([v], "von_mises", "log", (0, 100))
+    assert hi == pytest.approx(1e5) and lo == pytest.approx(10.0)   # at most 4 decades below the top
+    t = normalise(np.array([1e1, 1e3, 1e5, 0.0]), [lo, hi], "log")
+    np.testing.assert_allclose(t, [0.0, 0.5, 1.0, 0.0])             # equal ratios, equal steps; zero at the bottom
+    # linear: percentiles of all frames together, fixed for the sequence; magnitudes start at 0
+    frames = [np.linspace(0, 1, 101) + 5.0, np.linspace(0, 1, 101) + 9.0]
+    assert robust_limits(frames, "speed", percentiles=(0, 100)) == [0.0, 10.0]
+    assert robust_limits(frames, "pressure", percentiles=(0, 100)) == [5.0, 10.0]
+    assert robust_limits([np.array([0, 1, 1, 2])], "body", categorical=True) == [-0.5, 2.5]
