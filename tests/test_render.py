@@ -228,3 +228,25 @@ def test_log_scale_limits_and_positions():
     assert robust_limits(frames, "speed", percentiles=(0, 100)) == [0.0, 10.0]
     assert robust_limits(frames, "pressure", percentiles=(0, 100)) == [5.0, 10.0]
     assert robust_limits([np.array([0, 1, 1, 2])], "body", categorical=True) == [-0.5, 2.5]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("demo,overrides,frame", [
+    ("colliding_disks", {"domain.dx": 0.05, "solver.end_time": 2.5, "output.every": 0.25}, 8),   # t = 2: impact
+    ("sphere_impact", {"domain.dx": 0.0625, "solver.end_time": 0.12, "output.every": 0.02}, 4),  # t = 0.08: contact
+])
+def test_demo_frames_use_the_colour_map(tmp_path, demo, overrides, frame):
+    """The bundled 2D and 3D main demos, coarsened, rendered headless by a run with their default colour field
+    (colliding_disks: von Mises; sphere_impact: log von Mises): the particle pixels of a frame during the impact
+    span at least 40 % of the colour map (issue 13)."""
+    import taichi_mpm as tm
+    from taichi_mpm.cli import demos
+
+    cfg = tm.load_config(demos()[demo], {**overrides, "output.formats": ["png"], "arch": "cpu"})
+    tm.Simulation(cfg).run(out_dir=tmp_path / demo)
+    img = imageio.imread(tmp_path / demo / "frames" / f"frame_{frame:06d}.png")
+    scene = img[40: int(0.8 * img.shape[0])]
+    pos = colormap_positions(scene, cfg.output.render.colormap)
+    assert len(pos) > 0.02 * scene.shape[0] * scene.shape[1]
+    assert map_coverage(pos) >= 0.4, map_coverage(pos)
+    assert not list((tmp_path / demo / "frames").glob(".record_*"))   # the frame data is gone once rendered
