@@ -250,3 +250,38 @@ def test_demo_frames_use_the_colour_map(tmp_path, demo, overrides, frame):
     assert len(pos) > 0.02 * scene.shape[0] * scene.shape[1]
     assert map_coverage(pos) >= 0.4, map_coverage(pos)
     assert not list((tmp_path / demo / "frames").glob(".record_*"))   # the frame data is gone once rendered
+
+
+def test_render_options_are_validated_with_their_key():
+    import taichi_mpm as tm
+    from conftest import make_cfg
+    from taichi_mpm.errors import ConfigError
+
+    for render, key in (({"percentiles": [99, 1]}, "percentiles"), ({"percentiles": [1, 101]}, "percentiles"),
+                        ({"scale": "sqrt"}, "scale"), ({"scale": "log", "clim": [0, 10]}, "clim")):
+        cfg = make_cfg(2)
+        cfg["output"] = {"render": render}
+        with pytest.raises(ConfigError, match=key):
+            tm.load_config(cfg)
+    cfg = make_cfg(2)
+    cfg["output"] = {"render": {"scale": "log", "percentiles": [5, 95]}}
+    assert tm.load_config(cfg).output.render.percentiles == [5, 95]
+
+
+def test_run_renders_its_frames_at_the_end_with_one_colour_range(tmp_path):
+    """A run keeps frame data per output and renders the sequence at its end: every frame's colour bar (its
+    labels are the range) is the same picture although the speeds change, and no frame data is left behind."""
+    import taichi_mpm as tm
+    from conftest import make_cfg
+
+    cfg = make_cfg(2, velocity=[0.0, -1.0], end_time=0.06)
+    cfg["solver"]["gravity"] = [0.0, -9.81]
+    cfg["output"] = {"every": 0.02, "formats": ["png"], "render": {"color_by": "speed", "size": [240, 200]}}
+    tm.Simulation(tm.load_config(cfg)).run(out_dir=tmp_path / "run")
+    frames = sorted((tmp_path / "run" / "frames").glob("frame_*.png"))
+    assert [f.name for f in frames] == [f"frame_{k:06d}.png" for k in range(4)]
+    assert not list((tmp_path / "run" / "frames").glob(".record_*"))
+    bars = [imageio.imread(f)[-30:, :, :3] for f in frames]
+    for b in bars[1:]:
+        np.testing.assert_array_equal(b, bars[0])
+    assert not np.array_equal(imageio.imread(frames[0])[:150], imageio.imread(frames[-1])[:150])  # it moved
