@@ -102,14 +102,15 @@ def _label(name):
 
 # ---------------------------------------------------------------- renderer
 def surface_particles(x, spacing: float) -> np.ndarray:
-    """Mask of the 3D particles that can be seen from outside: those with an empty neighbouring voxel in one of
-    the six axis directions within two voxels, on voxels of the particle spacing. Conservative: a stretched or jumbled body leaves
-    more voxels empty, and then more particles are drawn, never fewer of the visible ones (an occupied voxel
-    holds a particle that covers the one behind it)."""
+    """Mask of the 3D particles that can be seen from outside: those with an empty voxel within two voxels in one
+    of the six axis directions, on voxels of the particle spacing. Conservative: a stretched or jumbled body
+    leaves more voxels empty, and then more particles are drawn, never fewer of the visible ones (an occupied
+    voxel holds a particle that covers the one behind it)."""
     x = np.asarray(x, float).reshape(len(x), -1)
     if len(x) < 64 or not spacing > 0:
         return np.ones(len(x), bool)
-    ijk = np.floor((x - x.min(axis=0)) / spacing).astype(np.int64) + 2
+    # + 0.5: a lattice's particles sit at voxel centres, not on voxel faces where round-off picks the side
+    ijk = np.floor((x - x.min(axis=0)) / spacing + 0.5).astype(np.int64) + 2
     dims = ijk.max(axis=0) + 3
     occupied = np.zeros(tuple(dims), bool)
     occupied[tuple(ijk.T)] = True
@@ -122,7 +123,7 @@ def surface_particles(x, spacing: float) -> np.ndarray:
     return ~hidden
 
 
-def pv_points(points):
+def _polydata(points):
     return _pyvista().PolyData(points)
 
 
@@ -368,7 +369,7 @@ class FrameRenderer:
             self._mesh.cell_data["value"] = np.asarray(values, float)
         else:
             if self._mesh.n_points != len(x):  # 3D: the visible particles change in number
-                self._mesh.copy_from(pv_points(self._points3(x)))
+                self._mesh.copy_from(_polydata(self._points3(x)))
             else:
                 self._mesh.points = self._points3(x)
             shown = np.asarray(values, float)

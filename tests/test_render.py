@@ -285,3 +285,19 @@ def test_run_renders_its_frames_at_the_end_with_one_colour_range(tmp_path):
     for b in bars[1:]:
         np.testing.assert_array_equal(b, bars[0])
     assert not np.array_equal(imageio.imread(frames[0])[:150], imageio.imread(frames[-1])[:150])  # it moved
+
+
+def test_surface_particles_of_a_solid_cube():
+    """A 10^3 lattice: the particles within two layers of its faces are drawn, the 6^3 core is not; a cube with a
+    hollow middle shows its cavity's walls too (they border an empty voxel)."""
+    from taichi_mpm.render import surface_particles
+
+    h = 0.1
+    ijk = np.stack(np.meshgrid(*[np.arange(10)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    x = (ijk + 0.5) * h + 0.01 * h   # slightly off the voxel corners, as particles are
+    keep = surface_particles(x, h)
+    core = np.all((ijk >= 2) & (ijk <= 7), axis=1)
+    np.testing.assert_array_equal(keep, ~core)
+    hollow = ~np.all((ijk >= 4) & (ijk <= 5), axis=1)
+    keep = surface_particles(x[hollow], h)
+    assert keep.sum() > (~core).sum()          # the cavity's walls are visible from inside it
