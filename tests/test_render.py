@@ -192,7 +192,7 @@ def impact_states(dim, n_frames=4):
 def test_robust_colour_range_spreads_particles_over_the_map(tmp_path, dim):
     """Issue 13's check: the particle pixels of a frame span at least 40 % of the colour map for a heavy-tailed
     field, with the range the renderer chooses for the whole sequence; the min-max range of the old renderer
-    puts them all into the bottom bin (so the check can fail)."""
+    puts nearly all of them into the bottom bin (so the check can fail)."""
     from taichi_mpm.render import FrameRenderer, sequence_bounds, sequence_limits
 
     states = impact_states(dim)
@@ -211,8 +211,9 @@ def test_robust_colour_range_spreads_particles_over_the_map(tmp_path, dim):
         pos = colormap_positions(img, "viridis")
         assert len(pos) > 0.02 * img.shape[0] * img.shape[1]     # particles fill a real part of the frame
         coverage[name] = map_coverage(pos)
+    # measured: robust 1.0 (2D and 3D); min-max 0.2 (2D: the bottom bin and the contact's top bin) and 0.1 (3D)
     assert coverage["robust"] >= 0.4, coverage
-    assert coverage["min-max"] <= 0.2, coverage
+    assert coverage["min-max"] <= 0.3, coverage
 
 
 def test_log_scale_limits_and_positions():
