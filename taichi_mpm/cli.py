@@ -4,6 +4,8 @@
     taichi-mpm validate CONFIG [--set KEY=VALUE]...
     taichi-mpm demo [NAME] [--list] [run options]
     taichi-mpm render RUN_DIR [--color-by FIELD] [--size WxH] [--camera CAMERA] [--movie FILE|mp4|gif]
+    taichi-mpm compare CONFIG --vary KEY=A,B[,C] [--set KEY=VALUE]... [--out DIR] [--overwrite] [--color-by FIELD]
+                    [--size WxH] [--camera CAMERA] [--no-movie] [--arch ARCH] [--quiet]
     taichi-mpm gui CONFIG [--set KEY=VALUE]... [--arch ARCH] [--max-frames N] [--screenshot PNG]
     taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume | --overwrite]
                     [--allow-problem MODULE:FACTORY]... [--dry-run]
@@ -130,6 +132,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=_size, metavar="WxH", help="image size in pixels, e.g. 960x720")
     p.add_argument("--camera", metavar="CAMERA", help="camera (e.g. iso, xy, xz, yz)")
     p.add_argument("--movie", metavar="FILE|mp4|gif", help="also write a movie (file name or format)")
+
+    p = sub.add_parser("compare", help="run a scene with one setting varied; side-by-side frames, movie, curves")
+    p.add_argument("config", metavar="CONFIG")
+    p.add_argument("--vary", required=True, metavar="KEY=A,B[,C]",
+                   help="the dotted key and its values, e.g. solver.basis=linear,cubic (commas inside [...] stay)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value for every variant, repeatable")
+    p.add_argument("--out", metavar="DIR", help="output directory (default: output.dir of the config + _compare_KEY)")
+    p.add_argument("--overwrite", action="store_true", help="replace an earlier comparison in the output directory")
+    p.add_argument("--color-by", metavar="FIELD", help="field to colour by (default: the config's output.render)")
+    p.add_argument("--size", type=_size, metavar="WxH", help="size of a whole side-by-side frame in pixels")
+    p.add_argument("--camera", metavar="CAMERA", help="3D camera (e.g. iso, xy, xz, yz)")
+    p.add_argument("--no-movie", action="store_true", help="frames and curves only")
+    p.add_argument("--arch", choices=["auto", "cpu", "cuda", "vulkan", "metal"], help="override the config's arch")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
 
     p = sub.add_parser("gui", help="interactive window")
     p.add_argument("config", metavar="CONFIG")
@@ -261,8 +278,12 @@ class _StepClock:
         first = self.first[0] - self.t0 - (self.first[1] - self.out0)
         stepping = now - self.first[0] - (run.output_seconds - self.first[1])
         rate = f"{sim.n * (steps - 1) / stepping:.3g} particle-steps/s" if steps > 1 and stepping > 0 else "-"
-        return (text + f"): first step (JIT compile) {first:.1f} s, stepping {stepping:.1f} s at {rate}, "
-                f"outputs {run.output_seconds - self.out0:.1f} s")
+        text += (f"): first step (JIT compile) {first:.1f} s, stepping {stepping:.1f} s at {rate}, "
+                 f"outputs {run.output_seconds - self.out0:.1f} s")
+        if run.frames_rendered:
+            text += (f" (of which rendering {run.frames_rendered} frames and the movie "
+                     f"{run.render_seconds:.1f} s, {run.render_seconds / run.frames_rendered:.2f} s per frame)")
+        return text
 
 
 def _run_config(cfg, args) -> int:
@@ -375,6 +396,24 @@ def cmd_render(args) -> int:
     return EXIT_OK
 
 
+def cmd_compare(args) -> int:
+    if not Path(args.config).is_file():
+        raise _InputError(f"config file not found: {args.config}")
+    from .compare import compare
+
+    overrides = parse_overrides(args.overrides)
+    if args.arch:
+        overrides["arch"] = args.arch
+    log = None if args.quiet else (lambda msg: print(msg, file=sys.stderr))
+    with contextlib.redirect_stdout(StringIO() if args.quiet else sys.stderr):  # ti.init's start-up lines
+        res = compare(args.config, args.vary, overrides, out=args.out, overwrite=args.overwrite,
+                      color_by=args.color_by, size=args.size, camera=args.camera, movie=not args.no_movie, log=log)
+    if not args.quiet:
+        print(f"comparison in {res['out']}: {len(res['frames'])} frames, "
+              + (f"movie {res['movie'].name}, " if res["movie"] else "") + "curves.png, summary.csv", file=sys.stderr)
+    return EXIT_OK
+
+
 def cmd_gui(args) -> int:
     cfg = _load(args.config, args)
     from .gui import run_gui
@@ -423,7 +462,8 @@ def cmd_plot(args) -> int:
     return EXIT_OK
 
 
-COMMANDS = {"run": cmd_run, "validate": cmd_validate, "demo": cmd_demo, "render": cmd_render, "gui": cmd_gui,
+COMMANDS = {"run": cmd_run, "validate": cmd_validate, "demo": cmd_demo, "render": cmd_render, "compare": cmd_compare,
+            "gui": cmd_gui,
             "study": cmd_study, "plot": cmd_plot, "advise": cmd_advise}
 
 

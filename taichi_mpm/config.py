@@ -348,6 +348,8 @@ class Render(Strict):
     point_size: Optional[PositiveFloat] = None
     colormap: str = "viridis"
     clim: Optional[Vec] = None
+    scale: Literal["linear", "log"] = "linear"
+    percentiles: list[float] = [1.0, 99.0]
 
     @model_validator(mode="after")
     def _lengths(self):
@@ -373,6 +375,11 @@ class Render(Strict):
             raise _Located("size", f"must be [width, height] in pixels, got {len(self.size)} numbers")
         if self.clim is not None and (len(self.clim) != 2 or self.clim[0] >= self.clim[1]):
             raise _Located("clim", "must be [min, max] with min < max")
+        if self.clim is not None and self.scale == "log" and self.clim[0] <= 0:
+            raise _Located("clim", "a log scale needs clim [min, max] with 0 < min")
+        p = self.percentiles
+        if len(p) != 2 or not 0 <= p[0] < p[1] <= 100:
+            raise _Located("percentiles", f"must be [low, high] with 0 <= low < high <= 100, got {p}")
         return self
 
 

@@ -148,7 +148,13 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "output.render.camera": ("", "3D view: iso, xy, xz, yz, front, side, top (1D and 2D are always seen along z)"),
     "output.render.point_size": ("px", "particle size on screen; null: from the particle spacing"),
     "output.render.colormap": ("", "matplotlib colormap name"),
-    "output.render.clim": ("unit of the field", "fixed colour limits [min, max]; null: widened from the data"),
+    "output.render.clim": ("unit of the field", "fixed colour limits [min, max]; null: robust limits from the "
+                           "percentiles of the whole run's values, fixed across its frames"),
+    "output.render.scale": ("", "colour scale: linear, or log (for stresses spanning decades; values at or below "
+                                "the low limit take the bottom colour)"),
+    "output.render.percentiles": ("%", "[low, high] percentiles of all particles over all frames that set the colour "
+                                       "range when clim is null (magnitudes such as speed and von_mises start at 0 "
+                                       "on a linear scale; a log range spans at most 4 decades)"),
     "output.probes": ("", "quantities over time, one CSV per probe in probes/NAME.csv (see Probes below)"),
     "output.probes[].name": ("", "the probe's name, also its file probes/NAME.csv: letters, digits, _ and -; unique"),
     "output.probes[].type": ("", "point: one particle; body: a body's means; region: the means over the particles "

@@ -1,12 +1,19 @@
 """Interactive window on Taichi's GUI (`taichi-mpm gui CONFIG`).
 
-Keys: space pause/resume, s single step (while paused), r reset, c next colour field,
-arrow keys turn a 3D view, h hide/show help, Esc quit. Drag with the left mouse button to push
+Keys: space pause/resume, s single step (while paused), r reset, c next colour field, b next basis, t next
+transfer, arrow keys turn a 3D view, h hide/show help, Esc quit. Drag with the left mouse button to push
 particles: those near the cursor are pulled towards the drag velocity.
 
-1D bars are drawn along x, 2D scenes as they are, 3D scenes as an orthographic projection that
-the arrow keys rotate (ti.GUI draws 2D only; painter's order and depth shading give the 3D cue).
-The view logic (`View`) and the push (`push_particles`) are plain numpy, testable without a window.
+Side panel (ti.GUI widgets): sliders for what changes without a recompile, the time-step scale (solver.cfl is read
+on the host when each dt is chosen) and the push strength; buttons that switch the basis or the transfer, which
+restarts the scene (those are compile-time choices). A strip chart at the bottom right draws the kinetic, strain
+and total energy of the last frames.
+
+1D bars are drawn along x, 2D scenes as they are, 3D scenes as an orthographic projection that the arrow keys
+rotate, painter-ordered and depth-shaded (ti.GUI draws 2D only). The title says which 3D view is used: Taichi's
+GGUI needs a Vulkan device, which this window looks for and names when missing. Colour limits are robust
+(percentiles of the recent frames, colour_range.LiveLimits). The view logic (`View`), the push (`push_particles`)
+and the session (`Session`: keys, sliders, switches, chart) are plain numpy, testable without a window.
 """
 from __future__ import annotations
 
@@ -14,9 +21,15 @@ import time as _time
 
 import numpy as np
 
+from .colour_range import LiveLimits
 from .render import available_fields, field_values
 
-HELP = "space: pause  s: step  r: reset  c: colour  drag: push  arrows: turn (3D)  esc: quit"
+HELP = "space: pause  s: step  r: reset  c: colour  b: basis  t: transfer  drag: push  arrows: turn (3D)  esc: quit"
+BASES = ("linear", "gimp", "quadratic", "cubic")
+TRANSFERS = ("pic", "flip", "apic")
+CHART = (0.62, 0.06, 0.99, 0.24)   # the energy strip chart's box in window units: x0, y0, x1, y1
+CHART_LENGTH = 200                 # frames the chart keeps
+CHART_COLOURS = {"kinetic": 0xD62728, "strain": 0x1F77B4, "total": 0x222222}
 
 
 class View:
@@ -92,8 +105,8 @@ class View:
         return np.array([p[i] for i, _ in pairs]), np.array([p[j] for _, j in pairs])
 
 
-def push_particles(sim, center, velocity, radius, positions=None, view=None):
-    """Pull the velocities of particles near `center` towards `velocity`: v += w (velocity - v),
+def push_particles(sim, center, velocity, radius, positions=None, view=None, strength=1.0):
+    """Pull the velocities of particles near `center` towards `velocity`: v += strength w (velocity - v),
     w = exp(-(r / radius)^2) for r < 2 radius. `center` and `radius` are in world units, or, with a
     `view`, in window units measured on the projected positions (a 3D push acts through the depth).
     Returns the number of particles touched."""
@@ -107,21 +120,19 @@ def push_particles(sim, center, velocity, radius, positions=None, view=None):
     near = r < 2 * radius
     if not near.any():
         return 0
-    w = np.exp(-(r[near] / radius) ** 2)[:, None]
+    w = strength * np.exp(-(r[near] / radius) ** 2)[:, None]
     v = p["v"].reshape(len(r), -1).copy()
     v[near] += w * (np.asarray(velocity, float) - v[near])
     sim.set_particles(v=v)
     return int(near.sum())
 
 
-def _colour_ints(values, clim, cmap_name):
+def _colour_ints(t, cmap_name):
+    """Colour-map positions t in [0, 1] -> (N, 3) 8-bit RGB."""
     import matplotlib
 
     cmap = matplotlib.colormaps[cmap_name]
-    lo, hi = clim
-    t = np.clip((values - lo) / (hi - lo if hi > lo else 1.0), 0, 1)
-    rgb = (cmap(t)[:, :3] * 255).astype(np.uint32)
-    return rgb
+    return (cmap(np.clip(t, 0, 1))[:, :3] * 255).astype(np.uint32)
 
 
 def _pack(rgb):
@@ -129,53 +140,104 @@ def _pack(rgb):
     return (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
 
 
-class _Limits:
-    """Colour limits that only widen while one field is shown (reset when the field changes)."""
+def view_3d_kind() -> str:
+    """Which 3D view the window can give: 'ggui' (Taichi's GGUI scene: real depth and shading) where Taichi was
+    built with Vulkan and a Vulkan device answers, else 'projection' (ti.GUI points, painter's order, depth shade)."""
+    try:
+        import taichi as ti
 
-    def __init__(self, fixed=None):
-        self.lim = None
-        self.fixed = list(fixed) if fixed else None
+        if not ti._lib.core.with_vulkan():
+            return "projection"
+        from taichi._lib import core
 
-    def update(self, values, name):
-        if self.fixed:
-            return self.fixed
-        if name == "body":
-            return [-0.5, max(float(values.max()) + 0.5, 1.5)]
-        finite = values[np.isfinite(values)]
-        lo, hi = (float(finite.min()), float(finite.max())) if len(finite) else (0.0, 1.0)
-        if self.lim is not None:
-            lo, hi = min(lo, self.lim[0]), max(hi, self.lim[1])
-        self.lim = [lo, hi]
-        if hi - lo < 1e-6 * max(1.0, abs(hi)):
-            return [lo - 1.0, hi + 1.0] if hi == 0 else [lo - 0.5 * abs(hi), hi + 0.5 * abs(hi)]
-        return self.lim
+        return "ggui" if core.is_vulkan_available() else "projection"  # noqa: (absent in some builds: except)
+    except Exception:
+        return "projection"
+
+
+def window_title(cfg, kind: str | None = None) -> str:
+    if cfg.dim < 3:
+        return f"taichi-mpm: {cfg.name}"
+    kind = kind or view_3d_kind()
+    if kind == "ggui":
+        return f"taichi-mpm: {cfg.name} [3D: projected points; GGUI scene available but not used by this window]"
+    return f"taichi-mpm: {cfg.name} [3D: projected, depth-shaded points; no Vulkan device for a GGUI scene]"
 
 
 class Session:
-    """The window's state machine without the window: keys, mouse drags, stepping and what to draw."""
+    """The window's state machine without the window: keys, sliders, switches, mouse drags, stepping and what to
+    draw."""
 
     def __init__(self, sim, res):
+        self.res = res
+        self.dt_scale, self.push_strength = 1.0, 1.0
+        self.paused, self.message, self.show_help = False, "", True
+        self._start(sim)
+
+    def _start(self, sim):
+        """Take on a (new) simulation: the basis/transfer switch restarts the scene with its own kernels."""
         self.sim, self.cfg = sim, sim.cfg
         c = self.cfg
+        self.base_cfl = c.solver.cfl
+        self.set_dt_scale(self.dt_scale)
         self.initial = sim.get_state()
-        self.view = View(c.dim, c.domain.lower, c.domain.upper, res)
+        self.view = View(c.dim, c.domain.lower, c.domain.upper, self.res,
+                         *((self.view.yaw, self.view.pitch) if hasattr(self, "view") else ()))
         self.fields = available_fields(sim.particles(), c.dim)
-        self.field = c.output.render.color_by if c.output.render.color_by in self.fields else self.fields[0]
+        if getattr(self, "field", None) not in self.fields:
+            self.field = c.output.render.color_by if c.output.render.color_by in self.fields else self.fields[0]
         self.cmap = c.output.render.colormap
         self.limits = self._limits()
         self.frame_time = c.output.every
         self.radius_px = max(1.0, 0.6 * float(np.median(sim.scene.spacing)) * self.view.scale)
         wave = float(getattr(sim, "wave_speed", 0.0) or 0.0)
         self.speed_cap = 0.25 * wave if wave > 0 else 10.0
-        self.paused, self.message, self.show_help = False, "", True
         self._step_once = False
+        self.chart = []            # (kinetic, strain, total) per frame, the last CHART_LENGTH frames
+        self._gravity0 = None
+        self.record_energy()
 
     def _limits(self):
         r = self.cfg.output.render
-        return _Limits(r.clim if self.field == r.color_by else None)  # the config's limits belong to its field
+        own = self.field == r.color_by  # the config's limits and scale belong to its own field
+        return LiveLimits(self.field, r.scale if own else "linear", r.clim if own else None, tuple(r.percentiles))
+
+    # ------------------------------------------------------------ live parameters (no recompile)
+    def set_dt_scale(self, scale: float):
+        """The time step as a fraction of the config's CFL step: solver.cfl is read on the host for every dt."""
+        self.dt_scale = float(np.clip(scale, 0.05, 1.0))
+        self.cfg.solver.cfl = self.base_cfl * self.dt_scale
+
+    def set_push_strength(self, strength: float):
+        """How far a drag pulls the particles under the cursor towards the drag velocity (0: not at all, 1: fully)."""
+        self.push_strength = float(np.clip(strength, 0.0, 1.0))
+
+    # ------------------------------------------------------------ switches (restart the scene)
+    def switch(self, what: str, value: str | None = None) -> bool:
+        """Restart the scene with the next (or the given) basis or transfer; False (and a message) when the scene
+        does not allow it. These are compile-time choices: the new kernels compile (or come from Taichi's cache)."""
+        from .config import ConfigError, load_config
+        from .runner import Simulation
+
+        key, options = {"basis": ("solver.basis", BASES), "transfer": ("solver.transfer", TRANSFERS)}[what]
+        current = getattr(self.cfg.solver, what)
+        if value is None:
+            value = options[(options.index(current) + 1) % len(options)] if current in options else options[0]
+        data = self.cfg.to_dict()
+        data["solver"][what] = value
+        data["solver"]["cfl"] = self.base_cfl
+        try:
+            cfg = load_config(data)
+            sim = Simulation(cfg)
+        except ConfigError as e:
+            self.message = f"{key}={value} not possible here: {e.message}"
+            return False
+        self._start(sim)
+        self.message = f"restarted with {key}={value}"
+        return True
 
     def press(self, key) -> bool:
-        """Handle one key (ti.GUI key names); False means quit."""
+        """Handle one key (ti.GUI key names) or widget event; False means quit."""
         import taichi as ti
 
         if key in (ti.GUI.ESCAPE, ti.GUI.EXIT):
@@ -187,9 +249,15 @@ class Session:
         elif key == "r":
             self.sim.set_state(self.initial)
             self.limits, self.message = self._limits(), ""
+            self.chart = []
+            self.record_energy()
         elif key == "c":
             self.field = self.fields[(self.fields.index(self.field) + 1) % len(self.fields)]
             self.limits = self._limits()
+        elif key in ("b", "basis"):
+            self.switch("basis")
+        elif key in ("t", "transfer"):
+            self.switch("transfer")
         elif key == "h":
             self.show_help = not self.show_help
         elif key == ti.GUI.LEFT:
@@ -206,16 +274,17 @@ class Session:
         """A mouse drag from prev to cursor (window units): push the particles under the cursor."""
         u = self.view.to_world_delta(np.asarray(cursor, float) - np.asarray(prev, float)) / self.frame_time
         speed = float(np.linalg.norm(u))
-        if speed == 0:
+        if speed == 0 or self.push_strength == 0:
             return 0
         if speed > self.speed_cap:
             u *= self.speed_cap / speed
-        return push_particles(self.sim, cursor, u, radius=radius, view=self.view)
+        return push_particles(self.sim, cursor, u, radius=radius, view=self.view, strength=self.push_strength)
 
     def advance(self):
         """One frame: a single step when asked, else one output interval unless paused or done."""
         from .errors import InstabilityError
 
+        t = self.sim.time
         try:
             if self._step_once:
                 self.sim.step()
@@ -224,7 +293,35 @@ class Session:
         except InstabilityError as err:
             self.paused, self.message = True, f"unstable: {err}  (r: reset)"
         stepped, self._step_once = self._step_once, False
+        if self.sim.time != t:
+            self.record_energy()
         return stepped
+
+    # ------------------------------------------------------------ energy strip chart
+    def record_energy(self):
+        e = self.sim.energy()
+        if self._gravity0 is None:
+            self._gravity0 = e["gravity"]
+        # total: kinetic + strain + the gravity potential released since the start (so that it starts at the
+        # initial kinetic + strain energy and stays level where energy is conserved)
+        self.chart = (self.chart + [(e["kinetic"], e["strain"], e["kinetic"] + e["strain"] + e["gravity"] -
+                                     self._gravity0)])[-CHART_LENGTH:]
+
+    def chart_lines(self):
+        """{series: (begin, end)} line segments of the strip chart in window units, inside CHART; one vertical
+        scale for the three series (0 to the largest value shown)."""
+        x0, y0, x1, y1 = CHART
+        data = np.asarray(self.chart, float).reshape(-1, 3)
+        if len(data) < 2:
+            return {}
+        top = float(np.max(np.abs(data))) or 1.0
+        xs = x0 + (x1 - x0) * np.arange(len(data)) / (CHART_LENGTH - 1)
+        out = {}
+        for k, name in enumerate(("kinetic", "strain", "total")):
+            ys = y0 + (y1 - y0) * np.clip(data[:, k] / top, -0.05, 1.0)
+            pts = np.c_[xs, ys]
+            out[name] = (pts[:-1], pts[1:])
+        return out
 
     @property
     def done(self) -> bool:
@@ -235,9 +332,13 @@ class Session:
         """(positions, packed colours) in drawing order, and the status line."""
         p = self.sim.particles()
         values = field_values(p, self.field, self.cfg.dim)
-        clim = self.limits.update(values, self.field)
+        clim = self.limits.update(values)
         pos, depth = self.view.project(p["x"])
-        rgb = _colour_ints(values, clim, "tab10" if self.field == "body" else self.cmap)
+        cmap = "tab10" if self.field in ("body", "material", "interface") else self.cmap
+        from .colour_range import normalise
+
+        scale = self.limits.scale if self.field not in ("body", "material", "interface") else "linear"
+        rgb = _colour_ints(normalise(values, clim, scale), cmap)
         if self.cfg.dim == 3:  # painter's order and depth shading: far particles first and darker
             order = np.argsort(depth)
             span = float(np.ptp(depth)) or 1.0
@@ -245,14 +346,17 @@ class Session:
             rgb = (rgb * shade[:, None]).astype(np.uint32)
             pos, rgb = pos[order], rgb[order]
         state = "paused" if self.paused else ("done" if self.done else "running")
-        status = (f"t = {self.sim.time:.4g} s   steps {self.sim.n_steps}   {state}   colour: {self.field} "
-                  f"[{clim[0]:.3g}, {clim[1]:.3g}]")
+        s = self.cfg.solver
+        status = (f"t = {self.sim.time:.4g} s   steps {self.sim.n_steps}   {state}   {s.basis}/{s.transfer}   "
+                  f"colour: {self.field} [{clim[0]:.3g}, {clim[1]:.3g}]")
         return pos, _pack(rgb), status
 
 
-def run_gui(cfg, max_frames=None, screenshot=None, show=True):
-    """Open the interactive window for a config (path, dict or Config). With `max_frames` the window
-    closes by itself after that many frames; `screenshot` saves the last frame as a PNG."""
+def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None):
+    """Open the interactive window for a config (path, dict or Config); returns the simulation shown last (a basis
+    or transfer switch replaces it). With `max_frames` the window closes by itself after that many frames; `screenshot` saves the last frame as a PNG. `script` (for tests and
+    demos): {frame: [action, ...]} applied before that frame's events, an action being ("slider", label, value)
+    (moves a slider widget, read back like a hand's move) or ("event", name) (a key or a button's event name)."""
     import taichi as ti
 
     from .config import load_config
@@ -261,13 +365,29 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True):
     cfg = cfg if hasattr(cfg, "model_dump") else load_config(cfg)
     res = tuple(int(s) for s in cfg.output.render.size)
     session = Session(Simulation(cfg), res)
-    gui = ti.GUI(f"taichi-mpm: {cfg.name}", res=res, background_color=0xFFFFFF, show_gui=show)
+    gui = ti.GUI(window_title(cfg), res=res, background_color=0xFFFFFF, show_gui=show)
+    sliders = {"time-step scale": gui.slider("time-step scale", 0.05, 1.0, 0.05),
+               "push strength": gui.slider("push strength", 0.0, 1.0, 0.05)}
+    sliders["time-step scale"].value, sliders["push strength"].value = session.dt_scale, session.push_strength
+    gui.button("next basis", "basis")
+    gui.button("next transfer", "transfer")
     prev_cursor = None
     frames = 0
     try:
         while gui.running:
-            if not all([session.press(e.key) for e in gui.get_events(ti.GUI.PRESS)]):
+            injected = []
+            for action in (script or {}).get(frames, []):
+                if action[0] == "slider":
+                    sliders[action[1]].value = action[2]
+                else:
+                    injected.append(action[1])
+            keys = [e.key for e in gui.get_events(ti.GUI.PRESS)] + injected
+            if not all([session.press(k) for k in keys]):
                 break
+            if abs(sliders["time-step scale"].value - session.dt_scale) > 1e-9:
+                session.set_dt_scale(sliders["time-step scale"].value)
+            if abs(sliders["push strength"].value - session.push_strength) > 1e-9:
+                session.set_push_strength(sliders["push strength"].value)
             cursor = np.asarray(gui.get_cursor_pos(), float)
             held = gui.is_pressed(ti.GUI.LMB)
             if held and prev_cursor is not None:
@@ -278,10 +398,11 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True):
             begin, end = session.view.box_edges()
             gui.lines(begin, end, radius=1, color=0x999999)
             gui.circles(pos, radius=session.radius_px, color=colours)
+            _draw_chart(gui, session)
             gui.text(status, pos=(0.01, 0.99), font_size=16, color=0x000000)
             if session.show_help:
-                gui.text(HELP if res[0] >= 700 else "space s r c drag arrows esc", pos=(0.01, 0.05), font_size=14,
-                         color=0x444444)
+                gui.text(HELP if res[0] >= 900 else "space s r c b t drag arrows esc", pos=(0.01, 0.05),
+                         font_size=14, color=0x444444)
             if session.message:
                 gui.text(session.message, pos=(0.01, 0.94), font_size=16, color=0xCC0000)
             frames += 1
@@ -294,3 +415,12 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True):
     finally:
         gui.close()
     return session.sim
+
+
+def _draw_chart(gui, session):
+    x0, y0, x1, y1 = CHART
+    corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    gui.lines(corners, np.roll(corners, -1, axis=0), radius=1, color=0xBBBBBB)
+    for name, (begin, end) in session.chart_lines().items():
+        gui.lines(begin, end, radius=1.5, color=CHART_COLOURS[name])
+    gui.text("energy: kinetic (red) strain (blue) total (black)", pos=(x0, y1 + 0.03), font_size=12, color=0x444444)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import colour_range
 from . import fields as registry
 from .fields import von_mises  # noqa: F401 (the one implementation, in fields.py)
 
@@ -100,45 +101,111 @@ def _label(name):
 
 
 # ---------------------------------------------------------------- renderer
-class FrameRenderer:
-    """Renders particle states of one scene to PNG files with a fixed camera and colour scale.
+def surface_particles(x, spacing: float) -> np.ndarray:
+    """Mask of the 3D particles that can be seen from outside: those with an empty voxel within two voxels in one
+    of the six axis directions, on voxels of the particle spacing. Conservative: a stretched or jumbled body
+    leaves more voxels empty, and then more particles are drawn, never fewer of the visible ones (an occupied
+    voxel holds a particle that covers the one behind it)."""
+    x = np.asarray(x, float).reshape(len(x), -1)
+    if len(x) < 64 or not spacing > 0:
+        return np.ones(len(x), bool)
+    # + 0.5: a lattice's particles sit at voxel centres, not on voxel faces where round-off picks the side
+    ijk = np.floor((x - x.min(axis=0)) / spacing + 0.5).astype(np.int64) + 2
+    dims = ijk.max(axis=0) + 3
+    occupied = np.zeros(tuple(dims), bool)
+    occupied[tuple(ijk.T)] = True
+    hidden = np.ones(len(x), bool)
+    for a in range(3):
+        for s in (-2, -1, 1, 2):  # two layers: a deformed lattice's voxels leave gaps one layer would show through
+            n = ijk.copy()
+            n[:, a] += s
+            hidden &= occupied[tuple(n.T)]
+    return ~hidden
 
-    render_cfg: the config's `output.render` (color_by, size, camera, point_size, colormap, clim),
-    or a dict with those keys. Colour limits: `clim` when given; otherwise they start from the
-    first frame and only ever widen, so a colour keeps its meaning through a sequence.
+
+def _polydata(points):
+    return _pyvista().PolyData(points)
+
+
+CATEGORICAL = ("body", "material", "interface")
+_VIEWS = {"iso": (1.0, 0.75, 1.5), "front": (0, 0, 1), "xy": (0, 0, 1), "xz": (0, 1, 0), "top": (0, 1, 0),
+          "yz": (1, 0, 0), "side": (1, 0, 0)}
+
+
+def _options(render_cfg) -> dict:
+    rc = render_cfg.model_dump() if hasattr(render_cfg, "model_dump") else dict(render_cfg or {})
+    name = rc.get("color_by") or "speed"
+    return dict(color_by=_ALIASES.get(name, name), size=tuple(int(s) for s in (rc.get("size") or (960, 720))),
+                camera=rc.get("camera") or "iso", point_size=rc.get("point_size"),
+                cmap=rc.get("colormap") or "viridis", clim=list(rc["clim"]) if rc.get("clim") else None,
+                scale=rc.get("scale") or "linear",
+                percentiles=tuple(rc.get("percentiles") or colour_range.DEFAULT_PERCENTILES))
+
+
+class FrameRenderer:
+    """Renders particle states of one scene to PNG files with one camera and one colour scale.
+
+    render_cfg: the config's `output.render` (color_by, size, camera, point_size, colormap, clim, scale,
+    percentiles) or a dict with those keys. limits: the colour range of the whole sequence (`colour_range.
+    robust_limits` over every frame; the config's `clim` wins); without one, robust limits of the frames seen so
+    far (widened only). bounds: (lower, upper) corners the 3D camera frames (the bodies over the whole run;
+    default the domain). title: text in the top right corner (scene name, a comparison's variant).
+
+    3D: particles as lit spheres over a floor (the domain's y_min wall) and a faint domain outline, perspective
+    camera. 2D: discs seen along z, orthographic, inside the domain outline. 1D: a strip of cells along x.
+    One off-screen plotter serves the whole sequence; a frame only updates points, colours and the time label.
     """
 
-    def __init__(self, render_cfg, dim: int, lower, upper):
-        rc = render_cfg.model_dump() if hasattr(render_cfg, "model_dump") else dict(render_cfg or {})
-        self.color_by = _ALIASES.get(rc.get("color_by") or "speed", rc.get("color_by") or "speed")
-        self.size = tuple(int(s) for s in (rc.get("size") or (960, 720)))
-        self.camera = rc.get("camera") or "iso"
-        self.point_size = rc.get("point_size")
-        self.cmap = rc.get("colormap") or "viridis"
-        self.fixed_clim = list(rc["clim"]) if rc.get("clim") else None
+    def __init__(self, render_cfg, dim: int, lower, upper, limits=None, bounds=None, title: str | None = None):
+        o = _options(render_cfg)
+        self.color_by, self.size, self.camera = o["color_by"], o["size"], o["camera"]
+        self.point_size, self.cmap, self.scale, self.percentiles = o["point_size"], o["cmap"], o["scale"], o["percentiles"]
         self.dim = int(dim)
         self.lower = np.asarray(lower, float)
         self.upper = np.asarray(upper, float)
         if self.dim == 3 and self.camera not in _CAMERAS_3D:
             raise ValueError(f"unknown camera '{self.camera}' (choose from {', '.join(_CAMERAS_3D)})")
-        self._clim = None
+        self.categorical = self.color_by in CATEGORICAL
+        if self.categorical:
+            self.scale = "linear"
+        fixed = o["clim"] or (list(limits) if limits is not None else None)
+        self.live = colour_range.LiveLimits(self.color_by, self.scale, fixed, self.percentiles)
+        self.bounds = (np.asarray(bounds[0], float), np.asarray(bounds[1], float)) if bounds is not None else None
+        self.title = title
         self._plotter = None
-        self._mesh = None
         self._n = None
+        self.seconds = 0.0   # wall time spent rendering and writing frames
+        self.frames = 0
 
     # ------------------------------------------------------------ public
     def render(self, particles: dict, time: float, path) -> Path:
         """Write one PNG of the configured size showing `particles` at `time`."""
+        import time as _time
+
+        t0 = _time.perf_counter()
         values = field_values(particles, self.color_by, self.dim)
-        clim = self._update_clim(values)
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        p = self._setup(particles)
-        self._update(particles, values, clim)
-        p.add_text(f"t = {time:.4g} s", position=(12, self.size[1] - 34), font_size=12, color="black", name="time")
-        p.render()
-        p.screenshot(str(path))
+        img = self.image(particles["x"], values, time, spacing=self._spacing(particles), volume=particles.get("volume"))
+        _write_png(path, img)
+        self.seconds += _time.perf_counter() - t0
+        self.frames += 1
         return path
+
+    def image(self, x, values, time: float, spacing: float | None = None, volume=None) -> np.ndarray:
+        """The (H, W, 3) uint8 picture of positions x coloured by values at `time` (no file written)."""
+        values = np.asarray(values, float)
+        clim = self.live.update(values)
+        if spacing is None:
+            spacing = self._spacing({"x": x})
+        if self.dim == 3:  # hidden particles cost fill time and show nothing
+            keep = surface_particles(x, spacing)
+            x, values = np.asarray(x)[keep], values[keep]
+        p = self._setup(x, spacing, volume, clim)
+        self._update(x, values, clim, volume, spacing)
+        self._time_actor.SetInput(f"t = {time:.4g} s")
+        p.render()  # (pyvista's screenshot renders only the first time)
+        return p.screenshot(return_img=True)[..., :3]
 
     def close(self):
         if self._plotter is not None:
@@ -152,25 +219,6 @@ class FrameRenderer:
             pass
 
     # ------------------------------------------------------------ internals
-    def _update_clim(self, values):
-        if self.fixed_clim:
-            return self.fixed_clim
-        if self.color_by == "body":  # categorical: one colour per body, fixed by the first frame
-            if self._clim is None:
-                nb = int(np.max(values)) + 1 if len(values) else 1
-                self._clim = [-0.5, max(nb, 2) - 0.5]
-            return self._clim
-        finite = values[np.isfinite(values)]
-        lo, hi = (float(finite.min()), float(finite.max())) if len(finite) else (0.0, 1.0)
-        if self._clim is not None:
-            lo, hi = min(lo, self._clim[0]), max(hi, self._clim[1])
-        self._clim = [lo, hi]
-        if hi - lo < 1e-6 * max(1.0, abs(hi)):  # a flat field (e.g. a uniform speed at t = 0)
-            pad = 0.5 * abs(hi) if hi != 0 else 1.0
-            nonneg = self.color_by in ("speed", "von_mises", "damage", "plastic_strain") and lo >= 0
-            return [0.0 if nonneg else lo - pad, hi + pad]
-        return self._clim
-
     def _spacing(self, particles):
         vol = np.asarray(particles.get("volume", []), float)
         if len(vol):
@@ -182,73 +230,107 @@ class FrameRenderer:
         x = np.asarray(x, float).reshape(len(x), -1)[:, : self.dim]
         return np.pad(x, ((0, 0), (0, 3 - self.dim)))
 
-    def _bar_mesh(self, particles):
-        """1D: each particle becomes a quad [x - h/2, x + h/2] x [0, H]; colours are cell data."""
-        pv = _pyvista()
-        x = np.asarray(particles["x"], float).reshape(-1)
-        vol = np.asarray(particles.get("volume", np.full(len(x), self._spacing(particles))), float).reshape(-1)
-        h = np.abs(vol) / 2
+    def _bar_points(self, x, volume, spacing):
+        """1D: each particle becomes a quad [x - h/2, x + h/2] x [0, H]."""
+        x = np.asarray(x, float).reshape(-1)
+        h = (np.abs(np.asarray(volume, float).reshape(-1)) if volume is not None else np.full(len(x), spacing)) / 2
         H = 0.04 * float(self.upper[0] - self.lower[0])
-        pts = np.stack([np.c_[x - h, np.zeros_like(x), np.zeros_like(x)], np.c_[x + h, np.zeros_like(x), np.zeros_like(x)],
-                        np.c_[x + h, np.full_like(x, H), np.zeros_like(x)], np.c_[x - h, np.full_like(x, H), np.zeros_like(x)]],
-                       axis=1).reshape(-1, 3)
-        n = len(x)
-        faces = np.c_[np.full(n, 4), 4 * np.arange(n)[:, None] + np.arange(4)].ravel()
-        return pv.PolyData(pts, faces=faces)
+        z = np.zeros_like(x)
+        return np.stack([np.c_[x - h, z, z], np.c_[x + h, z, z], np.c_[x + h, z + H, z], np.c_[x - h, z + H, z]],
+                        axis=1).reshape(-1, 3)
 
-    def _pixels_per_unit(self):
-        ext = self.upper - self.lower
-        w, h = self.size
-        if self.dim == 1:
-            return 0.9 * w / ext[0]
-        if self.dim == 2:
-            return 0.9 * min(w / ext[0], h / ext[1])
-        return 0.75 * min(w, h) / float(np.linalg.norm(ext))
+    def _band(self):
+        """Window fractions the scene may use: below the time label, above the colour bar."""
+        h = self.size[1]
+        return max(0.2, 75 / h), min(0.92, 1 - 40 / h)
 
-    def _setup(self, particles):
+    def _setup(self, x, spacing, volume, clim):
         pv = _pyvista()
-        n = len(particles["x"])
-        if self._plotter is not None and n == self._n:
+        n = len(x)
+        if self._plotter is not None and (n == self._n or self.dim == 3):
             return self._plotter
         self.close()
         p = pv.Plotter(off_screen=True, window_size=list(self.size))
-        p.set_background("white")
         self._n = n
         lo3 = np.pad(self.lower, (0, 3 - self.dim))
         hi3 = np.pad(self.upper, (0, 3 - self.dim))
+        if self.dim == 3:
+            p.set_background("white", top="#d8e0ea")  # a soft sky: depth reads better than on flat white
+        else:
+            p.set_background("white")
         if self.dim == 1:
-            self._mesh = self._bar_mesh(particles)
+            pts = self._bar_points(x, volume, spacing)
+            self._mesh = pv.PolyData(pts, faces=np.c_[np.full(n, 4), 4 * np.arange(n)[:, None] + np.arange(4)].ravel())
             H = 0.04 * (hi3[0] - lo3[0])
             hi3 = hi3 + np.array([0, H, 0])
         else:
-            self._mesh = pv.PolyData(self._points3(particles["x"]))
-        self._mesh[self.color_by] = np.zeros(self._mesh.n_cells if self.dim == 1 else n)
-        cmap = "tab10" if self.color_by == "body" else self.cmap
-        bar = dict(title=_label(self.color_by), color="black", fmt="%.3g", n_labels=5, vertical=False,
-                   position_x=0.2, position_y=0.03, width=0.6, height=0.07, title_font_size=16, label_font_size=14)
-        if self.dim == 1:
-            self._actor = p.add_mesh(self._mesh, scalars=self.color_by, cmap=cmap, scalar_bar_args=bar, show_edges=False,
-                       preference="cell", lighting=False)
+            self._mesh = pv.PolyData(self._points3(x))
+        self._mesh["value"] = np.zeros(n)
+        bar = dict(title="", color="black", fmt="%.3g", n_labels=5 if self.size[0] >= 560 else 3, vertical=False, position_x=0.2, position_y=0.0,
+                   width=0.6, height=0.085, label_font_size=14)
+        if self.categorical:  # one tab10 colour per body, each labelled on the bar
+            import matplotlib.colors
+
+            k = max(2, int(round(clim[1] - clim[0])))
+            cmap = matplotlib.colors.ListedColormap([matplotlib.colormaps["tab10"](i % 10) for i in range(k)])
+            bar.update(n_labels=0)
+            common = dict(annotations={float(i): str(i) for i in range(k)}, n_colors=k)
         else:
-            ps = self.point_size or max(2.0, 1.05 * self._spacing(particles) * self._pixels_per_unit())
-            self._actor = p.add_mesh(self._mesh, scalars=self.color_by, cmap=cmap, scalar_bar_args=bar, style="points",
-                       point_size=ps, render_points_as_spheres=self.dim == 3, lighting=self.dim == 3)
-        box = pv.Box(bounds=(lo3[0], hi3[0], lo3[1], hi3[1], lo3[2], hi3[2]))
-        p.add_mesh(box.outline() if self.dim == 3 else pv.Box(bounds=(lo3[0], hi3[0], lo3[1], hi3[1], 0, 0)).outline(),
-                   color="gray", line_width=1)
-        self._place_camera(p, lo3, hi3)
+            cmap, common = self.cmap, dict(n_colors=256)
+        common.update(scalars="value", cmap=cmap, scalar_bar_args=bar, clim=clim, log_scale=self.scale == "log")
+        if self.dim == 1:
+            self._actor = p.add_mesh(self._mesh, preference="cell", lighting=False, **common)
+        else:
+            self._place_camera(p, lo3, hi3)
+            # discs cover the square lattice's gaps (sqrt 2) so that a body reads as a continuum (2D); spheres touch (3D)
+            ps = self.point_size or max(2.0, (1.1 if self.dim == 3 else 1.45) * spacing * self._pixels_per_unit(p))
+            # spheres (impostors: one shaded disc per particle, cheap) lit in 3D; flat discs in 2D, whose colour
+            # must read exactly against the colour bar
+            self._actor = p.add_mesh(self._mesh, style="points", point_size=ps, render_points_as_spheres=True,
+                                     lighting=self.dim == 3, ambient=0.3 if self.dim == 3 else 0.0,
+                                     diffuse=0.75 if self.dim == 3 else 1.0, specular=0.25 if self.dim == 3 else 0.0,
+                                     specular_power=20, **common)
+        if self.dim == 3:
+            floor = pv.Plane(center=(0.5 * (lo3[0] + hi3[0]), lo3[1] - 1e-4 * (hi3[1] - lo3[1]), 0.5 * (lo3[2] + hi3[2])),
+                             direction=(0, 1, 0), i_size=hi3[2] - lo3[2], j_size=hi3[0] - lo3[0])
+            p.add_mesh(floor, color="#c9c9c4", ambient=0.5, diffuse=0.5, specular=0.0)
+            p.add_mesh(pv.Box(bounds=(lo3[0], hi3[0], lo3[1], hi3[1], lo3[2], hi3[2])).outline(), color="#9aa3ad",
+                       line_width=1, opacity=0.6)
+        else:
+            top = hi3[1] if self.dim == 2 else hi3[1]
+            p.add_mesh(pv.Box(bounds=(lo3[0], hi3[0], lo3[1], top, 0, 0)).outline(), color="#8c8c8c", line_width=1)
+        if self.dim == 1:
+            self._place_camera(p, lo3, hi3)
+        w, h = self.size
+        if p.scalar_bars:  # labels under the bar, the field and its unit above it: they never overlap
+            for sb in p.scalar_bars.values():
+                sb.SetTextPositionToPrecedeScalarBar()
+            title = _label(self.color_by) + (" (log scale)" if self.scale == "log" else "")
+            t = p.add_text(title, position=(w // 2, int(0.085 * h) + 4), font_size=11, color="black")
+            t.GetTextProperty().SetJustificationToCentered()
+        self._time_actor = p.add_text("t =", position=(12, h - 34), font_size=12, color="black")
+        if self.title:
+            p.add_text(self.title, position="upper_right", font_size=11, color="#333333")
         self._plotter = p
         return p
 
+    def _pixels_per_unit(self, p):
+        """Screen pixels per unit length at the camera's focal point."""
+        h = self.size[1]
+        if self.dim < 3:
+            return h / (2 * p.camera.parallel_scale)
+        dist = float(np.linalg.norm(np.subtract(p.camera.position, p.camera.focal_point)))
+        return h / (2 * dist * np.tan(np.radians(p.camera.view_angle / 2)))
+
     def _place_camera(self, p, lo3, hi3):
-        """Fit the domain into the window above the colour bar (bottom ~20 %) and below the time label."""
-        c = 0.5 * (lo3 + hi3)
-        ext = hi3 - lo3
+        """2D and 1D: the domain, orthographic. 3D: the bodies' bounds (or the domain) fitted into the band between
+        colour bar and time label, corner by corner, for the chosen view direction."""
         w, h = self.size
-        top = min(0.92, 1 - 40 / h)       # window fractions the domain may use: below the time label
-        bottom = max(0.2, 75 / h)         # and above the colour bar
+        bottom, top = self._band()
         mid = 0.5 * (top + bottom)
         if self.dim < 3:
+            ext = hi3 - lo3
+            c = 0.5 * (lo3 + hi3)
             p.enable_parallel_projection()
             fit_height = ext[1] / (top - bottom) if self.dim == 2 else 0.0  # a 1D strip only fits the width
             scale = max(fit_height, ext[0] * h / w / 0.92, 1e-9) / 2  # half the visible height
@@ -258,37 +340,45 @@ class FrameRenderer:
             p.camera.up = (0, 1, 0)
             p.camera.parallel_scale = scale
             return
-        views = {"iso": (1.0, 0.75, 1.5), "front": (0, 0, 1), "xy": (0, 0, 1), "xz": (0, 1, 0), "top": (0, 1, 0),
-                 "yz": (1, 0, 0), "side": (1, 0, 0)}
-        direction = np.asarray(views[self.camera], float)
+        blo, bhi = self.bounds if self.bounds is not None else (lo3, hi3)
+        direction = np.asarray(_VIEWS[self.camera], float)
         direction /= np.linalg.norm(direction)
-        up = (0, 0, -1) if self.camera in ("xz", "top") else (0, 1, 0)
+        up = np.array((0, 0, -1.0) if self.camera in ("xz", "top") else (0, 1.0, 0))
+        right = np.cross(up, direction)
+        right /= np.linalg.norm(right)
+        up = np.cross(direction, right)
+        c = 0.5 * (blo + bhi)
+        corners = np.array(np.meshgrid(*zip(blo, bhi), indexing="ij")).reshape(3, -1).T - c
         angle = 30.0
-        radius = 0.5 * float(np.linalg.norm(ext))      # the domain's bounding sphere
-        half = np.radians(angle / 2)
-        dist = radius / np.sin(half) / (top - bottom) * 0.95
-        dist = max(dist, radius / np.sin(half) * h / w / 0.95)
-        # aim above the centre so the domain sits in the band between bar and label
-        up_vec = np.asarray(up, float)
-        shift = (mid - 0.5) * 2 * dist * np.tan(half)
-        focal = c - shift * up_vec
+        t = np.tan(np.radians(angle / 2))
+        fy, fx = 0.95 * (top - bottom), 0.92          # window fractions the bodies may fill
+        xr, yu, zd = corners @ right, corners @ up, corners @ direction
+        dist = float(np.max(np.maximum(zd + np.abs(yu) / (t * fy), zd + np.abs(xr) / (t * w / h * fx))))
+        # aim so that the band's middle, not the window's, holds the bodies' centre
+        shift = (mid - 0.5) * 2 * dist * t
+        focal = c - shift * up
         p.camera.focal_point = tuple(focal)
         p.camera.position = tuple(focal + dist * direction)
-        p.camera.up = up
+        p.camera.up = tuple(up)
         p.camera.view_angle = angle
         p.reset_camera_clipping_range()
 
-    def _update(self, particles, values, clim):
+    def _update(self, x, values, clim, volume, spacing):
         if self.dim == 1:
-            new = self._bar_mesh(particles)
-            self._mesh.points = new.points
+            self._mesh.points = self._bar_points(x, volume, spacing)
+            self._mesh.cell_data["value"] = np.asarray(values, float)
         else:
-            self._mesh.points = self._points3(particles["x"])
-        self._mesh[self.color_by] = np.asarray(values, float)
+            if self._mesh.n_points != len(x):  # 3D: the visible particles change in number
+                self._mesh.copy_from(_polydata(self._points3(x)))
+            else:
+                self._mesh.points = self._points3(x)
+            shown = np.asarray(values, float)
+            if self.scale == "log":  # non-positive values take the bottom colour instead of the NaN colour
+                shown = np.clip(shown, clim[0], None)
+            self._mesh["value"] = shown
         self._actor.mapper.scalar_range = (float(clim[0]), float(clim[1]))
         if self.dim == 3:
             self._plotter.reset_camera_clipping_range()
-
 
 # ---------------------------------------------------------------- movies
 def make_movie(frames_dir, out_path, fps: int = 20) -> Path:
@@ -373,14 +463,113 @@ def read_particles(vtu_path, dim: int) -> dict:
     return p
 
 
+def sequence_bounds(positions, spacing: float, dim: int):
+    """(lower, upper) 3D corners of the union of every frame's particle positions, padded by one spacing: what a
+    3D camera frames so that the bodies fill the picture and the camera does not move during the sequence."""
+    lo = np.min([np.min(np.asarray(x, float).reshape(len(x), -1), axis=0) for x in positions], axis=0)
+    hi = np.max([np.max(np.asarray(x, float).reshape(len(x), -1), axis=0) for x in positions], axis=0)
+    lo, hi = np.pad(lo[:dim], (0, 3 - dim)), np.pad(hi[:dim], (0, 3 - dim))
+    return lo - spacing, hi + spacing
+
+
+def sequence_limits(render_cfg, values) -> list[float] | None:
+    """The colour range of a sequence: the config's clim, else robust percentiles of every frame's values."""
+    o = _options(render_cfg)
+    if o["clim"]:
+        return o["clim"]
+    categorical = o["color_by"] in CATEGORICAL
+    return colour_range.robust_limits(list(values), o["color_by"], "linear" if categorical else o["scale"],
+                                      o["percentiles"], categorical=categorical)
+
+
+class FrameRecorder:
+    """A run's frames, rendered at its end with one colour range and one camera for the whole sequence.
+
+    `record` keeps what a frame needs (positions and the colour field as float32, the particle spacing; about
+    16 bytes per particle and output) in RUN_DIR/frames/.record_NNNNNN.npz; `render_all` computes the robust
+    limits and the camera bounds over every record, writes frames/frame_NNNNNN.png and removes the records. A run
+    stopped by Ctrl-C keeps its records, so that the resumed run renders the whole sequence.
+    """
+
+    PATTERN = ".record_*.npz"
+
+    def __init__(self, frames_dir, render_cfg, dim: int, lower, upper, title: str | None = None):
+        self.dir = Path(frames_dir)
+        self.render_cfg, self.dim, self.lower, self.upper, self.title = render_cfg, dim, lower, upper, title
+        self.color_by = _options(render_cfg)["color_by"]
+        if dim == 3 and _options(render_cfg)["camera"] not in _CAMERAS_3D:
+            raise ValueError(f"unknown camera '{_options(render_cfg)['camera']}' (choose from {', '.join(_CAMERAS_3D)})")
+        self.seconds = 0.0
+
+    def record(self, particles: dict, time: float, index: int):
+        """Keep one output's frame data (ValueError for an unknown or absent colour field)."""
+        values = field_values(particles, self.color_by, self.dim)
+        n = len(particles["x"])
+        vol = np.asarray(particles.get("volume", np.zeros(0)), float).reshape(-1)
+        spacing = float(np.median(np.abs(vol))) ** (1.0 / self.dim) if len(vol) else float("nan")
+        self.dir.mkdir(parents=True, exist_ok=True)
+        path = self.dir / f".record_{index:06d}.npz"
+        tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+        with open(tmp, "wb") as f:
+            np.savez(f, x=np.asarray(particles["x"], np.float32).reshape(n, -1), values=values.astype(np.float32),
+                     time=float(time), spacing=spacing, volume=vol.astype(np.float32) if self.dim == 1 else np.zeros(0))
+        os.replace(tmp, path)
+
+    def records(self) -> list[Path]:
+        return sorted(self.dir.glob(self.PATTERN))
+
+    def render_all(self) -> list[Path]:
+        """Render every recorded frame into frames/frame_NNNNNN.png; returns the frames in order."""
+        import time as _time
+
+        records = self.records()
+        if not records:
+            return []
+        t0 = _time.perf_counter()
+        data = []
+        for r in records:
+            with np.load(r) as z:
+                data.append({k: z[k] for k in z.files})
+        spacing = float(np.nanmedian([float(d["spacing"]) for d in data]))
+        limits = sequence_limits(self.render_cfg, [d["values"] for d in data])
+        bounds = sequence_bounds([d["x"] for d in data], spacing, self.dim) if self.dim == 3 else None
+        renderer = FrameRenderer(self.render_cfg, self.dim, self.lower, self.upper, limits=limits, bounds=bounds,
+                                 title=self.title)
+        frames = []
+        try:
+            for r, d in zip(records, data):
+                out = self.dir / r.name.replace(".record_", "frame_").replace(".npz", ".png")
+                img = renderer.image(d["x"], d["values"], float(d["time"]), spacing=spacing,
+                                     volume=d["volume"] if len(d["volume"]) else None)
+                _write_png(out, img)
+                frames.append(out)
+        finally:
+            renderer.close()
+        for r in records:
+            r.unlink()
+        self.seconds += _time.perf_counter() - t0
+        return frames
+
+
+def _write_png(path, img):
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    imageio.imwrite(tmp, img, format="png", compress_level=1)  # level 6 (the default) costs 10x the time for ~25 % less
+    os.replace(tmp, path)
+
+
 def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: int = 20) -> dict:
     """Re-render the saved output of a run directory into frames/frame_NNNNNN.png (and a movie).
 
-    color_by, size, camera override the run's `output.render`; the colour limits are fixed over
-    the whole sequence (config `clim`, or the range over all saved states). movie: None follows the
-    run's output.formats (mp4 / gif), False makes none, True or "mp4" / "gif" or a path makes one.
-    Returns {"frames": [paths], "movie": path or None}.
+    color_by, size, camera override the run's `output.render`; the colour limits are fixed over the whole
+    sequence (config `clim`, or robust percentiles over all saved states), and so is the 3D camera (the bodies'
+    bounds over the run). movie: None follows the run's output.formats (mp4 / gif), False makes none, True or
+    "mp4" / "gif" or a path makes one. Returns {"frames": [paths], "movie": path or None, "seconds": render time}.
     """
+    import time as _time
+
     from .config import load_config
     from .errors import ConfigError
 
@@ -402,17 +591,15 @@ def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: 
     dim = cfg.dim
     states = [read_particles(f, dim) for _, f in series]
     try:  # bad options are input errors (exit code 2 on the command line), found before any frame
-        field_values(states[0], rc["color_by"], dim)
+        vals = [field_values(s, rc["color_by"], dim) for s in states]
         FrameRenderer(rc, dim, cfg.domain.lower, cfg.domain.upper)
     except ValueError as e:
         raise ConfigError(str(e), key="output.render") from None
-    if not rc.get("clim"):
-        vals = [field_values(s, rc["color_by"], dim) for s in states]
-        lo = min(float(np.nanmin(v)) for v in vals)
-        hi = max(float(np.nanmax(v)) for v in vals)
-        if hi > lo:
-            rc["clim"] = [lo, hi]
-    renderer = FrameRenderer(rc, dim, cfg.domain.lower, cfg.domain.upper)
+    t0 = _time.perf_counter()
+    spacing = FrameRenderer(rc, dim, cfg.domain.lower, cfg.domain.upper)._spacing(states[0])
+    bounds = sequence_bounds([s["x"] for s in states], spacing, dim) if dim == 3 else None
+    renderer = FrameRenderer(rc, dim, cfg.domain.lower, cfg.domain.upper, limits=sequence_limits(rc, vals),
+                             bounds=bounds, title=cfg.name)
     frames_dir = run_dir / "frames"
     frames = []
     try:
@@ -424,6 +611,7 @@ def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: 
             frames.append(renderer.render(state, t, frames_dir / f"frame_{idx:06d}.png"))
     finally:
         renderer.close()
+    seconds = _time.perf_counter() - t0
     if movie is None:
         movie = next((fmt for fmt in cfg.output.formats if fmt in ("mp4", "gif")), False)
     movie_path = None
@@ -435,4 +623,4 @@ def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: 
         else:
             movie_path = Path(movie)
         make_movie(frames, movie_path, fps=fps)  # this sequence only, not stale frames of an older run
-    return {"frames": frames, "movie": movie_path}
+    return {"frames": frames, "movie": movie_path, "seconds": seconds}

@@ -126,7 +126,7 @@ class Run:
     """Writes a simulation's outputs into `out_dir` (default: output.dir of the config)."""
 
     STALE = ("particles_*.vtu", "particles_*.npz", io.PVD_NAME, io.DIAGNOSTICS_NAME, io.CHECKPOINT_NAME,
-             "frames/frame_*.png", "movie.mp4", "movie.gif")
+             "frames/frame_*.png", "frames/.record_*.npz", "movie.mp4", "movie.gif")
 
     def __init__(self, sim, out_dir=None, formats=None, every: Optional[float] = None, resume: bool = False,
                  log: Optional[Callable[[str], None]] = None, overwrite: bool = False):
@@ -142,7 +142,9 @@ class Run:
         self.entries = []        # (time, file) of the VTU series
         self.stop_requested = False
         self.output_seconds = 0.0  # wall time spent writing outputs (the CLI's summary keeps it apart from stepping)
-        self._renderer = None
+        self._renderer = None    # render.FrameRecorder: frames are rendered at the end of the run
+        self.render_seconds = 0.0  # wall time of rendering frames and movies (part of output_seconds)
+        self.frames_rendered = 0
         self._frames = any(f in self.formats for f in ("png", "mp4", "gif"))
         if resume and overwrite:
             raise ConfigError("--resume continues a run's results and --overwrite replaces them: give one")
@@ -252,30 +254,40 @@ class Run:
         io.save_checkpoint(self.out_dir / io.CHECKPOINT_NAME, self.sim.get_state(), meta)
 
     def _render(self, p: dict, time: float):
+        """Keep this output's frame data; the frames are rendered at the end of the run (render_frames), with one
+        colour range and one camera for the whole sequence."""
         if self._renderer is None:
             try:
-                from .render import FrameRenderer
+                from .render import FrameRecorder
             except ImportError as e:
                 self.log(f"warning: no frames or movie: the renderer is not available ({e})")
                 self._frames = False
                 return
             c = self.cfg
             try:
-                self._renderer = FrameRenderer(c.output.render, c.dim, list(c.domain.lower), list(c.domain.upper))
+                self._renderer = FrameRecorder(self.out_dir / "frames", c.output.render, c.dim, list(c.domain.lower),
+                                               list(c.domain.upper), title=c.name)
             except ValueError as e:  # an unknown camera
                 raise ConfigError(str(e), key="output.render.camera") from None
-            (self.out_dir / "frames").mkdir(exist_ok=True)
         try:
-            self._renderer.render(p, time, self.out_dir / "frames" / f"frame_{self.index:06d}.png")
+            self._renderer.record(p, time, self.index)
         except ValueError as e:  # an unknown or absent colour field
             raise ConfigError(str(e), key="output.render.color_by") from None
 
+    def render_frames(self):
+        """Render the recorded frames (frames/frame_NNNNNN.png); render_seconds and frames_rendered say what it cost."""
+        if self._renderer is None:
+            return
+        t0 = time.perf_counter()
+        self.frames_rendered += len(self._renderer.render_all())
+        self.render_seconds += time.perf_counter() - t0
+        self.output_seconds += time.perf_counter() - t0
+
     def finish(self):
-        """After the last output: movies from the frames, when asked."""
+        """After the last output: the frames and movies, when asked."""
         self.probes.close()
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        self.render_frames()
+        self._renderer = None
         movies = [f for f in ("mp4", "gif") if f in self.formats]
         if not movies or not self._frames:
             return
@@ -284,6 +296,7 @@ class Run:
         t0 = time.perf_counter()
         for fmt in movies:
             make_movie(self.out_dir / "frames", self.out_dir / f"movie.{fmt}", fps=20)
+        self.render_seconds += time.perf_counter() - t0
         self.output_seconds += time.perf_counter() - t0
 
     # ------------------------------------------------------------ the loop
@@ -304,7 +317,14 @@ class Run:
         Ctrl-C (when called from the main thread) finishes the current step, writes the checkpoint and
         raises Interrupted. InstabilityError propagates with the last good checkpoint left on disk."""
         try:
-            self._loop(on_step, handle_sigint)
+            try:
+                self._loop(on_step, handle_sigint)
+            except InstabilityError:
+                try:
+                    self.render_frames()  # the frames up to the last good state show what went wrong
+                except Exception as e:  # the instability is the news; a failed picture must not hide it
+                    self.log(f"warning: the frames could not be rendered ({type(e).__name__}: {e})")
+                raise
             self.finish()
         finally:
             self.lock.release()  # also on Ctrl-C and instability: the folder is free for --resume

@@ -477,6 +477,8 @@ FLAGS = {
     "validate": ["--set", "--arch"],
     "demo": ["--list", "--set", "--out", "--quiet", "--resume", "--arch"],
     "render": ["--color-by", "--size", "--camera", "--movie"],
+    "compare": ["--vary", "--set", "--out", "--overwrite", "--color-by", "--size", "--camera", "--no-movie", "--arch",
+                "--quiet"],
     "gui": ["--set", "--arch", "--max-frames", "--screenshot"],
     "study": ["--jobs", "--scheduler", "--out", "--resume", "--overwrite", "--allow-problem", "--dry-run"],
 }

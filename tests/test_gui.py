@@ -127,25 +127,70 @@ import json, sys
 import taichi_mpm as tm
 from taichi_mpm.gui import run_gui
 cfg = tm.load_config(json.loads(sys.argv[1]))
-sim = run_gui(cfg, max_frames=4, screenshot=sys.argv[2])
-print("TIME", sim.time)
+script = {int(k): [tuple(a) for a in v] for k, v in json.loads(sys.argv[3]).items()}
+sim = run_gui(cfg, max_frames=4, screenshot=sys.argv[2], script=script)
+print("STATE", json.dumps(dict(time=sim.time, basis=sim.cfg.solver.basis, cfl=sim.cfg.solver.cfl)))
 """
 
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_gui_runs_under_xvfb_and_saves_a_screenshot(tmp_path, xvfb, dim):
+    """A few frames in a real window; in 2D the time-step slider is moved (frame 1) and the basis switched
+    (frame 2, the "next basis" button's event), so the window's widgets reach the simulation."""
     import imageio.v2 as imageio
 
     cfg = make_cfg(dim, precision="f32", velocity=[0.5] + [0.0] * (dim - 1), end_time=1.0)
+    cfg["solver"]["cfl"] = 0.4
     cfg["output"] = {"every": 0.002, "render": {"size": [320, 240], "color_by": "speed"}}
+    script = {1: [["slider", "time-step scale", 0.5]], 2: [["event", "basis"]]} if dim == 2 else {}
     shot = tmp_path / "shot.png"
     env = dict(os.environ, DISPLAY=xvfb)
-    res = subprocess.run([sys.executable, "-c", GUI_SCRIPT, json.dumps(cfg), str(shot)], env=env,
-                         capture_output=True, text=True, timeout=120)
+    res = subprocess.run([sys.executable, "-c", GUI_SCRIPT, json.dumps(cfg), str(shot), json.dumps(script)], env=env,
+                         capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
-    t = float(res.stdout.split("TIME")[-1])
-    assert t == pytest.approx(4 * 0.002, rel=1e-6)  # four frames, one output interval each
+    state = json.loads(res.stdout.split("STATE")[-1])
+    if dim == 2:
+        # quadratic -> cubic restarted the scene at frame 2: two frames (2 and 3) of one output interval since;
+        # the slider's half time step carried over to the new simulation
+        assert state["basis"] == "cubic"
+        assert state["cfl"] == pytest.approx(0.2)
+        assert state["time"] == pytest.approx(2 * 0.002, rel=1e-6)
+    else:
+        assert state["basis"] == "quadratic" and state["cfl"] == pytest.approx(0.4)
+        assert state["time"] == pytest.approx(4 * 0.002, rel=1e-6)  # four frames, one output interval each
     img = imageio.imread(shot)
     assert img.shape[:2] == (240, 320)
     assert img[..., :3].astype(float).var() > 100.0
     assert len(np.unique(img[..., :3].reshape(-1, 3), axis=0)) > 10
+
+
+def test_session_sliders_switch_and_energy_chart():
+    """Without a window: the time-step scale reaches the solver's dt, the push strength scales the push, the
+    energy chart follows the energies, a transfer switch restarts the scene."""
+    cfg = make_cfg(2, dx=0.1, velocity=[0.5, 0.0], end_time=1.0)
+    cfg["output"] = {"every": 0.01}
+    sim = tm.Simulation(cfg)
+    s = Session(sim, (300, 300))
+    dt_full = min(sim.dt_limits().values())
+    s.set_dt_scale(0.25)
+    assert min(sim.dt_limits().values()) == pytest.approx(0.25 * dt_full, rel=1e-12)
+    s.advance()
+    s.advance()
+    assert len(s.chart) == 3
+    kin, strain, total = s.chart[-1]
+    e = sim.energy()
+    assert kin == pytest.approx(e["kinetic"]) and strain == pytest.approx(e["strain"])
+    assert total == pytest.approx(s.chart[0][2], rel=1e-3)        # a free elastic block: energy is conserved
+    lines = s.chart_lines()
+    assert set(lines) == {"kinetic", "strain", "total"} and lines["kinetic"][0].shape == (2, 2)
+    x0, y0, x1, y1 = __import__("taichi_mpm.gui", fromlist=["CHART"]).CHART
+    for begin, end in lines.values():
+        assert np.all(begin[:, 0] >= x0) and np.all(end[:, 0] <= x1) and np.all(begin[:, 1] <= y1 + 1e-12)
+    # push strength: half strength moves the particle under the cursor half way to the drag velocity
+    x = sim.particles()["x"]
+    push_particles(sim, x[0], [2.0, 0.0], radius=0.05, strength=0.5)
+    assert sim.particles()["v"][0, 0] == pytest.approx(0.5 + 0.5 * (2.0 - 0.5))
+    assert s.switch("transfer")                                   # apic -> pic: a new simulation from t = 0
+    assert s.sim is not sim and s.sim.cfg.solver.transfer == "pic" and s.sim.time == 0.0
+    assert s.sim.cfg.solver.cfl == pytest.approx(0.25 * s.base_cfl)  # the scale carries over to the new scene
+    assert not s.switch("basis", "wavelet") and "not possible" in s.message

@@ -142,3 +142,163 @@ def test_render_run_rejects_unknown_field_before_rendering(tmp_path):
     with pytest.raises(ConfigError, match="unknown colour field"):
         render_run(run, color_by="temperature")
     assert not (run / "frames").exists()
+
+
+# ---------------------------------------------------------------- colour ranges that show the physics
+def colormap_positions(img, cmap_name, min_chroma=40):
+    """Where on the colour map each coloured pixel of a frame lies, in [0, 1]: the colour map entry that best
+    matches the pixel up to a brightness factor (the 3D lighting scales a particle's colour; 2D discs are unlit).
+    Grey pixels (background, floor, outline, text) are left out by their low chroma."""
+    import matplotlib
+
+    rgb = img[..., :3].reshape(-1, 3).astype(float)
+    rgb = rgb[np.ptp(rgb, axis=1) >= min_chroma]
+    table = matplotlib.colormaps[cmap_name](np.linspace(0, 1, 256))[:, :3] * 255
+    scale = np.clip(rgb @ table.T / np.sum(table**2, axis=1), 0.3, 1.5)          # (pixels, 256) best factors
+    residual = np.sum(rgb**2, axis=1)[:, None] - 2 * scale * (rgb @ table.T) + scale**2 * np.sum(table**2, axis=1)
+    return np.argmin(residual, axis=1) / 255.0
+
+
+def map_coverage(positions, bins=10, min_share=0.01):
+    """Fraction of the colour map's bins that hold at least min_share of the particle pixels."""
+    h, _ = np.histogram(positions, bins=bins, range=(0, 1))
+    return float(np.mean(h >= min_share * max(len(positions), 1)))
+
+
+def impact_states(dim, n_frames=4):
+    """A plate hit in its middle: a von Mises stress wave (a ring of ~1 kPa running outwards over a near-zero
+    background) plus a few contact particles at 100 kPa, the distribution that leaves a min-max colour range
+    one flat colour (issue 13: sphere_impact's plate)."""
+    h = 0.02
+    axes = [np.arange(0.1, 0.9, h) + h / 2, np.arange(0.0, 0.16, h) + h / 2] + ([np.arange(0.1, 0.9, h) + h / 2]
+                                                                              if dim == 3 else [])
+    x = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, dim)
+    centre = np.array([0.5, 0.16] + ([0.5] if dim == 3 else []))
+    r = np.linalg.norm(x - centre, axis=1)
+    rng = np.random.default_rng(1)
+    states = []
+    for k in range(n_frames):
+        front = 0.1 + 0.08 * k
+        vm = 1e3 * np.exp(-((r - front) / 0.08) ** 2) + 20 * rng.random(len(x))
+        vm[np.argsort(r)[:3]] = 1e5                                  # the contact
+        stress3 = np.zeros((len(x), 3, 3))
+        stress3[:, 0, 0] = vm                                        # uniaxial: von Mises = |sxx|
+        states.append(dict(x=x, v=np.zeros_like(x), stress3=stress3, stress=stress3[:, :dim, :dim],
+                           volume=np.full(len(x), h**dim), mass=np.full(len(x), h**dim)))
+    return states
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_robust_colour_range_spreads_particles_over_the_map(tmp_path, dim):
+    """Issue 13's check: the particle pixels of a frame span at least 40 % of the colour map for a heavy-tailed
+    field, with the range the renderer chooses for the whole sequence; the min-max range of the old renderer
+    puts nearly all of them into the bottom bin (so the check can fail)."""
+    from taichi_mpm.render import FrameRenderer, sequence_bounds, sequence_limits
+
+    states = impact_states(dim)
+    rc = {"color_by": "von_mises", "size": [400, 300], "colormap": "viridis"}
+    values = [field_values(s, "von_mises", dim) for s in states]
+    lim = sequence_limits(rc, values)
+    assert lim[0] == 0.0 and 5e2 < lim[1] < 2e3     # the wave's amplitude sets the top, not the contact's 1e5
+    bounds = sequence_bounds([s["x"] for s in states], 0.02, dim) if dim == 3 else None
+    coverage = {}
+    for name, limits in (("robust", lim), ("min-max", [0.0, max(float(v.max()) for v in values)])):
+        r = FrameRenderer(rc, dim, [0.0] * dim, [1.0] * dim, limits=limits, bounds=bounds)
+        out = r.render(states[2], 0.1, tmp_path / f"{name}.png")
+        r.close()
+        img = imageio.imread(out)
+        img = img[40: int(0.8 * img.shape[0])]                  # the scene only: not the colour bar below it
+        pos = colormap_positions(img, "viridis")
+        assert len(pos) > 0.02 * img.shape[0] * img.shape[1]     # particles fill a real part of the frame
+        coverage[name] = map_coverage(pos)
+    # measured: robust 1.0 (2D and 3D); min-max 0.2 (2D: the bottom bin and the contact's top bin) and 0.1 (3D)
+    assert coverage["robust"] >= 0.4, coverage
+    assert coverage["min-max"] <= 0.3, coverage
+
+
+def test_log_scale_limits_and_positions():
+    from taichi_mpm.colour_range import normalise, robust_limits
+
+    v = np.concatenate([np.logspace(0, 5, 1001), [0.0, -1.0]])       # a log-uniform field with zeros
+    lo, hi = robust_limits([v], "von_mises", "log", (0, 100))
+    assert hi == pytest.approx(1e5) and lo == pytest.approx(10.0)   # at most 4 decades below the top
+    t = normalise(np.array([1e1, 1e3, 1e5, 0.0]), [lo, hi], "log")
+    np.testing.assert_allclose(t, [0.0, 0.5, 1.0, 0.0])             # equal ratios, equal steps; zero at the bottom
+    # linear: percentiles of all frames together, fixed for the sequence; magnitudes start at 0
+    frames = [np.linspace(0, 1, 101) + 5.0, np.linspace(0, 1, 101) + 9.0]
+    assert robust_limits(frames, "speed", percentiles=(0, 100)) == [0.0, 10.0]
+    assert robust_limits(frames, "pressure", percentiles=(0, 100)) == [5.0, 10.0]
+    assert robust_limits([np.array([0, 1, 1, 2])], "body", categorical=True) == [-0.5, 2.5]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("demo,overrides,frame", [
+    ("colliding_disks", {"domain.dx": 0.05, "solver.end_time": 2.5, "output.every": 0.25}, 8),   # t = 2: impact
+    ("sphere_impact", {"domain.dx": 0.0625, "solver.end_time": 0.12, "output.every": 0.02}, 4),  # t = 0.08: contact
+])
+def test_demo_frames_use_the_colour_map(tmp_path, demo, overrides, frame):
+    """The bundled 2D and 3D main demos, coarsened, rendered headless by a run with their default colour field
+    (colliding_disks: von Mises; sphere_impact: log von Mises): the particle pixels of a frame during the impact
+    span at least 40 % of the colour map (issue 13)."""
+    import taichi_mpm as tm
+    from taichi_mpm.cli import demos
+
+    cfg = tm.load_config(demos()[demo], {**overrides, "output.formats": ["png"], "arch": "cpu"})
+    tm.Simulation(cfg).run(out_dir=tmp_path / demo)
+    img = imageio.imread(tmp_path / demo / "frames" / f"frame_{frame:06d}.png")
+    scene = img[40: int(0.8 * img.shape[0])]
+    pos = colormap_positions(scene, cfg.output.render.colormap)
+    assert len(pos) > 0.02 * scene.shape[0] * scene.shape[1]
+    assert map_coverage(pos) >= 0.4, map_coverage(pos)
+    assert not list((tmp_path / demo / "frames").glob(".record_*"))   # the frame data is gone once rendered
+
+
+def test_render_options_are_validated_with_their_key():
+    import taichi_mpm as tm
+    from conftest import make_cfg
+    from taichi_mpm.errors import ConfigError
+
+    for render, key in (({"percentiles": [99, 1]}, "percentiles"), ({"percentiles": [1, 101]}, "percentiles"),
+                        ({"scale": "sqrt"}, "scale"), ({"scale": "log", "clim": [0, 10]}, "clim")):
+        cfg = make_cfg(2)
+        cfg["output"] = {"render": render}
+        with pytest.raises(ConfigError, match=key):
+            tm.load_config(cfg)
+    cfg = make_cfg(2)
+    cfg["output"] = {"render": {"scale": "log", "percentiles": [5, 95]}}
+    assert tm.load_config(cfg).output.render.percentiles == [5, 95]
+
+
+def test_run_renders_its_frames_at_the_end_with_one_colour_range(tmp_path):
+    """A run keeps frame data per output and renders the sequence at its end: every frame's colour bar (its
+    labels are the range) is the same picture although the speeds change, and no frame data is left behind."""
+    import taichi_mpm as tm
+    from conftest import make_cfg
+
+    cfg = make_cfg(2, velocity=[0.0, -1.0], end_time=0.06)
+    cfg["solver"]["gravity"] = [0.0, -9.81]
+    cfg["output"] = {"every": 0.02, "formats": ["png"], "render": {"color_by": "speed", "size": [240, 200]}}
+    tm.Simulation(tm.load_config(cfg)).run(out_dir=tmp_path / "run")
+    frames = sorted((tmp_path / "run" / "frames").glob("frame_*.png"))
+    assert [f.name for f in frames] == [f"frame_{k:06d}.png" for k in range(4)]
+    assert not list((tmp_path / "run" / "frames").glob(".record_*"))
+    bars = [imageio.imread(f)[-30:, :, :3] for f in frames]
+    for b in bars[1:]:
+        np.testing.assert_array_equal(b, bars[0])
+    assert not np.array_equal(imageio.imread(frames[0])[:150], imageio.imread(frames[-1])[:150])  # it moved
+
+
+def test_surface_particles_of_a_solid_cube():
+    """A 10^3 lattice: the particles within two layers of its faces are drawn, the 6^3 core is not; a cube with a
+    hollow middle shows its cavity's walls too (they border an empty voxel)."""
+    from taichi_mpm.render import surface_particles
+
+    h = 0.1
+    ijk = np.stack(np.meshgrid(*[np.arange(10)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    x = (ijk + 0.5) * h + 0.01 * h   # slightly off the voxel corners, as particles are
+    keep = surface_particles(x, h)
+    core = np.all((ijk >= 2) & (ijk <= 7), axis=1)
+    np.testing.assert_array_equal(keep, ~core)
+    hollow = ~np.all((ijk >= 4) & (ijk <= 5), axis=1)
+    keep = surface_particles(x[hollow], h)
+    assert keep.sum() > (~core).sum()          # the cavity's walls are visible from inside it
