@@ -20,6 +20,9 @@ from taichi_mpm.probes import read_probe
 from _common import default_out, parse, run
 
 
+RAMP = 0.005          # the grips' speed-up time in configs/necking.yaml; the load is read after 2 RAMP (inertia)
+
+
 def considere(metal, width):
     """Plane-strain Considere peak: (eps*, F_max per metre of depth) for yield_stress sigma_y, hardening H > 0."""
     sy, H, E, nu = metal.yield_stress, metal.hardening, metal.E, metal.nu
@@ -30,15 +33,16 @@ def considere(metal, width):
 
 
 def neck(sim):
-    """Width of the bar at its thinnest section and at its mean section (columns dx wide between the grips)."""
-    p = sim.particles()
-    x, body = p["x"], p["body"]
+    """Width of the bar at its thinnest section, its median width and the thinnest section's x (columns dx wide
+    between the grips, without the two end columns)."""
+    x = sim.particles()["x"]
     dx = sim.cfg.domain.dx
     x0 = sim.scene.x[:, 0]
     free = (x0 > 0.07 + dx) & (x0 < 0.23 - dx)                 # between the grips, a cell off them
     bins = np.floor(x[free, 0] / dx).astype(int)
-    widths = [np.ptp(x[free][bins == b, 1]) for b in np.unique(bins)]
-    return float(np.min(widths[1:-1])), float(np.median(widths))
+    cols = np.unique(bins)[1:-1]
+    widths = np.array([np.ptp(x[free][bins == b, 1]) for b in cols])
+    return float(widths.min()), float(np.median(widths)), float((cols[np.argmin(widths)] + 0.5) * dx)
 
 
 def main(argv=None):
@@ -49,11 +53,14 @@ def main(argv=None):
     w0 = cfg.bodies[0].shape.upper[1] - cfg.bodies[0].shape.lower[1]
     eps_c, f_c = considere(cfg.materials["metal"], w0)
     t, f = loads["time [s]"][1:], loads["fx [N/m]"][1:]       # the t = 0 row has no force
-    thinnest, typical = neck(sim)
+    thinnest, typical, where = neck(sim)
     sim.necking = dict(time=t, force=f, considere_force=f_c, considere_strain=eps_c, thinnest=thinnest,
-                       typical=typical, width=w0)
-    print(f"necking: peak load {f.max():.4g} N/m at t = {t[np.argmax(f)]:.4f} s (Considere: {f_c:.4g} N/m at axial "
-          f"strain {eps_c:.3f}); thinnest section {thinnest / w0:.2f} w0, median {typical / w0:.2f} w0", file=sys.stderr)
+                       typical=typical, neck_x=where, width=w0)
+    late = t > 2 * RAMP
+    peak = float(f[late].max()) if late.any() else float("nan")
+    sim.necking["peak"] = peak
+    print(f"necking: peak load {peak:.4g} N/m after the ramp (Considere: {f_c:.4g} N/m at axial "
+          f"strain {eps_c:.3f}); thinnest section {thinnest / w0:.2f} w0 at x = {where:.3f} m, median {typical / w0:.2f} w0", file=sys.stderr)
     return sim
 
 

@@ -1,7 +1,7 @@
 """Sand (drucker_prager, phi = 30 deg) drains from a hopper through a narrow orifice and builds a pile on a rough
 floor below it, as in an hourglass: the grains arrive slowly, so the pile grows at its angle of repose (2D).
 
-    python demos/sand_pile.py [--set KEY=VALUE]... [--out DIR]
+    python demos/sand_pile.py [--set KEY=VALUE]... [--out DIR] [--plot docs/images/angle_of_repose.png]
 
 Loads configs/sand_pile.yaml and writes the outputs of its output section. At the end it prints the angle of the
 pile's two flanks against the friction angle (a cohesionless slope at rest stands at most at phi: the infinite
@@ -46,7 +46,33 @@ def pile(sim):
                 drained=float(below.mean()))
 
 
+def plot(x, body, r, phi, path):
+    """The final particles (hopper walls grey, sand by height) with the pile's fitted flank angles and the friction
+    angle drawn from its apex."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    ax.scatter(*x[body < 2].T, s=1, c="0.6")
+    ax.scatter(*x[body == 2].T, s=1, c="C1")
+    top, s = r["height"], np.linspace(0, 0.2, 50)
+    for sign in (-1, 1):
+        ax.plot(0.2 + sign * s, top - s * np.tan(np.radians(phi)), "k--", lw=1,
+                label=f"friction angle {phi:g} deg" if sign < 0 else None)
+    ax.set(xlim=(0, 0.4), ylim=(0, 0.3), aspect=1, xlabel="x [m]", ylabel="y [m]",
+           title=f"flanks {r['left']:.1f} and {r['right']:.1f} deg")
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
 def main(argv=None):
+    import argparse
+
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--plot", default=None)
+    extra, argv = pre.parse_known_args(argv)
     cfg, args = parse("sand_pile", argv, __doc__)
     sim = run(tm.Simulation(cfg), args.out)
     r = pile(sim)
@@ -54,6 +80,9 @@ def main(argv=None):
     print(f"sand_pile: {r['drained']:.0%} of the sand below the hopper; pile {r['height'] * 100:.1f} cm high, flanks "
           f"{r['left']:.1f} and {r['right']:.1f} deg (friction angle {phi:g} deg)", file=sys.stderr)
     sim.pile = r
+    if extra.plot:
+        p = sim.particles()
+        plot(p["x"], p["body"], r, phi, extra.plot)
     return sim
 
 
