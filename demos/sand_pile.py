@@ -22,6 +22,8 @@ def flank_angles(x, dx, axis_x):
     column dx wide where the surface lies between 20 % and 80 % of the pile's height (without the rounded apex and
     the thin toe), on each side of the axis x = axis_x."""
     x = x[x[:, 1] < ORIFICE_Y - 2 * dx]                      # the pile, not the sand still in the hopper
+    if len(x) == 0:
+        return [float("nan"), float("nan")]
     bins = np.floor(x[:, 0] / dx).astype(int)
     cols = np.unique(bins)
     top = np.array([x[bins == b, 1].max() for b in cols])
