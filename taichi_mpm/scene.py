@@ -95,8 +95,11 @@ def shape_bounds(shape, d, base_dir=None, key="shape") -> tuple[np.ndarray, np.n
         c = np.asarray(shape.center, float)
         return c - r, c + r
     if isinstance(shape, Cylinder):
+        # exact: along world axis i the cap circles reach |u_i| h / 2 + r sqrt(1 - u_i^2) (u: the unit axis), so a
+        # column standing on the floor fits a domain that starts at the floor
         c = np.asarray(shape.center, float)
-        ext = np.sqrt(shape.radius**2 + (shape.height / 2) ** 2)
+        u = _rotation(shape.rotation, 3)[:, "xyz".index(shape.axis)]
+        ext = np.abs(u) * shape.height / 2 + shape.radius * np.sqrt(np.clip(1 - u**2, 0, None))
         return c - ext, c + ext
     if isinstance(shape, Mesh):
         m = load_mesh(shape, d, base_dir, key)

@@ -12,7 +12,8 @@ import taichi_mpm as tm
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMOS = {"sphere_impact": 3, "colliding_disks": 2, "vibrating_bar": 1, "cantilever": 2, "dam_break": 2,
-         "jelly_drop": 3, "granular_collapse": 2}
+         "jelly_drop": 3, "granular_collapse": 2, "sand_pile": 2, "snowball": 2, "necking": 2,
+         "granular_collapse_3d": 3}
 
 
 def load_demo(name):

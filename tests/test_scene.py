@@ -248,3 +248,23 @@ def test_bundled_configs_build(name):
     cfg = tm.load_config(demos()[name])
     s = build_scene(cfg)
     assert s.n > 0 and set(np.unique(s.body)) == set(range(len(cfg.bodies)))
+
+
+def test_cylinder_bounds_are_exact_so_a_column_can_stand_on_the_floor():
+    """A cylinder's bounding box is its own (the cap circles), not the sphere around it: a column standing on the
+    floor (y from 0) fits a domain that starts at 0, and a tilted one reaches |u_i| h / 2 + r sqrt(1 - u_i^2)."""
+    from taichi_mpm.config import validate
+    from taichi_mpm.scene import build_scene, shape_bounds
+
+    cfg = validate(dict(name="c", dim=3, domain=dict(lower=[0, 0, 0], upper=[0.4, 0.2, 0.4], dx=0.02),
+                        solver=dict(end_time=0.1), materials=dict(m=dict(model="neo_hookean", E=1e4, density=1000)),
+                        bodies=[dict(shape=dict(type="cylinder", center=[0.2, 0.05, 0.2], radius=0.1, height=0.1),
+                                     material="m")]))
+    lo, hi = shape_bounds(cfg.bodies[0].shape, 3)
+    np.testing.assert_allclose(lo, [0.1, 0.0, 0.1], atol=1e-12)
+    np.testing.assert_allclose(hi, [0.3, 0.1, 0.3], atol=1e-12)
+    x = build_scene(cfg).x
+    assert x[:, 1].min() > 0 and x[:, 1].max() < 0.1
+    tilted = cfg.bodies[0].shape.model_copy(update=dict(rotation=[0, 0, 90]))   # axis y turned onto -x
+    lo, hi = shape_bounds(tilted, 3)
+    np.testing.assert_allclose(hi - lo, [0.1, 0.2, 0.2], atol=1e-12)

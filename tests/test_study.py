@@ -324,3 +324,35 @@ def test_output_folder_is_not_overwritten_unasked(tmp_path, monkeypatch, capsys)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["studies", "study.yaml"]
     with pytest.raises(ConfigError, match="jobs"):
         run_study(path, out=tmp_path / "o2", jobs=0)
+
+
+# ---------------------------------------------------------------- material parameters (issue 11)
+GRANULAR = Path(__file__).resolve().parents[1] / "configs" / "granular_collapse.yaml"
+
+
+def _granular_study(tmp_path, angles):
+    return _write(tmp_path, dict(
+        study="friction", base=str(GRANULAR), samples=3, observe="column.ux@end", reference="finest",
+        vary={"materials.sand.friction_angle": angles},
+        set={"arch": "cpu", "domain.dx": 0.025, "solver.end_time": 0.25, "output.formats": [],
+             "output.probes": [{"name": "column", "type": "body", "body": 0}]}))
+
+
+def test_study_varies_material_parameters_and_names_a_bad_one(tmp_path):
+    """A study can sweep a model's own keys (materials.sand.friction_angle of drucker_prager): the cases expand and
+    validate; an inadmissible angle fails the study before it runs, naming the key."""
+    st = load_study(_granular_study(tmp_path, [20, 40]))
+    assert [c["params"]["materials.sand.friction_angle"] for c in st.expand()] == [20, 40]
+    with pytest.raises(ConfigError, match="friction_angle"):
+        load_study(_granular_study(tmp_path, [20, 95]))
+
+
+@pytest.mark.slow
+def test_study_over_friction_angle_spreads_weaker_sand_farther(tmp_path):
+    """The friction-angle sweep run: the column's centre of mass moves farther along the floor for phi = 20 than
+    for phi = 40 deg (weaker sand spreads more; a sweep that did not reach the model would give equal values)."""
+    out = run_study(_granular_study(tmp_path, [20, 40]), out=tmp_path / "out")
+    rows = _rows(out)
+    assert [r["outcome"] for r in rows] == ["ok", "ok"], [r["message"] for r in rows]
+    ux = {float(r["materials.sand.friction_angle"]): float(r["observed"]) for r in rows}
+    assert ux[20] > 1.2 * ux[40] > 0, ux
