@@ -18,6 +18,7 @@ from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapte
                       field_validator, model_serializer, model_validator)
 
 from .errors import ConfigError
+from .knots import DEGREE as KNOT_DEGREE, knot_problem
 from .expressions import parse as parse_expression
 
 from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
@@ -208,12 +209,21 @@ class Boundaries(Strict):
         return self._get(axis, side).velocity
 
 
+class Knots(Strict):
+    """Knot vectors per axis (m, from domain.lower to domain.upper, open: each end p + 1 times); an axis left out
+    keeps the uniform open knot vector of domain.dx (taichi_mpm/knots.py)."""
+    x: Optional[list[Real]] = None
+    y: Optional[list[Real]] = None
+    z: Optional[list[Real]] = None
+
+
 class Domain(Strict):
     lower: Vec
     upper: Vec
     dx: PositiveFloat
     sparse: bool = True
     boundaries: Boundaries = Boundaries()
+    knots: Optional[Knots] = None
 
 
 class Cpdi(Strict):
@@ -482,6 +492,7 @@ class Config(Strict):
                 raise _Located("domain.dx", f"the domain extent {u - l:g} along {'xyz'[a]} is not a whole number of "
                                             f"cells of dx={self.domain.dx:g} ({n:.4g} cells); "
                                             f"choose e.g. dx={(u - l) / max(1, round(n)):.6g}")
+        self._check_knots()
         if self.solver.gravity is not None:
             _need_len("solver.gravity", self.solver.gravity, d)
         for i, b in enumerate(self.bodies):
@@ -533,6 +544,26 @@ class Config(Strict):
         if self.crack is None and any(b.interface or b.damage_regions for b in self.bodies):
             pass  # allowed: damage/interface flags are stored but only act with a crack section
         return self
+
+    def _check_knots(self):
+        if self.domain.knots is None:
+            return
+        if self.solver.basis not in KNOT_DEGREE:
+            raise _Located("domain.knots", f"knot vectors need a B-spline basis (linear, quadratic or cubic), not "
+                                           f"solver.basis {self.solver.basis}")
+        if self.crack is not None:
+            raise _Located("domain.knots", "knot vectors are not available with a crack section (its SPH reach and "
+                                           "cell list assume the uniform grid)")
+        p = KNOT_DEGREE[self.solver.basis]
+        for a, axis in enumerate("xyz"):
+            t = getattr(self.domain.knots, axis)
+            if t is None:
+                continue
+            if a >= self.dim:
+                raise _Located(f"domain.knots.{axis}", f"the scene is {self.dim}D: it has no {axis} axis")
+            problem = knot_problem(t, p, self.domain.lower[a], self.domain.upper[a])
+            if problem:
+                raise _Located(f"domain.knots.{axis}", f"{problem} (solver.basis {self.solver.basis}: p = {p})")
 
     def _check_probes(self):
         d, names = self.dim, set()

@@ -42,6 +42,12 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                                 "tangential velocity drops by mu times the normal velocity removed"),
     **{f"domain.boundaries.{f}": ("", f"wall at the {'lower' if f.endswith('min') else 'upper'} {f[0]} face; null "
                                       "takes `default`") for f in FACE_NAMES.split(", ")},
+    "domain.knots": ("", "knot vectors per axis for the B-spline bases (docs/isogeometric.md); an axis left out "
+                         "keeps the uniform open knot vector of dx"),
+    **{f"domain.knots.{a}": ("m", f"open knot vector along {a}: nondecreasing, domain.lower and domain.upper each "
+                                  "p + 1 times (p: 1, 2, 3 for linear, quadratic, cubic), interior knots at most p "
+                                  "times (multiplicity k leaves the basis C^(p-k)); the CFL step follows the "
+                                  "shortest span") for a in "xyz"},
     "solver": ("", "time integration and the MPM scheme"),
     "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines, cpdi (CPDI1 "
                          "particle domains over linear grid functions) or ddmp (linear functions, dual-domain "

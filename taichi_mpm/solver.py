@@ -21,6 +21,7 @@ import taichi as ti
 
 from . import budget
 from .basis import make_basis
+from .knots import grid_knots, smallest_span
 from .stencils import KernelContext, make_corner_check, make_stencil
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
@@ -121,7 +122,9 @@ class Simulation:
         self.scene = scene if scene is not None else build_scene(c)
         self.n = self.scene.n
         self._id = init_taichi(c.arch, c.precision, c.solver.deterministic)
-        self.basis = make_basis(c.solver.basis)
+        self.basis = make_basis(c.solver.basis, grid_knots(c))   # domain.knots: per-axis knot vectors
+        self.basis.materialize()
+        self.h_cfl = smallest_span(c)   # dx, or the shortest knot span of domain.knots
         self._materials = [c.materials[name] for name in self.scene.materials]
         self.wave_speed = max(wave_speed(m) for m in self._materials)
         self.time, self.n_steps, self.dt = 0.0, 0, 0.0
@@ -189,7 +192,7 @@ class Simulation:
         vec = ["v"] + (["v_old"] if f["flip"] else []) + (["v2"] if f["musl"] else [])
         vec += ["grip"] if f["grips"] else []  # component 0: the grip (from 1) whose particles touch the node
         vec += crack_finder.grid_fields(d) if self.cfg.crack is not None else []  # tensor node mass rows
-        shape = [self.basis.nodes(nc) for nc in self.n_cells]
+        shape = [self.basis.axis(a).nodes(nc) for a, nc in enumerate(self.n_cells)]
         self.grid = Grid(d, shape, self.cfg.domain.sparse, vec)
         self.crack = crack_finder.CrackFinder(self) if self.cfg.crack is not None else None
         self.fbar = fbar.create(self)  # solver.volumetric: fbar (fbar.py), else None
@@ -808,7 +811,7 @@ class Simulation:
         elastic waves + particle speed: cfl dx / (c + |v|max), named `elastic` or `speed` by the larger;
         acceleration: cfl sqrt(dx / |a|), |a| = |g| + max |b| (named `body_force` when b dominates);
         viscosity: cfl rho dx^2 / (VISCOUS_DIFFUSION d mu) per viscous material."""
-        cfl, dx = self.cfg.solver.cfl, self.dx
+        cfl, dx = self.cfg.solver.cfl, self.h_cfl
         c, v = self.wave_speed, self._vmax
         out = {"elastic" if c >= v else "speed": cfl * dx / (c + v) if c + v > 0 else math.inf}
         g = self._g_norm
@@ -1340,7 +1343,7 @@ class Simulation:
         return _max_speed(self._read("v"))
 
     def cfl_number(self) -> float:
-        return self.dt * (self.wave_speed + self._vmax) / self.dx
+        return self.dt * (self.wave_speed + self._vmax) / self.h_cfl
 
 
 def _is_real(x) -> bool:
