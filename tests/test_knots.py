@@ -149,6 +149,7 @@ def graded(n_cells, extent=1.0, p=2, double_at=None):
     return [0.0] * (p + 1) + sorted(inner) + [extent] * (p + 1)
 
 
+@pytest.mark.slow
 def test_nonuniform_knots_conserve_momentum():
     """A drifting, spinning, breathing block (as test_conservation's moving block) on graded knots with a double
     knot in each direction: P2G, the grid update and G2P conserve linear momentum to round-off (1e-10 of
@@ -207,6 +208,14 @@ def lsq_rate(cells, errs):
     return -np.polyfit(np.log(cells), np.log(errs), 1)[0]
 
 
+def test_nonuniform_knots_mms_accuracy():
+    """One run of the convergence study below (16 cells, the default suite's share): error 0.0507 measured,
+    beside the uniform grid's 0.0429. The bar 0.065 is the uniform error + 50 %; a basis that lost consistency
+    does not converge (error of the order of the amplitude, ~1)."""
+    assert mms_on_knots(16, alternating(16)) < 0.065
+
+
+@pytest.mark.slow
 def test_nonuniform_knots_mms_converges():
     """Quadratic B-splines on spans alternating by a factor 3 with a C0 knot: the MMS error falls at second order
     (measured 0.191, 0.0507, 0.0126 at 8, 16, 32 cells: rates 1.91, 2.01, as the uniform grid's 0.156, 0.0429,
