@@ -62,7 +62,7 @@ class Basis:
     def contributions(self, dim: int) -> int:
         """(node, weight, gradient) contributions of one particle: S^d for tensor products; CPDI: 2^d nodes of
         each of its 2^d corners (a node shared by corners appears once per corner)."""
-        return self.stencil ** dim if self.kind == "tensor" else 4 ** dim
+        return self.stencil ** dim if self.kind in ("tensor", "mapped") else 4 ** dim
 
 
 @ti.func

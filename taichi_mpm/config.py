@@ -217,6 +217,18 @@ class Knots(Strict):
     z: Optional[list[Real]] = None
 
 
+class AnnulusMap(Strict):
+    """domain.map: a curvilinear grid on an annulus (or a sector of one), exact circles through NURBS weights
+    (taichi_mpm/mapped.py); the parameter faces are x_min / x_max (the straight edges at angle 0 and `angle`,
+    none for a full ring) and y_min / y_max (the inner and outer circles)."""
+    type: Literal["annulus"]
+    inner_radius: PositiveFloat
+    outer_radius: PositiveFloat
+    angle: Annotated[float, Field(gt=0, le=360)] = 360.0    # degrees, counter-clockwise from +x
+    center: Vec = [0.0, 0.0]
+    cells: list[Annotated[int, Field(gt=0, le=100000)]]    # [along the angle, across the radius]
+
+
 class Domain(Strict):
     lower: Vec
     upper: Vec
@@ -224,6 +236,7 @@ class Domain(Strict):
     sparse: bool = True
     boundaries: Boundaries = Boundaries()
     knots: Optional[Knots] = None
+    map: Optional[AnnulusMap] = None
 
 
 class Cpdi(Strict):
@@ -493,6 +506,7 @@ class Config(Strict):
                                             f"cells of dx={self.domain.dx:g} ({n:.4g} cells); "
                                             f"choose e.g. dx={(u - l) / max(1, round(n)):.6g}")
         self._check_knots()
+        self._check_map()
         if self.solver.gravity is not None:
             _need_len("solver.gravity", self.solver.gravity, d)
         for i, b in enumerate(self.bodies):
@@ -564,6 +578,39 @@ class Config(Strict):
             problem = knot_problem(t, p, self.domain.lower[a], self.domain.upper[a])
             if problem:
                 raise _Located(f"domain.knots.{axis}", f"{problem} (solver.basis {self.solver.basis}: p = {p})")
+
+    def _check_map(self):
+        m = self.domain.map
+        if m is None:
+            return
+        if self.dim != 2:
+            raise _Located("domain.map", f"mapped grids are 2D (the scene is {self.dim}D)")
+        if self.solver.basis != "quadratic":
+            raise _Located("domain.map", f"the annulus map is quadratic: use solver.basis quadratic, not "
+                                         f"{self.solver.basis}")
+        if self.domain.knots is not None:
+            raise _Located("domain.knots", "give either domain.knots or domain.map (the map has its own knots)")
+        if self.crack is not None:
+            raise _Located("domain.map", "mapped grids are not available with a crack section")
+        _need_len("domain.map.center", m.center, 2)
+        _need_len("domain.map.cells", m.cells, 2)
+        if m.outer_radius <= m.inner_radius:
+            raise _Located("domain.map.outer_radius", "must exceed inner_radius")
+        pieces = max(1, math.ceil(m.angle / 90.0 - 1e-9))
+        if m.cells[0] % pieces:
+            raise _Located("domain.map.cells", f"an annulus of {m.angle:g} degrees is {pieces} rational pieces: "
+                                               f"the cells along the angle must be a multiple of {pieces}")
+        for a in range(2):
+            lo, hi = m.center[a] - m.outer_radius, m.center[a] + m.outer_radius
+            if self.domain.lower[a] > lo or self.domain.upper[a] < hi:
+                raise _Located("domain.upper", f"the domain box must hold the annulus: [{lo:g}, {hi:g}] along "
+                                               f"{'xy'[a]}")
+        for a in range(2):
+            for side in (0, 1):
+                face = FACES[2 * a + side]
+                if self.domain.boundaries.face(a, side) == "velocity" or self.domain.boundaries.friction(a, side):
+                    raise _Located(f"domain.boundaries.{face}", "walls of a mapped grid are sticky, slip, roller or "
+                                                                "free (no velocity walls or friction yet)")
 
     def _check_probes(self):
         d, names = self.dim, set()

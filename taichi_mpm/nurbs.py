@@ -102,6 +102,7 @@ class Map:
         self.n_cells = [float(t[-1] - t[0]) for t in self.knots]
         self.axes = [make_knot_bspline(p, "nurbs", t) for t, p in zip(self.knots, self.degrees)]
         self.ctrl = self.weight = None
+        self.periodic = False      # a full ring: xi[0] wraps around instead of stopping at the ends
         self._build()
 
     def materialize(self):
@@ -172,12 +173,24 @@ class Map:
                 det = J.determinant()
                 if det == 0.0:
                     break
-                xi = ti.min(ti.max(xi - J.inverse() @ r, 0.0), hi)
+                nxt = xi - J.inverse() @ r
+                if ti.static(this.periodic):
+                    nxt[0] -= ti.floor(nxt[0] / hi[0]) * hi[0]
+                    nxt[1] = ti.min(ti.max(nxt[1], 0.0), hi[1])
+                else:
+                    nxt = ti.min(ti.max(nxt, 0.0), hi)
+                xi = nxt
             return xi, ok
 
         self.rational, self.point, self.invert = rational, point, invert
 
     # ---------------------------------------------------------------- host side (numpy), for setup and plots
+    def rational_host(self, xi: np.ndarray) -> np.ndarray:
+        """All rational functions R (M, n0, n1) at parameter points (M, 2), numpy (tests, drawing)."""
+        N = [bspline_values(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(self.knots, self.degrees))]
+        Nw = np.einsum("mi,mj,ij->mij", N[0], N[1], self.w)
+        return Nw / Nw.sum(axis=(1, 2))[:, None, None]
+
     def evaluate(self, xi: np.ndarray) -> np.ndarray:
         """x(xi) for parameter points (M, 2), by de Boor-free brute force: all B-splines of each axis from the
         Cox-de Boor recursion in numpy (independent of the kernel's code path; for tests and drawing)."""

@@ -109,6 +109,9 @@ class Stencil:
 
 
 def make_stencil(ctx: KernelContext) -> Stencil:
+    if ctx.basis.kind == "mapped":   # domain.map: the NURBS map's control points (mapped.py)
+        from .mapped import make_stencil as mapped_stencil
+        return mapped_stencil(ctx, ctx.extra["mapped"])
     build = {"tensor": _tensor_stencil, "cpdi": _cpdi_stencil}[ctx.basis.kind]
     return build(ctx)
 
