@@ -47,6 +47,7 @@ class MappedGrid:
         n0, n1 = self.map.w.shape
         self.shape = [n0 - 1 if self.periodic else n0, n1]   # the seam column is the first one
         # smallest cell: an inner arc of one angular cell, or one radial cell
+        self.h_max = max(m.outer_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
         self.h_min = min(m.inner_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
         self.normals = self._normals()
         self.xi = None
@@ -80,16 +81,32 @@ class MappedGrid:
         self.xi = ti.Vector.field(2, float, max(n, 1))
 
     def initial_guess(self, x: np.ndarray) -> np.ndarray:
-        """Per physical point, the parameters of the nearest of 8 x 8 samples per cell (Newton starts there)."""
+        """Per physical point, the parameters of the nearest of 3 x 3 samples per cell (Newton starts there,
+        within a third of a cell of the answer). Points are sorted into the cells of a coarse box grid first, and
+        each is compared with the samples of its own box cell and the neighbouring ones only."""
         n0, n1 = self.map.n_cells
-        s0 = (np.arange(int(8 * n0)) + 0.5) / 8
-        s1 = (np.arange(int(8 * n1)) + 0.5) / 8
+        k = 3
+        s0 = (np.arange(int(k * n0)) + 0.5) / k
+        s1 = (np.arange(int(k * n1)) + 0.5) / k
         xi = np.stack(np.meshgrid(s0, s1, indexing="ij"), -1).reshape(-1, 2)
         pts = self.map.evaluate(xi)
+        lo = np.minimum(pts.min(axis=0), x.min(axis=0)) if len(x) else pts.min(axis=0)
+        h = 2.0 * self.h_max
+        key = lambda q: np.floor((q - lo) / h).astype(np.int64)
+        buckets = {}
+        for i, c in enumerate(map(tuple, key(pts))):
+            buckets.setdefault(c, []).append(i)
         out = np.empty((len(x), 2))
-        for k in range(0, len(x), 256):
-            d = ((x[k:k + 256, None, :] - pts[None]) ** 2).sum(-1)
-            out[k:k + 256] = xi[d.argmin(axis=1)]
+        cells = key(x)
+        for c in set(map(tuple, cells)):
+            mine = np.nonzero((cells == c).all(axis=1))[0]
+            near = [i for d0 in (-1, 0, 1) for d1 in (-1, 0, 1) for i in buckets.get((c[0] + d0, c[1] + d1), [])]
+            if not near:        # far from the annulus: any start; Newton will report it
+                out[mine] = xi[0]
+                continue
+            near = np.asarray(near)
+            d = ((x[mine, None, :] - pts[None, near]) ** 2).sum(-1)
+            out[mine] = xi[near[d.argmin(axis=1)]]
         return out
 
 

@@ -79,3 +79,9 @@ def test_map_config_errors():
     cfg = ring_cfg(body=(0.3, 0.9))     # a body reaching inside the inner circle
     with pytest.raises(ConfigError, match="outside the mapped grid"):
         tm.Simulation(cfg)
+
+
+def test_ring_channel_demo_config_validates():
+    from pathlib import Path
+    cfg = tm.load_config(Path(__file__).resolve().parents[1] / "configs" / "ring_channel.yaml")
+    assert cfg.domain.map.type == "annulus" and cfg.solver.basis == "quadratic"
