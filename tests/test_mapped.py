@@ -49,6 +49,20 @@ def test_uniform_stretch_is_reproduced_exactly():
     assert np.abs(p["x"] - (X + dt * v)).max() < 1e-14
 
 
+def test_a_particle_leaving_the_map_is_an_instability():
+    """The stretch test's scene (same kernels) flung outward at 2 m/s through free circles: the outer particles
+    cross r = 1, where the map ends; Newton cannot find them and the run stops with the cause, step and
+    particle instead of extrapolating the grid."""
+    sim = tm.Simulation(ring_cfg(walls="free", model="neo_hookean"))
+    X = sim.scene.x
+    sim.set_particles(v=2.0 * X / np.linalg.norm(X, axis=1, keepdims=True))
+    with pytest.raises(tm.InstabilityError) as e:
+        for _ in range(40):
+            sim.step(0.005)
+    assert "particle left the mapped grid" in str(e.value.cause)
+    assert e.value.step >= 2 and np.linalg.norm(X[e.value.particle]) > 0.9   # one of the outer particles
+
+
 def test_slip_circles_conserve_angular_momentum_of_a_spinning_fluid_ring():
     """A fluid ring spinning rigidly (1 rad/s) in the full annulus with slip walls: centrifugal pressure pushes it
     onto the outer circle. Every wall impulse is radial (through the centre) and APIC carries the affine part, so
