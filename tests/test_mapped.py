@@ -99,3 +99,20 @@ def test_ring_channel_demo_config_validates():
     from pathlib import Path
     cfg = tm.load_config(Path(__file__).resolve().parents[1] / "configs" / "ring_channel.yaml")
     assert cfg.domain.map.type == "annulus" and cfg.solver.basis == "quadratic"
+
+
+@pytest.mark.slow
+def test_generalized_vortex_on_the_polar_grid():
+    """The generalized vortex (analytic.py) on the body-fitted polar grid: RMS position error 0.0187, 0.00251,
+    0.000871 at cells 24, 48, 96 (least-squares rate 2.2; the Cartesian grid: 0.0188, 0.00248, 0.000814).
+    Bars: rate >= 1.8 (the issue's), and at 48 cells (1400 stored nodes) an error below the Cartesian grid's at
+    36 cells (1444 nodes, measured 0.00322): the same storage buys a finer polar grid. ~10 min on 2 cores."""
+    from taichi_mpm import analytic as an
+
+    def rms(grid, cells):
+        return an.run_problem(an.GeneralizedVortex(cells=cells, grid=grid))[1]["error_rms"]
+
+    cells = [24, 48, 96]
+    errs = [rms("polar", c) for c in cells]
+    assert -np.polyfit(np.log(cells), np.log(errs), 1)[0] >= 1.8, errs
+    assert errs[1] < rms("cartesian", 36)
