@@ -226,7 +226,7 @@ class AnnulusMap(Strict):
     outer_radius: PositiveFloat
     angle: Annotated[float, Field(gt=0, le=360)] = 360.0    # degrees, counter-clockwise from +x
     center: Vec = [0.0, 0.0]
-    cells: list[Annotated[int, Field(gt=0, le=100000)]]    # [along the angle, across the radius]
+    cells: list[Annotated[int, Field(gt=0, le=4096)]]    # [along the angle, across the radius]
 
 
 class Domain(Strict):
@@ -609,8 +609,9 @@ class Config(Strict):
             for side in (0, 1):
                 face = FACES[2 * a + side]
                 if self.domain.boundaries.face(a, side) == "velocity" or self.domain.boundaries.friction(a, side):
-                    raise _Located(f"domain.boundaries.{face}", "walls of a mapped grid are sticky, slip, roller or "
-                                                                "free (no velocity walls or friction yet)")
+                    named = getattr(self.domain.boundaries, face) is not None
+                    raise _Located(f"domain.boundaries.{face if named else 'default'}", "walls of a mapped grid are "
+                                   "sticky, slip, roller or free (no velocity walls or friction yet)")
 
     def _check_probes(self):
         d, names = self.dim, set()
