@@ -233,7 +233,12 @@ class GeneralizedVortex(Problem):
     name = "generalized_vortex"
 
     def __init__(self, amplitude=0.05, period=1.0, E=1e3, nu=0.3, density=1000.0, cells=48,
-                 particles_per_cell=2, end_time=None, **solver):
+                 particles_per_cell=2, end_time=None, grid="cartesian", **solver):
+        if grid not in ("cartesian", "polar"):
+            raise ValueError(f"generalized_vortex grid must be cartesian or polar, got {grid!r}")
+        if grid == "polar" and cells % 4:
+            raise ValueError(f"the polar grid of generalized_vortex needs cells divisible by 4, got {cells}")
+        self.grid = grid
         self.G, self.T, self.E, self.nu, self.rho = amplitude, period, E, nu, density
         self.mu, self.lam = lame(E, nu)
         self.cells, self.ppc, self.solver = cells, particles_per_cell, solver
@@ -246,8 +251,16 @@ class GeneralizedVortex(Problem):
         mats = {"m": dict(model="neo_hookean", E=self.E, nu=self.nu, density=self.rho)}
         kw = dict(transfer="flip", flip_blend=1.0, cfl=0.3)
         kw.update(self.solver)
-        return _base_config(self.name, 2, [-1.5, -1.5], [1.5, 1.5], 3.0 / self.cells, [body], mats,
-                            self.end_time, boundaries={"default": "free"}, **kw)
+        cfg = _base_config(self.name, 2, [-1.5, -1.5], [1.5, 1.5], 3.0 / self.cells, [body], mats,
+                           self.end_time, boundaries={"default": "free"}, **kw)
+        if self.grid == "polar":
+            # the body-fitted grid (domain.map): an annulus a quarter of the ring's width wider on each side (free
+            # edges move a little in the discrete solution and must stay on the grid), radial cells of dx
+            # (cells / 4 over 0.625..1.375), 2 cells angular cells (2 pi / (2 cells) ~ dx at R = 1); particles as
+            # on the Cartesian grid
+            cfg["domain"]["map"] = dict(type="annulus", inner_radius=0.625, outer_radius=1.375, angle=360.0,
+                                        cells=[2 * self.cells, self.cells // 4])
+        return cfg
 
     # g(t) and derivatives, h(R) and derivatives
     def g(self, t):

@@ -23,9 +23,12 @@ dual-domain gradient, the linear interpolant of each node's exact average of gra
 """
 
 from dataclasses import dataclass, replace
-from typing import Callable, Optional
+from typing import Any, Callable, Optional
 
+import numpy as np
 import taichi as ti
+
+from .knots import DEGREE, greville
 
 BASES = ("linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp")
 TENSOR_BASES = ("linear", "gimp", "quadratic", "cubic", "ddmp")   # per-axis weights: the tensor-product fast path
@@ -43,11 +46,23 @@ class Basis:
     weights_1d: Callable                   # @ti.func: (u, n cells, lp) -> (first node, w, dw)
     kind: str = "tensor"                   # how stencils.py builds a particle's contributions: tensor, cpdi
     smooth_1d: Optional[Callable] = None   # ddmp: @ti.func (u, n cells) -> (smoothed w, smoothed dw, blend)
+    axes: Optional[tuple] = None           # domain.knots: one Basis per axis (its own knot vector), else None
+    knots: Any = None                      # a knot-vector axis: its KnotData (grid-unit knots and their fields)
+
+    def axis(self, a: int) -> "Basis":
+        """The 1D basis of axis a: its own knot vector with domain.knots, else this one."""
+        return self.axes[a] if self.axes is not None else self
+
+    def materialize(self):
+        """Allocate the Taichi fields of knot-vector axes (after ti.init; budget.py only counts nodes)."""
+        for b in self.axes or (self,):
+            if b.knots is not None:
+                b.knots.materialize()
 
     def contributions(self, dim: int) -> int:
         """(node, weight, gradient) contributions of one particle: S^d for tensor products; CPDI: 2^d nodes of
         each of its 2^d corners (a node shared by corners appears once per corner)."""
-        return self.stencil ** dim if self.kind == "tensor" else 4 ** dim
+        return self.stencil ** dim if self.kind in ("tensor", "mapped") else 4 ** dim
 
 
 @ti.func
@@ -191,7 +206,98 @@ def make_ddmp() -> Basis:
                  smooth_1d)
 
 
-def make_basis(name: str) -> Basis:
+class KnotData:
+    """One axis's knot vector in grid units (numpy) and, once materialized, as Taichi fields with the Greville
+    abscissae of its control points."""
+
+    def __init__(self, t: np.ndarray, p: int):
+        self.t, self.p = np.asarray(t, float), p
+        self.g = greville(self.t, p)
+        self.field = self.coords = None
+
+    def materialize(self):
+        if self.field is None:
+            self.field = ti.field(float, len(self.t))
+            self.coords = ti.field(float, len(self.g))
+            self.field.from_numpy(self.t)
+            self.coords.from_numpy(self.g)
+
+
+def make_knot_bspline(p: int, name: str, t: np.ndarray) -> Basis:
+    """B-splines of degree p on the open knot vector t (grid units, any spacing, interior knots repeated up to p
+    times): span search by bisection, Cox-de Boor values (The NURBS Book A2.2) and first derivatives, with
+    0/0 = 0 wherever repeated knots make a denominator vanish. Control point i has the Greville abscissa g_i."""
+    data = KnotData(t, p)
+    m = len(data.t)
+    n_ctrl = m - p - 1
+    first, last = p, m - p - 2     # the nonempty spans lie between knots first..last + 1
+
+    @ti.func
+    def coord(i, n):
+        return data.coords[i]
+
+    @ti.func
+    def span(u):
+        """The knot span c with T[c] <= u < T[c + 1], nonempty (after a repeated knot, the last copy); u beyond
+        the ends takes the end spans, u on the last knot the last span."""
+        T = ti.static(data.field)
+        lo, hi = first, last
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            if T[mid] <= u:
+                lo = mid
+            else:
+                hi = mid - 1
+        return lo
+
+    @ti.func
+    def weights_1d(u, n: ti.template(), lp):
+        T = ti.static(data.field)
+        uu = ti.cast(u, float)
+        c = span(uu)
+        N = ti.Vector.zero(float, p + 1)   # degree-p values of control points c-p..c
+        M = ti.Vector.zero(float, p + 1)   # degree p-1 values, for the derivatives
+        N[0] = 1.0
+        for j in ti.static(range(1, p + 1)):
+            if ti.static(j == p):
+                M = N
+            saved = 0.0
+            for r in ti.static(range(j)):
+                right = T[c + r + 1] - uu
+                left = uu - T[c + 1 - j + r]
+                temp = 0.0
+                if right + left > 0:       # 0/0 = 0
+                    temp = N[r] / (right + left)
+                N[r] = saved + right * temp
+                saved = left * temp
+            N[j] = saved
+        dN = ti.Vector.zero(float, p + 1)
+        for r in ti.static(range(p + 1)):
+            # N'_{k,p} = p [N_{k,p-1} / (T_{k+p} - T_k) - N_{k+1,p-1} / (T_{k+p+1} - T_{k+1})], k = c - p + r
+            d = 0.0
+            if ti.static(r >= 1):
+                den = T[c + r] - T[c - p + r]
+                if den > 0:
+                    d += M[r - 1] / den
+            if ti.static(r < p):
+                den = T[c + r + 1] - T[c - p + r + 1]
+                if den > 0:
+                    d -= M[r] / den
+            dN[r] = p * d
+        return c - p, N, dN
+
+    g = data.g
+    return Basis(name, p + 1, 0, p == 1, lambda n: n_ctrl, coord, lambda i, n: float(g[i]), weights_1d,
+                 knots=data)
+
+
+def make_basis(name: str, knots=None) -> Basis:
+    """`knots`: per axis a knot vector in grid units or None (knots.grid_knots), for the B-spline bases."""
+    if knots is not None and any(t is not None for t in knots):
+        p = DEGREE[name]
+        uniform = make_bspline(p, name)
+        axes = tuple(uniform if t is None else make_knot_bspline(p, name, t) for t in knots)
+        return replace(uniform, axes=axes)
     if name == "gimp":
         return make_gimp()
     if name == "cpdi":

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .basis import make_basis
+from .knots import grid_knots, smallest_span
 from .config import Config, ConfigError
 from .grid import LEAF, MAX_TOP_POINTERS, _pow2
 from . import materials as material_models
@@ -123,9 +124,9 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
 def grid_layout(cfg: Config) -> dict:
     """Nodes per axis and, for a sparse grid, the pointer levels as `grid.Grid` builds them."""
     d = cfg.dim
-    basis = make_basis(cfg.solver.basis)
+    basis = make_basis(cfg.solver.basis, grid_knots(cfg))
     cells = [round((u - l) / cfg.domain.dx) for l, u in zip(cfg.domain.lower, cfg.domain.upper)]
-    nodes = [basis.nodes(c) for c in cells]
+    nodes = [basis.axis(a).nodes(c) for a, c in enumerate(cells)]
     out = dict(cells=cells, nodes=nodes, stencil=basis.stencil)
     if cfg.domain.sparse:
         leaf = LEAF[d]
@@ -189,7 +190,7 @@ def _time_step(cfg: Config, base_dir) -> tuple[float, str]:
                 v += float(np.linalg.norm(np.atleast_1d(b.angular_velocity))) * 0.5 * float(np.linalg.norm(hi - lo))
         if fastest is None or v > vmax:
             vmax, fastest = v, i
-    dt = s.cfl * cfg.domain.dx / (c + vmax)
+    dt = s.cfl * smallest_span(cfg) / (c + vmax)   # dx, or the shortest span of domain.knots
     if not dt > 0:  # a speed (or wave speed) so large that the step underflows: found by tests/test_fuzz.py
         key = f"bodies.{fastest}.velocity" if vmax >= c else f"materials.{which}"
         raise ConfigError(f"the CFL time step underflows to zero (wave speed {c:.3g} m/s, body speed {vmax:.3g} m/s, "

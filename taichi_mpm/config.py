@@ -18,6 +18,7 @@ from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapte
                       field_validator, model_serializer, model_validator)
 
 from .errors import ConfigError
+from .knots import DEGREE as KNOT_DEGREE, knot_problem
 from .expressions import parse as parse_expression
 
 from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
@@ -208,12 +209,34 @@ class Boundaries(Strict):
         return self._get(axis, side).velocity
 
 
+class Knots(Strict):
+    """Knot vectors per axis (m, from domain.lower to domain.upper, open: each end p + 1 times); an axis left out
+    keeps the uniform open knot vector of domain.dx (taichi_mpm/knots.py)."""
+    x: Optional[list[Real]] = None
+    y: Optional[list[Real]] = None
+    z: Optional[list[Real]] = None
+
+
+class AnnulusMap(Strict):
+    """domain.map: a curvilinear grid on an annulus (or a sector of one), exact circles through NURBS weights
+    (taichi_mpm/mapped.py); the parameter faces are x_min / x_max (the straight edges at angle 0 and `angle`,
+    none for a full ring) and y_min / y_max (the inner and outer circles)."""
+    type: Literal["annulus"]
+    inner_radius: PositiveFloat
+    outer_radius: PositiveFloat
+    angle: Annotated[float, Field(gt=0, le=360)] = 360.0    # degrees, counter-clockwise from +x
+    center: Vec = [0.0, 0.0]
+    cells: list[Annotated[int, Field(gt=0, le=4096)]]    # [along the angle, across the radius]
+
+
 class Domain(Strict):
     lower: Vec
     upper: Vec
     dx: PositiveFloat
     sparse: bool = True
     boundaries: Boundaries = Boundaries()
+    knots: Optional[Knots] = None
+    map: Optional[AnnulusMap] = None
 
 
 class Cpdi(Strict):
@@ -489,6 +512,8 @@ class Config(Strict):
                 raise _Located("domain.dx", f"the domain extent {u - l:g} along {'xyz'[a]} is not a whole number of "
                                             f"cells of dx={self.domain.dx:g} ({n:.4g} cells); "
                                             f"choose e.g. dx={(u - l) / max(1, round(n)):.6g}")
+        self._check_knots()
+        self._check_map()
         if self.solver.gravity is not None:
             _need_len("solver.gravity", self.solver.gravity, d)
         for i, b in enumerate(self.bodies):
@@ -540,6 +565,60 @@ class Config(Strict):
         if self.crack is None and any(b.interface or b.damage_regions for b in self.bodies):
             pass  # allowed: damage/interface flags are stored but only act with a crack section
         return self
+
+    def _check_knots(self):
+        if self.domain.knots is None:
+            return
+        if self.solver.basis not in KNOT_DEGREE:
+            raise _Located("domain.knots", f"knot vectors need a B-spline basis (linear, quadratic or cubic), not "
+                                           f"solver.basis {self.solver.basis}")
+        if self.crack is not None:
+            raise _Located("domain.knots", "knot vectors are not available with a crack section (its SPH reach and "
+                                           "cell list assume the uniform grid)")
+        p = KNOT_DEGREE[self.solver.basis]
+        for a, axis in enumerate("xyz"):
+            t = getattr(self.domain.knots, axis)
+            if t is None:
+                continue
+            if a >= self.dim:
+                raise _Located(f"domain.knots.{axis}", f"the scene is {self.dim}D: it has no {axis} axis")
+            problem = knot_problem(t, p, self.domain.lower[a], self.domain.upper[a])
+            if problem:
+                raise _Located(f"domain.knots.{axis}", f"{problem} (solver.basis {self.solver.basis}: p = {p})")
+
+    def _check_map(self):
+        m = self.domain.map
+        if m is None:
+            return
+        if self.dim != 2:
+            raise _Located("domain.map", f"mapped grids are 2D (the scene is {self.dim}D)")
+        if self.solver.basis != "quadratic":
+            raise _Located("domain.map", f"the annulus map is quadratic: use solver.basis quadratic, not "
+                                         f"{self.solver.basis}")
+        if self.domain.knots is not None:
+            raise _Located("domain.knots", "give either domain.knots or domain.map (the map has its own knots)")
+        if self.crack is not None:
+            raise _Located("domain.map", "mapped grids are not available with a crack section")
+        _need_len("domain.map.center", m.center, 2)
+        _need_len("domain.map.cells", m.cells, 2)
+        if m.outer_radius <= m.inner_radius:
+            raise _Located("domain.map.outer_radius", "must exceed inner_radius")
+        pieces = max(1, math.ceil(m.angle / 90.0 - 1e-9))
+        if m.cells[0] % pieces:
+            raise _Located("domain.map.cells", f"an annulus of {m.angle:g} degrees is {pieces} rational pieces: "
+                                               f"the cells along the angle must be a multiple of {pieces}")
+        for a in range(2):
+            lo, hi = m.center[a] - m.outer_radius, m.center[a] + m.outer_radius
+            if self.domain.lower[a] > lo or self.domain.upper[a] < hi:
+                raise _Located("domain.upper", f"the domain box must hold the annulus: [{lo:g}, {hi:g}] along "
+                                               f"{'xy'[a]}")
+        for a in range(2):
+            for side in (0, 1):
+                face = FACES[2 * a + side]
+                if self.domain.boundaries.face(a, side) == "velocity" or self.domain.boundaries.friction(a, side):
+                    named = getattr(self.domain.boundaries, face) is not None
+                    raise _Located(f"domain.boundaries.{face if named else 'default'}", "walls of a mapped grid are "
+                                   "sticky, slip, roller or free (no velocity walls or friction yet)")
 
     def _check_probes(self):
         d, names = self.dim, set()

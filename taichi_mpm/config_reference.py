@@ -42,6 +42,23 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                                 "tangential velocity drops by mu times the normal velocity removed"),
     **{f"domain.boundaries.{f}": ("", f"wall at the {'lower' if f.endswith('min') else 'upper'} {f[0]} face; null "
                                       "takes `default`") for f in FACE_NAMES.split(", ")},
+    "domain.knots": ("", "knot vectors per axis for the B-spline bases (docs/isogeometric.md); an axis left out "
+                         "keeps the uniform open knot vector of dx"),
+    **{f"domain.knots.{a}": ("m", f"open knot vector along {a}: nondecreasing, domain.lower and domain.upper each "
+                                  "p + 1 times (p: 1, 2, 3 for linear, quadratic, cubic), interior knots at most p "
+                                  "times (multiplicity k leaves the basis C^(p-k)); the CFL step follows the "
+                                  "shortest span") for a in "xyz"},
+    "domain.map": ("", "a curvilinear (mapped) grid, 2D, solver.basis quadratic (docs/isogeometric.md); "
+                       "domain.lower/upper must hold it and domain.dx sets the particle spacing only"),
+    "domain.map.type": ("", "annulus: exact circles through NURBS weights; faces x_min/x_max are the straight "
+                            "edges at angle 0 and `angle` (none for a full ring), y_min/y_max the inner and outer "
+                            "circles"),
+    "domain.map.inner_radius": ("m", "radius of the inner circle"),
+    "domain.map.outer_radius": ("m", "radius of the outer circle"),
+    "domain.map.angle": ("deg", "angular span counter-clockwise from +x; 360: a full ring, periodic in the angle"),
+    "domain.map.center": ("m", "centre of the circles"),
+    "domain.map.cells": ("", "[cells along the angle, cells across the radius]; the first a multiple of the "
+                             "number of quarter turns (rational pieces) the angle spans"),
     "solver": ("", "time integration and the MPM scheme"),
     "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines, cpdi (CPDI1 "
                          "particle domains over linear grid functions) or ddmp (linear functions, dual-domain "

@@ -79,6 +79,7 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     The face itself does not move: a normal component pushes or pulls material through a fixed plane.
     """
 
+    axes = [basis.axis(a) for a in range(dim)]   # per-axis 1D bases (knot vectors of domain.knots)
     kind = {"free": 0, "sticky": 1, "slip": 2, "roller": 3, "velocity": 4}
     codes = [(kind[lo], kind[hi]) for lo, hi in faces]
     mus = [(float(lo), float(hi)) for lo, hi in (friction or [(0.0, 0.0)] * dim)]
@@ -136,7 +137,7 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     @ti.func
     def conditions(I, v, m, measure: ti.template()):
         for a in ti.static(range(dim)):
-            c = basis.coord(I[a], n_cells[a])
+            c = axes[a].coord(I[a], n_cells[a])
             if c <= 0.0:
                 v = face(v, m, a, 0, measure)
             if c >= ti.static(float(n_cells[a])):

@@ -21,6 +21,8 @@ import taichi as ti
 
 from . import budget
 from .basis import make_basis
+from .knots import grid_knots, smallest_span
+from .mapped import MappedGrid, make_locate, make_wall_condition as make_mapped_wall
 from .stencils import KernelContext, make_corner_check, make_stencil
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
@@ -36,7 +38,8 @@ FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                2: "non-finite value (NaN or infinity) in velocity or deformation",
                3: "particle left the domain",
                4: "fluid volume collapse",
-               5: "particle domain corner left the domain (cpdi)"}
+               5: "particle domain corner left the domain (cpdi)",
+               6: "particle left the mapped grid (domain.map could not be inverted there)"}
 ENERGY_GROWTH = "energy growth beyond the work done on the system"
 NUMERICAL_FRACTURE = "numerical fracture (a body tore apart on the grid)"
 CAUSES = (*FAIL_CAUSES.values(), ENERGY_GROWTH, NUMERICAL_FRACTURE)  # every InstabilityError.cause the solver raises
@@ -121,7 +124,14 @@ class Simulation:
         self.scene = scene if scene is not None else build_scene(c)
         self.n = self.scene.n
         self._id = init_taichi(c.arch, c.precision, c.solver.deterministic)
-        self.basis = make_basis(c.solver.basis)
+        self.basis = make_basis(c.solver.basis, grid_knots(c))   # domain.knots: per-axis knot vectors
+        self.basis.materialize()
+        self.h_cfl = smallest_span(c)   # dx, or the shortest knot span of domain.knots
+        self.mapped = MappedGrid(c) if c.domain.map is not None else None   # domain.map: a curvilinear grid
+        if self.mapped is not None:
+            self.basis = self.mapped.basis()
+            self.mapped.materialize()
+            self.h_cfl = self.mapped.h_min
         self._materials = [c.materials[name] for name in self.scene.materials]
         self.wave_speed = max(wave_speed(m) for m in self._materials)
         self.time, self.n_steps, self.dt = 0.0, 0, 0.0
@@ -189,7 +199,10 @@ class Simulation:
         vec = ["v"] + (["v_old"] if f["flip"] else []) + (["v2"] if f["musl"] else [])
         vec += ["grip"] if f["grips"] else []  # component 0: the grip (from 1) whose particles touch the node
         vec += crack_finder.grid_fields(d) if self.cfg.crack is not None else []  # tensor node mass rows
-        shape = [self.basis.nodes(nc) for nc in self.n_cells]
+        shape = [self.basis.axis(a).nodes(nc) for a, nc in enumerate(self.n_cells)]
+        if self.mapped is not None:
+            shape = self.mapped.shape    # control points of the map, in parameter space
+            self.mapped.allocate_particles(n)
         self.grid = Grid(d, shape, self.cfg.domain.sparse, vec)
         self.crack = crack_finder.CrackFinder(self) if self.cfg.crack is not None else None
         self.fbar = fbar.create(self)  # solver.volumetric: fbar (fbar.py), else None
@@ -251,6 +264,7 @@ class Simulation:
         self.v.from_numpy(self._to_solver(s.v).astype(np.float64))
         self.F.from_numpy(np.broadcast_to(np.eye(d), (self.n, d, d)).copy())
         self.vol0.from_numpy(self._to_solver(s.volume).astype(np.float64))
+        self._place_on_map()
         if self.C is not None:
             self.C.fill(0)
         if self.mat is not None:
@@ -319,6 +333,8 @@ class Simulation:
         friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
         moving = (self.loads.wall_given(), self.wall_v, self.work) if f["moving_walls"] else None
         wall = make_wall_condition(dim, n_cells, faces, basis, friction, self.wall_reaction, moving)
+        if self.mapped is not None:   # walls on the map's parameter faces, along their normals
+            wall = make_mapped_wall(self.mapped, faces, self.wall_reaction)
         # The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))`
         # with off = o + inner[k]. Unrolled, the outer range is a single point and `inner` lists every node, so
         # the weights stay in registers (3D quadratic: P2G 37 against 43 ms, G2P 7.5 against 11 ms CPU time for
@@ -328,8 +344,10 @@ class Simulation:
             precision=self.cfg.precision, x=x, v=v, F=F, C=C, vol0=vol0, mat=mat, half_width=self.half_width,
             domain_lp0=0.5 * float(self.scene.spacing[0]) / dx if self.n else 0.5,
             gimp_deforming=self.cfg.solver.gimp_domain == "deforming", unroll=self._unroll(), grid=self.grid,
-            wall=wall, gravity=gravity, has_gravity=f["gravity"])
+            wall=wall, gravity=gravity, has_gravity=f["gravity"], extra=dict(mapped=self.mapped))
         sten = ctx.stencil = make_stencil(ctx)
+        if self.mapped is not None:
+            self._locate, self._locate_from = make_locate(ctx, self.mapped, self.fail, _CODES, 6)
         outer, inner = sten.outer, sten.inner
         corner_outside = make_corner_check(ctx)
 
@@ -808,7 +826,7 @@ class Simulation:
         elastic waves + particle speed: cfl dx / (c + |v|max), named `elastic` or `speed` by the larger;
         acceleration: cfl sqrt(dx / |a|), |a| = |g| + max |b| (named `body_force` when b dominates);
         viscosity: cfl rho dx^2 / (VISCOUS_DIFFUSION d mu) per viscous material."""
-        cfl, dx = self.cfg.solver.cfl, self.dx
+        cfl, dx = self.cfg.solver.cfl, self.h_cfl
         c, v = self.wave_speed, self._vmax
         out = {"elastic" if c >= v else "speed": cfl * dx / (c + v) if c + v > 0 else math.inf}
         g = self._g_norm
@@ -898,6 +916,8 @@ class Simulation:
             k["g2p"](dt, False, True)
         else:
             k["g2p"](dt, True, True)
+        if self.mapped is not None:
+            self._locate()   # the new positions' parametric coordinates
         if self.fbar is not None:
             self.fbar.apply()  # F-bar: the step's volume change averaged over the grid
             if self.feat["plastic"]:
@@ -1218,10 +1238,23 @@ class Simulation:
             value = self._to_solver(value)
             fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
         self._balance = self._shape_ref = None  # a new state: the balance and body shapes are measured afresh
+        if "x" in checked:
+            self._place_on_map()
         if self.fbar is not None and "F" in checked:
             self.fbar.sync()  # F-bar's start-of-step J follows the new F
         if "v" in checked:
             self._vmax = _max_speed(checked["v"])
+
+    def _place_on_map(self):
+        """domain.map: every particle's parametric coordinates, by Newton from the nearest sample of the map; a
+        particle outside the mapped region is a config error."""
+        if self.mapped is None or self.n == 0:
+            return
+        x = self.x.to_numpy().astype(np.float64)
+        missed = self._locate_from(self.mapped.initial_guess(x))
+        if missed:
+            raise ConfigError(f"{missed} particles lie outside the mapped grid (domain.map): bodies must lie inside "
+                              "the annulus", key="domain.map")
 
     def _validated_particles(self, arrays: dict) -> dict:
         fields = self._state_fields()
@@ -1340,7 +1373,7 @@ class Simulation:
         return _max_speed(self._read("v"))
 
     def cfl_number(self) -> float:
-        return self.dt * (self.wave_speed + self._vmax) / self.dx
+        return self.dt * (self.wave_speed + self._vmax) / self.h_cfl
 
 
 def _is_real(x) -> bool:

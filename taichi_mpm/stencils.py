@@ -109,6 +109,9 @@ class Stencil:
 
 
 def make_stencil(ctx: KernelContext) -> Stencil:
+    if ctx.basis.kind == "mapped":   # domain.map: the NURBS map's control points (mapped.py)
+        from .mapped import make_stencil as mapped_stencil
+        return mapped_stencil(ctx, ctx.extra["mapped"])
     build = {"tensor": _tensor_stencil, "cpdi": _cpdi_stencil}[ctx.basis.kind]
     return build(ctx)
 
@@ -149,6 +152,7 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     dim, dx, inv_dx = ctx.dim, ctx.dx, 1.0 / ctx.dx
     basis, n_cells, lower = ctx.basis, ctx.n_cells, ctx.lower
     S = basis.stencil
+    axes = [basis.axis(a) for a in range(dim)]   # per-axis 1D bases (knot vectors of domain.knots)
     x, F = ctx.x, ctx.F
     gimp, gimp_deforming = basis.name == "gimp", ctx.gimp_deforming
     smooth = basis.smooth_1d is not None   # ddmp
@@ -178,12 +182,12 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
                 # a particle's domain ends at the walls: otherwise interior nodes keep weight on a particle
                 # at the wall and carry it through (sticky wall: out at step 1; slip floor at Mach 3)
                 lp = ti.max(ti.min(lp, u[a], n_cells[a] - u[a]), 1e-6)
-            b, w, dw = basis.weights_1d(u[a], n_cells[a], lp)
+            b, w, dw = axes[a].weights_1d(u[a], n_cells[a], lp)   # axes[a]: its own knots (domain.knots)
             base[a] = b
             for k in ti.static(range(S)):
                 W[a, k] = w[k]
                 DW[a, k] = dw[k] * inv_dx
-                R[a, k] = (basis.coord(b + k, n_cells[a]) - u[a]) * dx
+                R[a, k] = (axes[a].coord(b + k, n_cells[a]) - u[a]) * dx
             if ti.static(smooth):
                 ws, ds, al = basis.smooth_1d(u[a], n_cells[a])
                 alpha *= al

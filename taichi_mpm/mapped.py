@@ -1,0 +1,245 @@
+"""Mapped (curvilinear) grids, `domain.map` (issue 12, step 3): the grid lives in the parameter space of a NURBS
+map x(xi) (nurbs.py), its nodes are the map's control points, and each particle keeps its parametric coordinates
+xi_p next to its physical position x_p.
+
+A particle's stencil is the rational basis R_i at xi_p, with physical gradients through the map's Jacobian,
+    grad_x R_i = J^-T grad_xi R_i,   J = sum_i P_i (x) grad_xi R_i,
+and node offsets P_i - x_p (control points are the nodes: sum R_i P_i = x_p and sum P_i (x) grad_x R_i = I, so
+APIC, linear reproduction and the F update hold as on the Cartesian grid). After every position update xi_p is
+found again by Newton's method on x(xi) = x_p from the old xi_p (`locate`); a particle that leaves the mapped
+region or whose iteration fails stops the run (InstabilityError, cause "particle left the mapped grid").
+
+A full ring is periodic in the angle: its last control-point column coincides with the first and is stored as
+that same node (the seam is a C0 joint, like the rational pieces' double knots).
+
+Walls act on the control points of the parameter faces along their outward normals (the annulus: radial on the
+circles, so a slip or roller circle gives every node an impulse through the centre and no torque): sticky v = 0,
+slip: no outward normal velocity, roller: no normal velocity. Bodies are given in physical space.
+Physics code only: no CLI, rendering or file I/O here.
+"""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from .basis import Basis, make_bspline
+from .errors import ConfigError
+from .nurbs import annulus
+
+WALL_CODES = {"free": 0, "sticky": 1, "slip": 2, "roller": 3}
+LOCATE_TOL = {"f32": 1e-4, "f64": 1e-13}      # Newton's residual |x(xi) - x_p|, relative to the smallest cell (f32: sums of 9 terms of ~|x| carry ~1e-7 |x| of round-off)
+
+
+class MappedGrid:
+    """Host side of a mapped grid: the NURBS map, node count, wall normals and the smallest cell (for the CFL
+    rule). `materialize()` allocates its fields after ti.init."""
+
+    def __init__(self, cfg):
+        m = cfg.domain.map
+        self.cfg = cfg
+        angle = math.radians(m.angle)
+        self.periodic = m.angle >= 360.0
+        n_angle, n_radial = m.cells
+        self.map = annulus(m.inner_radius, m.outer_radius, angle, n_angle, n_radial, tuple(m.center))
+        self.map.periodic = self.periodic
+        self.centre = np.asarray(m.center, float)
+        n0, n1 = self.map.w.shape
+        self.shape = [n0 - 1 if self.periodic else n0, n1]   # the seam column is the first one
+        # smallest cell: an inner arc of one angular cell, or one radial cell
+        self.h_max = max(m.outer_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
+        self.h_min = min(m.inner_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
+        self.normals = self._normals()
+        self.xi = None
+
+    def basis(self) -> Basis:
+        """The solver's view: quadratic (3 nodes per axis, APIC with B_p D_p^-1), contributions built here."""
+        from dataclasses import replace
+        return replace(make_bspline(2, "quadratic"), kind="mapped")
+
+    def _normals(self) -> np.ndarray:
+        """Outward unit normals per node and face (n0, n1, 4, 2): faces x_min (angle 0), x_max (the last angle),
+        y_min (inner circle), y_max (outer circle); zero where the node is not on that face."""
+        P = self.map.P[: self.shape[0]]
+        out = np.zeros(tuple(self.shape) + (4, 2))
+        radial = P - self.centre
+        radial /= np.linalg.norm(radial, axis=-1, keepdims=True)
+        out[:, 0, 2] = -radial[:, 0]
+        out[:, -1, 3] = radial[:, -1]
+        if not self.periodic:
+            a = math.radians(self.cfg.domain.map.angle)
+            out[0, :, 0] = [0.0, -1.0]                         # below the edge at angle 0
+            out[-1, :, 1] = [-math.sin(a), math.cos(a)]        # beyond the edge at the last angle
+        return out
+
+    def materialize(self):
+        self.map.materialize()
+        self.normal = ti.Vector.field(2, float, tuple(self.shape) + (4,))
+        self.normal.from_numpy(self.normals)
+
+    def allocate_particles(self, n: int):
+        self.xi = ti.Vector.field(2, float, max(n, 1))
+
+    def initial_guess(self, x: np.ndarray) -> np.ndarray:
+        """Per physical point, the parameters of the nearest of 3 x 3 samples per cell (Newton starts there,
+        within a third of a cell of the answer). Points are sorted into the cells of a coarse box grid first, and
+        each is compared with the samples of its own box cell and the neighbouring ones only."""
+        n0, n1 = self.map.n_cells
+        k = 3
+        s0 = (np.arange(int(k * n0)) + 0.5) / k
+        s1 = (np.arange(int(k * n1)) + 0.5) / k
+        xi = np.stack(np.meshgrid(s0, s1, indexing="ij"), -1).reshape(-1, 2)
+        pts = self.map.evaluate(xi)
+        lo = np.minimum(pts.min(axis=0), x.min(axis=0)) if len(x) else pts.min(axis=0)
+        h = 2.0 * self.h_max
+        key = lambda q: np.floor((q - lo) / h).astype(np.int64)
+        buckets = {}
+        for i, c in enumerate(map(tuple, key(pts))):
+            buckets.setdefault(c, []).append(i)
+        out = np.empty((len(x), 2))
+        cells = key(x)
+        for c in set(map(tuple, cells)):
+            mine = np.nonzero((cells == c).all(axis=1))[0]
+            near = [i for d0 in (-1, 0, 1) for d1 in (-1, 0, 1) for i in buckets.get((c[0] + d0, c[1] + d1), [])]
+            if not near:        # far from the annulus: any start; Newton will report it
+                out[mine] = xi[0]
+                continue
+            near = np.asarray(near)
+            d = ((x[mine, None, :] - pts[None, near]) ** 2).sum(-1)
+            out[mine] = xi[near[d.argmin(axis=1)]]
+        return out
+
+
+def make_stencil(ctx, mapped: MappedGrid):
+    """The mapped grid's contributions (stencils.Stencil): 3 x 3 control points per particle."""
+    from .stencils import Stencil, _flat_index, _loops
+
+    mp, xi, x = mapped.map, mapped.xi, ctx.x
+    periodic, n_seam = mapped.periodic, mapped.shape[0]
+    d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * mapped.h_min ** 2
+    span = [3, 3]
+
+    @ti.func
+    def at(p):
+        ctrl = ti.static(mp.ctrl)
+        b, R, R0, R1 = mp.rational(xi[p])
+        J = ti.Matrix.zero(float, 2, 2)
+        for i, j in ti.static(ti.ndrange(3, 3)):
+            Pij = ctrl[b[0] + i, b[1] + j]
+            for c in ti.static(range(2)):
+                J[c, 0] += R0[i, j] * Pij[c]
+                J[c, 1] += R1[i, j] * Pij[c]
+        return b, R, R0, R1, J.inverse().transpose(), x[p]
+
+    @ti.func
+    def node(st, off):
+        ctrl = ti.static(mp.ctrl)
+        b, R, R0, R1, JiT, xp = st
+        I = b + off
+        r = ctrl[I] - xp
+        grad = JiT @ ti.Vector([R0[off[0], off[1]], R1[off[0], off[1]]])
+        if ti.static(periodic):
+            if I[0] >= n_seam:
+                I[0] -= n_seam
+        return I, R[off[0], off[1]], grad, r
+
+    @ti.func
+    def inertia(st):
+        ctrl = ti.static(mp.ctrl)
+        b, R, R0, R1, JiT, xp = st
+        D = ti.Matrix.zero(float, 2, 2)
+        for i, j in ti.static(ti.ndrange(3, 3)):
+            r = ctrl[b[0] + i, b[1] + j] - xp
+            D += R[i, j] * r.outer_product(r)
+        return D
+
+    @ti.func
+    def inertia_inverse(st):
+        """D_p^-1, regularised by d_min where D_p is (nearly) singular: a particle on a wall circle weighs only
+        the wall's row of nodes, D_p has no radial extent there, and B_p none either."""
+        D = inertia(st)
+        if D.determinant() < d_min * (D.trace() + d_min):
+            D += ti.Matrix.identity(float, 2) * d_min
+        return D.inverse()
+
+    outer, inner = _loops(span, ctx.unroll)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 9)
+
+
+def make_wall_condition(mapped: MappedGrid, faces, reaction=None):
+    """@ti.func (I, v) -> v with each parameter face's condition along the node's outward normal; `.measured`
+    (I, v, m) also adds the impulse m dv to reaction[face] (wall probes)."""
+    codes = [WALL_CODES[faces[a][s]] for a in range(2) for s in range(2)]
+    normal, periodic = mapped.normal, mapped.periodic
+    n0, n1 = mapped.shape
+    measuring = reaction is not None
+
+    @ti.func
+    def face(I, v, m, k: ti.template(), measure: ti.template()):
+        before = v
+        n = normal[I, k]
+        if ti.static(codes[k] == 1):
+            v = ti.Vector.zero(float, 2)
+        elif ti.static(codes[k] == 2):
+            v -= ti.max(v.dot(n), 0.0) * n
+        elif ti.static(codes[k] == 3):
+            v -= v.dot(n) * n
+        if ti.static(measure and measuring):
+            reaction[k] += m * (v - before)
+        return v
+
+    @ti.func
+    def conditions(I, v, m, measure: ti.template()):
+        if ti.static(not periodic):
+            if I[0] == 0:
+                v = face(I, v, m, 0, measure)
+            if I[0] == n0 - 1:
+                v = face(I, v, m, 1, measure)
+        if I[1] == 0:
+            v = face(I, v, m, 2, measure)
+        if I[1] == n1 - 1:
+            v = face(I, v, m, 3, measure)
+        return v
+
+    @ti.func
+    def apply(I, v):
+        return conditions(I, v, 0.0, False)
+
+    @ti.func
+    def apply_measured(I, v, m):
+        return conditions(I, v, m, True)
+
+    apply.measured = apply_measured
+    return apply
+
+
+def make_locate(ctx, mapped: MappedGrid, fail, n_codes: int, code: int):
+    """Kernels: `locate()` finds every particle's xi again after its position update (Newton from the old xi);
+    a failure sets the fail flag with `code`. `start(guess)` does it from host guesses at upload and returns
+    how many particles were not found."""
+    mp, xi, x = mapped.map, mapped.xi, ctx.x
+    tol = LOCATE_TOL[ctx.precision] * mapped.h_min
+    missed = ti.field(ti.i32, ())
+
+    @ti.kernel
+    def locate():
+        for p in x:
+            q, ok = mp.invert(x[p], xi[p], tol)
+            xi[p] = q
+            if not ok:
+                ti.atomic_min(fail[None], p * n_codes + code)
+
+    @ti.kernel
+    def start_kernel(guess: ti.types.ndarray()):
+        for p in x:
+            q, ok = mp.invert(x[p], ti.Vector([guess[p, 0], guess[p, 1]]), tol)
+            xi[p] = q
+            if not ok:
+                missed[None] += 1
+
+    def start(guess: np.ndarray) -> int:
+        missed[None] = 0
+        start_kernel(np.ascontiguousarray(guess, np.float64))
+        return int(missed[None])
+
+    return locate, start
