@@ -63,6 +63,7 @@ def test_a_particle_leaving_the_map_is_an_instability():
     assert e.value.step >= 2 and np.linalg.norm(X[e.value.particle]) > 0.9   # one of the outer particles
 
 
+@pytest.mark.slow  # a second kernel set (fluid, slip circles; ~47 s cold): the default run keeps the stretch scene
 def test_slip_circles_conserve_angular_momentum_of_a_spinning_fluid_ring():
     """A fluid ring spinning rigidly (1 rad/s) in the full annulus with slip walls: centrifugal pressure pushes it
     onto the outer circle. Every wall impulse is radial (through the centre) and APIC carries the affine part, so
