@@ -225,10 +225,10 @@ def test_cpdi2_is_a_config_error():
 
 
 # ---------------------------------------------------------------- manufactured solutions (slow)
-def mms_errors(dim, amplitude, cells, basis="cpdi"):
+def mms_errors(dim, amplitude, cells, basis="cpdi", **problem):
     errs = []
     for n in cells:
-        pr = an.make_problem({"type": "mms_axis_aligned", "dim": dim, "amplitude": amplitude})
+        pr = an.make_problem({"type": "mms_axis_aligned", "dim": dim, "amplitude": amplitude, **problem})
         _, e = an.run_problem(pr, {"domain.dx": 1.0 / n, "solver.basis": basis})
         errs.append(e["error_rms"])
     return errs
