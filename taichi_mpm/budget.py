@@ -163,14 +163,17 @@ def _grid_bytes(cfg: Config, base_dir) -> tuple[int, str, list[int]]:
     vectors = 1 + (cfg.solver.transfer == "flip") + (cfg.solver.update == "musl") + (d if cfg.crack else 0)
     node_bytes = size * (1 + d * vectors)
     nodes = math.prod(layout["nodes"])
+    ddmp = cfg.solver.basis == "ddmp"   # its nodal volumes live on a grid of their own, one scalar per node
     if not cfg.domain.sparse:
-        return nodes * node_bytes, f"dense, {nodes:.3g} nodes", layout["cells"]
+        return nodes * (node_bytes + (size if ddmp else 0)), f"dense, {nodes:.3g} nodes", layout["cells"]
     leaves, tops = _active_blocks(cfg, layout, base_dir)
     grids = 2 if cfg.crack is not None else 1  # the crack finder keeps node normals on a second sparse grid
     top_slots = math.prod(layout["levels"][0])
     pointers = top_slots + (tops * layout["mid"] ** d if len(layout["levels"]) > 1 else 0)
     leaf_nodes = leaves * layout["leaf"] ** d
     total = grids * pointers * POINTER_SLOT_BYTES + leaf_nodes * (node_bytes + (size * (1 + d) if grids > 1 else 0))
+    if ddmp:
+        total += pointers * POINTER_SLOT_BYTES + leaf_nodes * size
     return total, f"sparse, {top_slots:.3g} top pointers, ~{leaves:,} active blocks", layout["cells"]
 
 

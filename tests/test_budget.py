@@ -1,6 +1,7 @@
 """Resource estimate (issue 9): absurd grids and particle counts are refused from the config alone, before
 anything is allocated; the estimate matches what the solver and the scene builder then make."""
 import copy
+import math
 import warnings
 
 import pytest
@@ -161,3 +162,19 @@ def test_validate_prints_the_estimate_refuses_and_allow_large_overrides(tmp_path
     assert "more than the limit" in err and "--allow-large" in err and "Traceback" not in err
     with pytest.warns(budget.SizeWarning):
         assert main(["validate", str(path), "--set", "limits.memory_gb=1e-6", "--allow-large"]) == 0
+
+
+def test_ddmp_counts_its_nodal_volume_grid():
+    """ddmp keeps the nodal volumes V_j on a grid of their own, one scalar per node (stencils._dual_domain_fill):
+    dense, exactly one float per node more than gimp, whose grid has the same nodes (ghosts beyond the walls)."""
+    for sparse in (False, True):
+        cfg = tm.load_config(make_cfg(2, basis="ddmp", dx=0.1, precision="f64"))
+        cfg.domain.sparse = sparse
+        with_vol, _, _ = budget._grid_bytes(cfg, ".")
+        nodes = math.prod(budget.grid_layout(cfg)["nodes"])
+        cfg.solver.basis = "gimp"            # same grid (ghost nodes beyond the walls), no nodal-volume grid
+        plain, _, _ = budget._grid_bytes(cfg, ".")
+        if not sparse:
+            assert with_vol - plain == 8 * nodes
+        else:
+            assert with_vol > plain
