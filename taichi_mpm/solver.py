@@ -157,6 +157,9 @@ class Simulation:
             initial_stress=s.stress is not None,  # bodies[].stress, a stored stress added to the model's
             moving_walls=bool(self.loads.walls),  # domain.boundaries faces of type velocity
             plastic=any(MODELS[m.model].plastic for m in self._materials),  # a return mapping after the F update
+            # positions by the trapezoid of the grid velocity over the step (exact for a uniform acceleration)
+            # wherever an acceleration acts on free bodies; not in crack scenes (their own grid update)
+            trapezoid=(any(g != 0 for g in c.gravity) or self.body_force is not None) and c.crack is None,
         )
 
     def _allocate(self):
@@ -187,6 +190,7 @@ class Simulation:
         self.n_state = material_models.state_size(self._materials, d)
         self.state = ti.Vector.field(self.n_state, float, n) if self.n_state else None
         vec = ["v"] + (["v_old"] if f["flip"] else []) + (["v2"] if f["musl"] else [])
+        vec += ["v_mid"] if f["trapezoid"] else []  # the step's mean grid velocity (positions)
         vec += ["grip"] if f["grips"] else []  # component 0: the grip (from 1) whose particles touch the node
         vec += crack_finder.grid_fields(d) if self.cfg.crack is not None else []  # tensor node mass rows
         shape = [self.basis.nodes(nc) for nc in self.n_cells]
@@ -308,6 +312,8 @@ class Simulation:
         gm, gv = grid.m, grid.vec["v"]
         gv_old = grid.vec.get("v_old")
         gv2 = grid.vec.get("v2")
+        gv_mid = grid.vec.get("v_mid")
+        trapezoid = f["trapezoid"]
         fail, vmax2 = self.fail, self.vmax2
         work, body_id, moments = self.work, self.body_id, self.moments
         has_body_id = body_id is not None
@@ -541,6 +547,8 @@ class Simulation:
                     gv[I] += w * mp * mom + dt * (stress @ gw + w * force_density)
                     if ti.static(f["flip"]):
                         gv_old[I] += w * mp * vp
+                    elif ti.static(trapezoid):  # FLIP's v_old is the same start-of-step momentum
+                        gv_mid[I] += w * mp * mom
 
         @ti.kernel
         def grid_update(dt: float):
@@ -554,6 +562,19 @@ class Simulation:
                     gv[I] = grip_condition(I, vel, m, True)
                     if ti.static(f["flip"]):
                         gv_old[I] = gv_old[I] / m
+                    if ti.static(trapezoid):
+                        gv_mid[I] = 0.5 * (start_velocity(I, m) + gv[I])
+
+        @ti.func
+        def start_velocity(I, m):
+            """The node's velocity at the start of the step (momentum / mass, before any force), under the same
+            walls and grips as the new one: a node that a wall stops does not move particles into the wall."""
+            v0 = ti.Vector.zero(float, dim)
+            if ti.static(f["flip"]):
+                v0 = gv_old[I]
+            elif ti.static(trapezoid):
+                v0 = gv_mid[I] / m
+            return grip_condition(I, wall(I, v0), m, False)
 
         @ti.func
         def grip_condition(I, vel, m, measure: ti.template()):
@@ -646,6 +667,7 @@ class Simulation:
             for p in x:
                 st = sten.at(p)
                 v_pic = ti.Vector.zero(float, dim)
+                v_move = ti.Vector.zero(float, dim)  # the velocity that moves the particle (trapezoid)
                 dv = ti.Vector.zero(float, dim)
                 B = ti.Matrix.zero(float, dim, dim)
                 G = ti.Matrix.zero(float, dim, dim)
@@ -654,6 +676,8 @@ class Simulation:
                     I, w, gw, r = sten.node(st, o + inner[k])
                     vi = gv[I]
                     v_pic += w * vi
+                    if ti.static(deform and trapezoid):
+                        v_move += w * gv_mid[I]
                     if ti.static(velocity and f["flip"]):
                         dv += w * (vi - gv_old[I])
                     if ti.static(velocity and f["apic"] and not basis.apic_gradient):
@@ -680,7 +704,9 @@ class Simulation:
                         else:
                             C[p] = B  # store_B
                 if ti.static(deform):
-                    xp = x[p] + dt * v_pic
+                    if ti.static(not trapezoid):
+                        v_move = v_pic  # symplectic Euler: the new grid velocity
+                    xp = x[p] + dt * v_move
                     Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
                     J = Fp.determinant()
                     if is_fluid(p):
