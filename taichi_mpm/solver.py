@@ -157,8 +157,8 @@ class Simulation:
             initial_stress=s.stress is not None,  # bodies[].stress, a stored stress added to the model's
             moving_walls=bool(self.loads.walls),  # domain.boundaries faces of type velocity
             plastic=any(MODELS[m.model].plastic for m in self._materials),  # a return mapping after the F update
-            # positions by the trapezoid of the grid velocity over the step (exact for a uniform acceleration)
-            # wherever an acceleration acts on free bodies; not in crack scenes (their own grid update)
+            # positions by the trapezoid of the start and end velocities of the step (exact for a uniform
+            # acceleration) wherever an acceleration acts on free bodies; not in crack scenes (their own transfer)
             trapezoid=(any(g != 0 for g in c.gravity) or self.body_force is not None) and c.crack is None,
         )
 
@@ -172,6 +172,9 @@ class Simulation:
         self.C = ti.Matrix.field(d, d, float, n) if f["store_grad_v"] else None
         self.mat = ti.field(ti.u8, n) if f["multi_material"] else None
         self.body_acc = ti.Vector.field(d, float, n) if f["body_force"] else None
+        # MUSL's copy of the start-of-step velocity for the trapezoidal positions (FLIP uses its grid v_old)
+        keep_v = f["trapezoid"] and f["musl"] and not f["flip"]
+        self.v_prev = ti.Vector.field(d, float, n) if keep_v else None
         self.half_width = ti.field(float, n) if f["domain_per_particle"] else None
         self.load = ti.Vector.field(d, float, n) if f["tractions"] else None
         n_loaded = sum(len(l.particles) for l in self.scene.loads)
@@ -190,7 +193,6 @@ class Simulation:
         self.n_state = material_models.state_size(self._materials, d)
         self.state = ti.Vector.field(self.n_state, float, n) if self.n_state else None
         vec = ["v"] + (["v_old"] if f["flip"] else []) + (["v2"] if f["musl"] else [])
-        vec += ["v_mid"] if f["trapezoid"] else []  # the step's mean grid velocity (positions)
         vec += ["grip"] if f["grips"] else []  # component 0: the grip (from 1) whose particles touch the node
         vec += crack_finder.grid_fields(d) if self.cfg.crack is not None else []  # tensor node mass rows
         shape = [self.basis.nodes(nc) for nc in self.n_cells]
@@ -225,6 +227,7 @@ class Simulation:
         floats = 2 * d + d * d + 1
         floats += d * d if self.C is not None else 0
         floats += d if self.body_acc is not None else 0
+        floats += d if self.v_prev is not None else 0
         floats += 1 if self.half_width is not None else 0
         floats += d if self.load is not None else 0
         floats += d * d if self.stress0 is not None else 0
@@ -312,7 +315,6 @@ class Simulation:
         gm, gv = grid.m, grid.vec["v"]
         gv_old = grid.vec.get("v_old")
         gv2 = grid.vec.get("v2")
-        gv_mid = grid.vec.get("v_mid")
         trapezoid = f["trapezoid"]
         fail, vmax2 = self.fail, self.vmax2
         work, body_id, moments = self.work, self.body_id, self.moments
@@ -547,8 +549,6 @@ class Simulation:
                     gv[I] += w * mp * mom + dt * (stress @ gw + w * force_density)
                     if ti.static(f["flip"]):
                         gv_old[I] += w * mp * vp
-                    elif ti.static(trapezoid):  # FLIP's v_old is the same start-of-step momentum
-                        gv_mid[I] += w * mp * mom
 
         @ti.kernel
         def grid_update(dt: float):
@@ -562,19 +562,6 @@ class Simulation:
                     gv[I] = grip_condition(I, vel, m, True)
                     if ti.static(f["flip"]):
                         gv_old[I] = gv_old[I] / m
-                    if ti.static(trapezoid):
-                        gv_mid[I] = 0.5 * (start_velocity(I, m) + gv[I])
-
-        @ti.func
-        def start_velocity(I, m):
-            """The node's velocity at the start of the step (momentum / mass, before any force), under the same
-            walls and grips as the new one: a node that a wall stops does not move particles into the wall."""
-            v0 = ti.Vector.zero(float, dim)
-            if ti.static(f["flip"]):
-                v0 = gv_old[I]
-            elif ti.static(trapezoid):
-                v0 = gv_mid[I] / m
-            return grip_condition(I, wall(I, v0), m, False)
 
         @ti.func
         def grip_condition(I, vel, m, measure: ti.template()):
@@ -658,6 +645,33 @@ class Simulation:
                     gv2[I] = grip_condition(I, wall(I, gv2[I] / m), m, False)
 
         vgrad = gv2 if f["musl"] else gv  # MUSL takes grad v from the remapped velocities
+        v_prev = self.v_prev
+
+        @ti.func
+        def start_velocity(p, deform: ti.template()):
+            """The particle's velocity at the start of the step (trapezoidal positions; PIC and APIC: their v_p is
+            the grid velocity interpolated at the end of the last step). MUSL's velocity pass has overwritten v[p]
+            before its deform pass, so there it keeps a copy (v_prev)."""
+            v0 = ti.Vector.zero(float, dim)
+            if ti.static(trapezoid and not f["flip"]):
+                if ti.static(f["musl"]):
+                    if ti.static(deform):
+                        v0 = v_prev[p]
+                    else:
+                        v_prev[p] = v[p]
+                else:
+                    v0 = v[p]
+            return v0
+
+        @ti.func
+        def node_start_velocity(I, vp0):
+            """Velocity at node I at the start of the step, under the walls and grips of the new one (a node that
+            a wall stops carries no particle into the wall; gripped nodes move with the grip): FLIP's grid v_old
+            (its momentum / mass before any force), else the particle's start velocity."""
+            v0 = vp0
+            if ti.static(f["flip"]):
+                v0 = gv_old[I]
+            return grip_condition(I, wall(I, v0), 0.0, False)
 
         @ti.kernel
         def g2p(dt: float, velocity: ti.template(), deform: ti.template()):
@@ -668,6 +682,7 @@ class Simulation:
                 st = sten.at(p)
                 v_pic = ti.Vector.zero(float, dim)
                 v_move = ti.Vector.zero(float, dim)  # the velocity that moves the particle (trapezoid)
+                v_start = start_velocity(p, deform)
                 dv = ti.Vector.zero(float, dim)
                 B = ti.Matrix.zero(float, dim, dim)
                 G = ti.Matrix.zero(float, dim, dim)
@@ -677,7 +692,7 @@ class Simulation:
                     vi = gv[I]
                     v_pic += w * vi
                     if ti.static(deform and trapezoid):
-                        v_move += w * gv_mid[I]
+                        v_move += w * 0.5 * (vi + node_start_velocity(I, v_start))
                     if ti.static(velocity and f["flip"]):
                         dv += w * (vi - gv_old[I])
                     if ti.static(velocity and f["apic"] and not basis.apic_gradient):
