@@ -167,6 +167,9 @@ class Simulation:
             initial_stress=s.stress is not None,  # bodies[].stress, a stored stress added to the model's
             moving_walls=bool(self.loads.walls),  # domain.boundaries faces of type velocity
             plastic=any(MODELS[m.model].plastic for m in self._materials),  # a return mapping after the F update
+            # positions by the trapezoid of the start and end velocities of the step (exact for a uniform
+            # acceleration) wherever an acceleration acts on free bodies; not in crack scenes (their own transfer)
+            trapezoid=(any(g != 0 for g in c.gravity) or self.body_force is not None) and c.crack is None,
         )
 
     def _allocate(self):
@@ -179,6 +182,9 @@ class Simulation:
         self.C = ti.Matrix.field(d, d, float, n) if f["store_grad_v"] else None
         self.mat = ti.field(ti.u8, n) if f["multi_material"] else None
         self.body_acc = ti.Vector.field(d, float, n) if f["body_force"] else None
+        # MUSL's copy of the start-of-step velocity for the trapezoidal positions (FLIP uses its grid v_old)
+        keep_v = f["trapezoid"] and f["musl"] and not f["flip"]
+        self.v_prev = ti.Vector.field(d, float, n) if keep_v else None
         self.half_width = ti.field(float, n) if f["domain_per_particle"] else None
         self.load = ti.Vector.field(d, float, n) if f["tractions"] else None
         n_loaded = sum(len(l.particles) for l in self.scene.loads)
@@ -234,6 +240,7 @@ class Simulation:
         floats = 2 * d + d * d + 1
         floats += d * d if self.C is not None else 0
         floats += d if self.body_acc is not None else 0
+        floats += d if self.v_prev is not None else 0
         floats += 1 if self.half_width is not None else 0
         floats += d if self.load is not None else 0
         floats += d * d if self.stress0 is not None else 0
@@ -322,6 +329,7 @@ class Simulation:
         gm, gv = grid.m, grid.vec["v"]
         gv_old = grid.vec.get("v_old")
         gv2 = grid.vec.get("v2")
+        trapezoid = f["trapezoid"]
         fail, vmax2 = self.fail, self.vmax2
         work, body_id, moments = self.work, self.body_id, self.moments
         has_body_id = body_id is not None
@@ -655,6 +663,33 @@ class Simulation:
                     gv2[I] = grip_condition(I, wall(I, gv2[I] / m), m, False)
 
         vgrad = gv2 if f["musl"] else gv  # MUSL takes grad v from the remapped velocities
+        v_prev = self.v_prev
+
+        @ti.func
+        def start_velocity(p, deform: ti.template()):
+            """The particle's velocity at the start of the step (trapezoidal positions; PIC and APIC: their v_p is
+            the grid velocity interpolated at the end of the last step). MUSL's velocity pass has overwritten v[p]
+            before its deform pass, so there it keeps a copy (v_prev)."""
+            v0 = ti.Vector.zero(float, dim)
+            if ti.static(trapezoid and not f["flip"]):
+                if ti.static(f["musl"]):
+                    if ti.static(deform):
+                        v0 = v_prev[p]
+                    else:
+                        v_prev[p] = v[p]
+                else:
+                    v0 = v[p]
+            return v0
+
+        @ti.func
+        def node_start_velocity(I, vp0):
+            """Velocity at node I at the start of the step, under the walls and grips of the new one (a node that
+            a wall stops carries no particle into the wall; gripped nodes move with the grip): FLIP's grid v_old
+            (its momentum / mass before any force), else the particle's start velocity."""
+            v0 = vp0
+            if ti.static(f["flip"]):
+                v0 = gv_old[I]
+            return grip_condition(I, wall(I, v0), 0.0, False)
 
         @ti.kernel
         def g2p(dt: float, velocity: ti.template(), deform: ti.template()):
@@ -664,6 +699,8 @@ class Simulation:
             for p in x:
                 st = sten.at(p)
                 v_pic = ti.Vector.zero(float, dim)
+                v_move = ti.Vector.zero(float, dim)  # the velocity that moves the particle (trapezoid)
+                v_start = start_velocity(p, deform)
                 dv = ti.Vector.zero(float, dim)
                 B = ti.Matrix.zero(float, dim, dim)
                 G = ti.Matrix.zero(float, dim, dim)
@@ -672,6 +709,8 @@ class Simulation:
                     I, w, gw, r = sten.node(st, o + inner[k])
                     vi = gv[I]
                     v_pic += w * vi
+                    if ti.static(deform and trapezoid):
+                        v_move += w * 0.5 * (vi + node_start_velocity(I, v_start))
                     if ti.static(velocity and f["flip"]):
                         dv += w * (vi - gv_old[I])
                     if ti.static(velocity and f["apic"] and not basis.apic_gradient):
@@ -698,7 +737,9 @@ class Simulation:
                         else:
                             C[p] = B  # store_B
                 if ti.static(deform):
-                    xp = x[p] + dt * v_pic
+                    if ti.static(not trapezoid):
+                        v_move = v_pic  # symplectic Euler: the new grid velocity
+                    xp = x[p] + dt * v_move
                     Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
                     J = Fp.determinant()
                     if is_fluid(p):

@@ -1,6 +1,6 @@
 """F-bar against volumetric locking (solver.volumetric: fbar, taichi_mpm/fbar.py).
 
-Locking test: a nearly incompressible block (nu = 0.499) released under gravity on a slip floor, free sides,
+Locking test: a nearly incompressible block (nu = 0.4999) released under gravity on a slip floor, free sides,
 settles; its pressure, averaged over each particle row, must be smooth. The standard method's rows alternate
 (the test sees it, so it can fail) and F-bar's do not. Then: the averaging keeps total volume exactly, leaves a
 uniform volume change alone, keeps each particle's isochoric part, and keeps momentum; every basis, transfer,
@@ -17,13 +17,14 @@ from conftest import make_cfg
 RHO, G, W, H = 1000.0, 10.0, 0.5, 0.25
 
 
-def resting_block(volumetric, basis="quadratic", nu=0.499, dx=1 / 16, cfl=0.8, steps=500, **solver):
+def resting_block(volumetric, basis="quadratic", nu=0.4999, dx=1 / 16, cfl=0.8, steps=500, transfer="pic",
+                  **solver):
     """The block [0.25, 0.75] x [0, H] (8 x 4 cells, 2 particles per cell per axis) in [0, 1] x [0, 0.5],
     PIC (its damping lets it settle), released from rest under gravity.
     Returns the particle rows' heights, mean pressure -tr(sigma)/2 and mean -sigma_yy, and the kinetic energy.
-    nu = 0.499: the shear waves that settle the bulge are 22x slower than the pressure waves (which set dt); at
-    0.4999 (71x) settling took 12000 steps at dx = 1/32 (docs/accuracy.md has both)."""
-    cfg = make_cfg(2, basis=basis, transfer="pic", dx=dx, E=1e6, nu=nu, density=RHO, lower=[0.5 - W / 2, 0.0],
+    nu = 0.4999: the shear waves that settle the bulge are 71x slower than the pressure waves (which set dt), so
+    settling takes thousands of steps (3000 at dx = 1/16; docs/accuracy.md)."""
+    cfg = make_cfg(2, basis=basis, transfer=transfer, dx=dx, E=1e6, nu=nu, density=RHO, lower=[0.5 - W / 2, 0.0],
                    upper=[0.5 + W / 2, H], gravity=[0.0, -G], end_time=1.0, cfl=cfl, volumetric=volumetric, **solver)
     cfg["domain"]["upper"] = [1.0, 0.5]
     sim = tm.Simulation(cfg)
@@ -45,20 +46,24 @@ def row_oscillation(p):
 
 @pytest.fixture(scope="module")
 def blocks():
-    return {v: resting_block(v) for v in ("standard", "fbar")}
+    # the standard method locks within 500 steps; F-bar needs 3000 to settle (nu = 0.4999, see resting_block)
+    return {"standard": resting_block("standard", steps=500), "fbar": resting_block("fbar", steps=3000)}
 
 
 def test_standard_pressure_alternates_row_by_row(blocks):
-    """The check below can fail: measured 0.36 rho g H row to row with the standard method (GIMP: 2.8)."""
+    """The check below can fail: measured 0.62 rho g H row to row with the standard method after 500 steps
+    (2.25 after 4000, still growing; GIMP at nu = 0.499: 2.8)."""
     heights, p, syy, ke = blocks["standard"]
     assert row_oscillation(p) > 0.2 * RHO * G * H
 
 
 def test_fbar_pressure_smooth_and_hydrostatic(blocks):
-    """Measured: row-to-row 0.031 rho g H (bottom and top rows included), sigma_yy within 2.3 % of rho g H of the
-    weight above. At rest every row carries the weight above it, whatever the lateral distribution: the row mean of
-    -sigma_yy is rho g (H - y) exactly in equilibrium; 5 % leaves room for the particle-row quadrature and the top
-    and bottom rows (the standard method is 19 % off)."""
+    """nu = 0.4999, dx = 1/16 (4 cells over the height), 3000 steps. Measured: row-to-row 0.017 rho g H (bottom and
+    top rows included; 0.014 after 4000 steps), sigma_yy within 3.2 % of rho g H of the weight above. Averaged
+    with the quadratic basis itself (before the average moved to the linear grid) the rows zig-zagged by 0.087,
+    so the 5 % bound (the issue's) fails for that. At rest every row carries the weight above it, whatever the
+    lateral distribution: the row mean of -sigma_yy is rho g (H - y) exactly in equilibrium; 5 % leaves room for
+    the particle-row quadrature and the top and bottom rows (the standard method is 45 % off)."""
     heights, p, syy, ke = blocks["fbar"]
     rho_g_H = RHO * G * H
     assert ke < 1e-6 * RHO * W * H * G * H            # settled: kinetic energy below 1e-6 of m g H (measured 2e-8)
@@ -66,6 +71,18 @@ def test_fbar_pressure_smooth_and_hydrostatic(blocks):
     assert np.abs(syy - RHO * G * (H - heights)).max() < 0.05 * rho_g_H
     assert np.abs(blocks["standard"][2] - RHO * G * (H - heights)).max() > 0.1 * rho_g_H
 
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("transfer, dx, steps", [("pic", 1 / 32, 8000), ("apic", 1 / 16, 3000)])
+def test_fbar_smooth_at_nu_04999_fine_grid_and_apic(transfer, dx, steps):
+    """The full check: 8 cells over the height (PIC, settled), and APIC, which hardly damps (not settled, so
+    only the row-to-row bound). Measured: see docs/accuracy.md "Volumetric locking"."""
+    heights, p, syy, ke = resting_block("fbar", transfer=transfer, dx=dx, steps=steps)
+    rho_g_H = RHO * G * H
+    assert row_oscillation(p) < 0.05 * rho_g_H
+    if transfer == "pic":
+        assert np.abs(syy - RHO * G * (H - heights)).max() < 0.05 * rho_g_H
 
 # ---------------------------------------------------------------- the averaging step itself
 def small_block(dim=2, volumetric="fbar", **kw):
