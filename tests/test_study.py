@@ -149,7 +149,9 @@ def test_two_cases_on_a_local_dask_cluster(tmp_path):
     rows = _rows(out)
     assert [r["solver.basis"] for r in rows] == ["quadratic", "gimp"]
     assert [r["outcome"] for r in rows] == ["ok", "ok"], [r["message"] for r in rows]
-    assert all(float(r["error_rms"]) < 1e-4 for r in rows)
+    # a sanity bound (a case run wrong has an error of the amplitude, 1e-2): measured 1.6e-4 / 1.4e-4 at dx 1/16
+    # since positions follow the trapezoid under the MMS body force (below 1e-4 with symplectic Euler)
+    assert all(float(r["error_rms"]) < 3e-4 for r in rows), [r["error_rms"] for r in rows]
 
 
 def test_study_over_a_base_config_file(tmp_path):
