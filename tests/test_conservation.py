@@ -13,7 +13,7 @@ BASES = ["linear", "gimp", "quadratic", "cubic"]
 TRANSFERS = ["pic", "flip", "apic"]
 
 
-def moving_block(dim=2, basis="quadratic", transfer="apic", update="usl", sparse=True, steps=20):
+def moving_block(dim=2, basis="quadratic", transfer="apic", update="usl", sparse=True, steps=20, knots=None):
     """A block drifting, spinning and breathing (so it carries stress), free walls; returns the momenta
     (Simulation.momentum()) before and after, and the scale sum m |v|.
     The drift is kept slow: with the linear basis a particle of a stressed body crossing into an empty
@@ -23,6 +23,8 @@ def moving_block(dim=2, basis="quadratic", transfer="apic", update="usl", sparse
                    lower=[0.35] * dim, upper=[0.65] * dim)
     cfg["domain"]["sparse"] = sparse
     cfg["domain"]["boundaries"]["default"] = "free"
+    if knots is not None:
+        cfg["domain"]["knots"] = knots   # explicit knot vectors per axis (tests/test_knots.py)
     sim = tm.Simulation(cfg)
     X = sim.scene.x
     r = X - 0.5
