@@ -10,6 +10,7 @@ setting breaks is part of the comparison.
 from __future__ import annotations
 
 import csv
+import re
 import time
 from pathlib import Path
 
@@ -99,7 +100,10 @@ def _out_dir(cfg, key, out):
     if out is not None:
         return Path(out)
     base = Path(cfg.output.dir.replace("{name}", cfg.name))
-    return base.parent / f"{base.name}_compare_{key.split('.')[-1]}"
+    suffix = key.split(".")[-1]
+    if not re.fullmatch(r"[A-Za-z0-9_-]+", suffix):  # a user-chosen name in the key never becomes a path
+        suffix = "vary"
+    return base.parent / f"{base.name}_compare_{suffix}"
 
 
 def compare(config, vary: str, overrides: dict | None = None, out=None, overwrite: bool = False,

@@ -1,11 +1,13 @@
 """`taichi-mpm compare`: variants of one scene side by side (frames, movie, curves, summary), one colour range."""
 import csv
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm.compare import compare, parse_vary, split_values
+from taichi_mpm.compare import _out_dir, compare, parse_vary, split_values
 from taichi_mpm.errors import ConfigError
 
 imageio = pytest.importorskip("imageio.v2")
@@ -69,3 +71,12 @@ def test_cli_compare_exit_codes(tmp_path):
     cfg.write_text(yaml.safe_dump(spinning_block()))
     assert main(["compare", str(cfg), "--vary", "solver.basis"]) == 2
     assert main(["compare", str(cfg), "--vary", "solver.basis=linear,cubic", "--color-by", "temperature"]) == 2
+
+
+def test_default_folder_takes_only_a_plain_key_name():
+    # the folder beside the run's is named after the varied key; a key whose last part is a user's name with
+    # path characters (a material called "a/../../x") must not become a path outside it
+    cfg = tm.load_config(make_cfg(2))
+    base = Path(cfg.output.dir.replace("{name}", cfg.name))
+    assert _out_dir(cfg, "solver.basis", None) == base.parent / f"{base.name}_compare_basis"
+    assert _out_dir(cfg, "materials.a/../../x", None) == base.parent / f"{base.name}_compare_vary"
