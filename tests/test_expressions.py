@@ -103,7 +103,7 @@ def test_towers_of_powers_stay_bounded():
             Expression(text, ("x",)).evaluate(x=np.full(1000, 3.0))
         except ConfigError:
             pass
-    assert time.perf_counter() - t0 < 1.0
+    assert time.perf_counter() - t0 < 5.0   # a big-integer tower would take minutes; 5 s leaves room for a loaded machine
 
 
 # ---------------------------------------------------------------- fuzzing
@@ -142,4 +142,4 @@ def test_fuzz_only_values_or_config_errors(text):
         assert out.shape == X.shape and np.isfinite(out).all()
     except ConfigError as e:
         assert e.key == "k"
-    assert time.perf_counter() - t0 < 0.5
+    assert time.perf_counter() - t0 < 2.0   # bounded work per text (ms); 2 s only catches a runaway
