@@ -13,6 +13,7 @@ import re
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
+import numpy as np
 import yaml
 from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapter, ValidationError,
                       field_validator, model_serializer, model_validator)
@@ -229,6 +230,23 @@ class AnnulusMap(Strict):
     cells: list[Annotated[int, Field(gt=0, le=4096)]]    # [along the angle, across the radius]
 
 
+class MapKnots(Strict):
+    """The two parameter knot vectors of a nurbs map (any scale: they are scaled to cells)."""
+    x: list[Real]
+    y: list[Real]
+
+
+class NurbsMap(Strict):
+    """domain.map of type nurbs: a quadratic x quadratic NURBS patch given as data (taichi_mpm/mapgeom.py):
+    control_points[i][j] = [x, y], i along the knots x (faces x_min / x_max: i first and last), j along y."""
+    type: Literal["nurbs"]
+    knots: MapKnots
+    control_points: list[list[Vec]]
+    weights: Optional[list[list[Real]]] = None        # null: all 1 (a B-spline map)
+    periodic: bool = False                             # x wraps around: the last column is the first
+    refine: list[Annotated[int, Field(gt=0, le=256)]] = [1, 1]   # cells per knot span (knot insertion)
+
+
 class Domain(Strict):
     lower: Vec
     upper: Vec
@@ -236,7 +254,7 @@ class Domain(Strict):
     sparse: bool = True
     boundaries: Boundaries = Boundaries()
     knots: Optional[Knots] = None
-    map: Optional[AnnulusMap] = None
+    map: Optional[Annotated[Union[AnnulusMap, NurbsMap], Field(discriminator="type")]] = None
 
 
 class Cpdi(Strict):
@@ -592,12 +610,25 @@ class Config(Strict):
         if self.dim != 2:
             raise _Located("domain.map", f"mapped grids are 2D (the scene is {self.dim}D)")
         if self.solver.basis != "quadratic":
-            raise _Located("domain.map", f"the annulus map is quadratic: use solver.basis quadratic, not "
+            raise _Located("domain.map", f"mapped grids are quadratic: use solver.basis quadratic, not "
                                          f"{self.solver.basis}")
         if self.domain.knots is not None:
             raise _Located("domain.knots", "give either domain.knots or domain.map (the map has its own knots)")
         if self.crack is not None:
             raise _Located("domain.map", "mapped grids are not available with a crack section")
+        if m.type == "nurbs":
+            self._check_nurbs_map(m)
+        else:
+            self._check_annulus_map(m)
+        for a in range(2):
+            for side in (0, 1):
+                face = FACES[2 * a + side]
+                if self.domain.boundaries.face(a, side) == "velocity":
+                    named = getattr(self.domain.boundaries, face) is not None
+                    raise _Located(f"domain.boundaries.{face if named else 'default'}", "walls of a mapped grid are "
+                                   "sticky, slip, roller or free (no velocity walls yet)")
+
+    def _check_annulus_map(self, m):
         _need_len("domain.map.center", m.center, 2)
         _need_len("domain.map.cells", m.cells, 2)
         if m.outer_radius <= m.inner_radius:
@@ -611,13 +642,57 @@ class Config(Strict):
             if self.domain.lower[a] > lo or self.domain.upper[a] < hi:
                 raise _Located("domain.upper", f"the domain box must hold the annulus: [{lo:g}, {hi:g}] along "
                                                f"{'xy'[a]}")
+
+    def _check_nurbs_map(self, m):
+        from . import mapgeom
+        for axis in "xy":
+            t = getattr(m.knots, axis)
+            problem = knot_problem(t, 2, t[0], t[-1]) if t else "is empty"
+            if problem:
+                raise _Located(f"domain.map.knots.{axis}", f"{problem} (a nurbs map is quadratic: p = 2)")
+        shape = (len(m.knots.x) - 3, len(m.knots.y) - 3)
+        rows = [len(r) for r in m.control_points]
+        if len(rows) != shape[0] or any(n != shape[1] for n in rows):
+            raise _Located("domain.map.control_points", f"the knots give {shape[0]} x {shape[1]} control points "
+                           f"(number of knots - 3 per axis), got {len(rows)} rows of {sorted(set(rows))} points")
+        for i, row in enumerate(m.control_points):
+            for j, p in enumerate(row):
+                _need_len(f"domain.map.control_points.{i}.{j}", p, 2)
+        P = np.asarray(m.control_points, float)
+        if m.weights is not None:
+            wrows = [len(r) for r in m.weights]
+            if len(wrows) != shape[0] or any(n != shape[1] for n in wrows):
+                raise _Located("domain.map.weights", f"one weight per control point: {shape[0]} rows of {shape[1]}, "
+                               f"got {len(wrows)} rows of {sorted(set(wrows))}")
+            for i, row in enumerate(m.weights):
+                for j, wij in enumerate(row):
+                    if not wij > 0:
+                        raise _Located(f"domain.map.weights.{i}.{j}", f"NURBS weights must be positive, got {wij:g} "
+                                       f"(control point [{i}][{j}])")
+        w = np.ones(shape) if m.weights is None else np.asarray(m.weights, float)
+        if m.periodic:
+            size = np.ptp(P.reshape(-1, 2), axis=0).max()
+            if np.abs(P[0] - P[-1]).max() > 1e-12 * size or np.abs(w[0] - w[-1]).max() > 1e-12 * w.max():
+                raise _Located("domain.map.periodic", "a periodic map closes on itself: its last row of control "
+                               "points and weights must equal the first")
+        _need_len("domain.map.refine", m.refine, 2)
+        knots, P, w = mapgeom.refine([m.knots.x, m.knots.y], P, w, m.refine)    # the grid the solver will use
+        knots = [mapgeom.cell_knots(t) for t in knots]
+        det, where = mapgeom.fold(knots, [2, 2], P, w)
+        if det <= 1e-9:
+            raise _Located("domain.map.control_points", f"the map folds or pinches: det J = {det:.3g} (relative) at "
+                           f"parameters ({where[0]:g}, {where[1]:g}) cells; control points must keep each cell "
+                           "convex-like and turning the same way (det J > 0 everywhere)")
+        # a map that does not fold is one-to-one, so its extremes lie on its boundary: sample the four faces
+        s = [np.linspace(0.0, t[-1], 8 * int(round(t[-1])) + 1) for t in knots]
+        edges = [np.stack([s[0], np.full_like(s[0], e)], -1) for e in (0.0, knots[1][-1])]
+        edges += [np.stack([np.full_like(s[1], e), s[1]], -1) for e in (0.0, knots[0][-1])]
+        pts = mapgeom.surface(knots, [2, 2], P, w, np.concatenate(edges))[0]
         for a in range(2):
-            for side in (0, 1):
-                face = FACES[2 * a + side]
-                if self.domain.boundaries.face(a, side) == "velocity" or self.domain.boundaries.friction(a, side):
-                    named = getattr(self.domain.boundaries, face) is not None
-                    raise _Located(f"domain.boundaries.{face if named else 'default'}", "walls of a mapped grid are "
-                                   "sticky, slip, roller or free (no velocity walls or friction yet)")
+            lo, hi = pts[:, a].min(), pts[:, a].max()
+            if self.domain.lower[a] > lo or self.domain.upper[a] < hi:
+                raise _Located("domain.upper", f"the domain box must hold the map: [{lo:g}, {hi:g}] along "
+                                               f"{'xy'[a]}")
 
     def _check_probes(self):
         d, names = self.dim, set()

@@ -52,7 +52,22 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                        "domain.lower/upper must hold it and domain.dx sets the particle spacing only"),
     "domain.map.type": ("", "annulus: exact circles through NURBS weights; faces x_min/x_max are the straight "
                             "edges at angle 0 and `angle` (none for a full ring), y_min/y_max the inner and outer "
-                            "circles"),
+                            "circles. nurbs: a quadratic NURBS patch given as knots, control points and weights; "
+                            "faces x_min/x_max are the first and last row of control points, y_min/y_max the first "
+                            "and last column"),
+    "domain.map.knots": ("", "the patch's two open quadratic knot vectors (each end 3 times, interior knots at most "
+                             "twice); any parameter scale: they are scaled so that a span is a cell"),
+    "domain.map.knots.x": ("", "knots of the first parameter (the rows of control_points)"),
+    "domain.map.knots.y": ("", "knots of the second parameter (the points within a row)"),
+    "domain.map.control_points": ("m", "control_points[i][j] = [x, y]: len(knots.x) - 3 rows of len(knots.y) - 3 "
+                                       "points; the map must not fold (det J of one sign, checked at 5 x 5 points "
+                                       "per cell) and must lie inside domain.lower/upper"),
+    "domain.map.weights": ("1", "one positive weight per control point, same layout; null: all 1 (a B-spline map)"),
+    "domain.map.refine": ("", "[cells per knot span along x, along y]: each nonzero knot span is split evenly by "
+                              "knot insertion (the geometry stays exactly the same; give the coarse exact shape, "
+                              "refine for the grid)"),
+    "domain.map.periodic": ("", "the first parameter wraps around (a full ring): the last row of control points "
+                                "and weights must equal the first, and there are no x_min/x_max faces"),
     "domain.map.inner_radius": ("m", "radius of the inner circle"),
     "domain.map.outer_radius": ("m", "radius of the outer circle"),
     "domain.map.angle": ("deg", "angular span counter-clockwise from +x; 360: a full ring, periodic in the angle"),

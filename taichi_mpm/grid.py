@@ -55,7 +55,7 @@ def _pow2(n: int) -> int:
 
 
 def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str]], basis, friction=None,
-                        reaction=None, moving=None):
+                        reaction=None, moving=None, mapped=None):
     """@ti.func (I, v) -> v with each face's condition applied at nodes on or beyond that wall.
 
     `reaction`: an optional dim-vector field of 2 dim entries (x_min, x_max, y_min, ...). `apply.measured(I, v, m)`
@@ -66,47 +66,49 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     faces[a] = (kind at the lower wall, kind at the upper wall) of axis a:
     sticky: v = 0; slip: no flow into the wall (may separate); roller: no normal velocity either way
     (bilateral); free: nothing. friction[a] = (mu at the lower wall, mu at the upper wall), default 0.
+    Every condition acts along the face's outward unit normal n: the axis direction on the box, the node's
+    normal (mapped.MappedGrid.normal, per control point) on the faces of a mapped grid (`mapped`), where a node
+    is on a face when its index is the first or last along that axis (a periodic map has no x faces).
 
     Coulomb friction at a slip or roller node (Bardenhagen et al. 2000): when the wall removes a velocity dv_n
     flowing into it (a compressive contact impulse m dv_n), the tangential velocity is reduced by mu dv_n, and
     not below zero (then the node sticks). A roller pulling a node back from outside the wall (tension) adds no
     friction.
 
-    velocity (moving wall, driven lid): `moving = (given, values, work)`: given[2 axis + side] is a tuple of dim
-    bools (the prescribed components; the others stay free), values a dim-vector field of 2 dim entries holding the
-    current wall velocities (set by the solver each step), work a f64 field whose slot 0 gets the work the wall
-    does on the grid in the measured pass: the impulse m (v_after - v_before) times the wall velocity v_after.
-    The face itself does not move: a normal component pushes or pulls material through a fixed plane.
+    velocity (moving wall, driven lid; box faces only): `moving = (given, values, work)`: given[2 axis + side] is a
+    tuple of dim bools (the prescribed components; the others stay free), values a dim-vector field of 2 dim
+    entries holding the current wall velocities (set by the solver each step), work a f64 field whose slot 0 gets
+    the work the wall does on the grid in the measured pass: the impulse m (v_after - v_before) times the wall
+    velocity v_after. The face itself does not move: a normal component pushes or pulls material through a fixed
+    plane.
     """
 
-    axes = [basis.axis(a) for a in range(dim)]   # per-axis 1D bases (knot vectors of domain.knots)
+    on_box = mapped is None
+    axes = [basis.axis(a) for a in range(dim)] if on_box else None  # 1D bases (knots of domain.knots)
     kind = {"free": 0, "sticky": 1, "slip": 2, "roller": 3, "velocity": 4}
     codes = [(kind[lo], kind[hi]) for lo, hi in faces]
     mus = [(float(lo), float(hi)) for lo, hi in (friction or [(0.0, 0.0)] * dim)]
     measuring = reaction is not None
     given, wall_v, work = moving if moving is not None else ([(False,) * dim] * (2 * dim), None, None)
-    doing_work = moving is not None
+    # box faces: outward normals -e_a (lower) and +e_a (upper), constants of the kernel
+    box_normal = [[(-1.0 if slot % 2 == 0 else 1.0) * (c == slot // 2) for c in range(dim)] for slot in range(2 * dim)]
+    normal, periodic, last = (None, False, None) if on_box else (mapped.normal, mapped.periodic,
+                                                                  [s - 1 for s in mapped.shape])
 
     @ti.func
-    def coulomb(v, a: ti.template(), dv_n, mu: ti.template()):
-        """Reduce the velocity tangential to axis a by mu dv_n (dv_n >= 0: the normal velocity removed)."""
-        vt = v
-        vt[a] = 0.0
-        speed = vt.norm()
-        if speed > 0.0:
-            v -= vt * ti.min(1.0, mu * dv_n / speed)
-        return v
-
-    @ti.func
-    def contact(v, a: ti.template(), side: ti.template(), code: ti.template(), mu: ti.template()):
-        """Slip (2) or roller (3) wall normal to axis a; side +1 at the lower wall, -1 at the upper one."""
-        into = ti.max(-side * v[a], 0.0)  # speed into the wall
+    def contact(v, n, code: ti.template(), mu: ti.template()):
+        """Slip (2) or roller (3) wall with outward unit normal n, Coulomb friction mu."""
+        vn = v.dot(n)
+        into = ti.max(vn, 0.0)  # speed into the wall
         if ti.static(code == 2):
-            v[a] += side * into
+            v -= into * n
         else:
-            v[a] = 0.0
+            v -= vn * n
         if ti.static(mu > 0 and dim > 1):
-            v = coulomb(v, a, into, mu)
+            vt = v - v.dot(n) * n
+            speed = vt.norm()
+            if speed > 0.0:
+                v -= vt * ti.min(1.0, mu * into / speed)
         return v
 
     @ti.func
@@ -118,14 +120,17 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
         return v
 
     @ti.func
-    def face(v, m, a: ti.template(), side: ti.template(), measure: ti.template()):
+    def face(I, v, m, a: ti.template(), side: ti.template(), measure: ti.template()):
         slot = ti.static(2 * a + side)
         code = ti.static(codes[a][side])
         before = v
         if ti.static(code == 1):
             v = ti.Vector.zero(float, dim)
         elif ti.static(code == 2 or code == 3):
-            v = contact(v, a, ti.static(1.0 - 2.0 * side), code, mus[a][side])
+            if ti.static(on_box):
+                v = contact(v, ti.Vector(box_normal[slot], dt=float), code, mus[a][side])
+            else:
+                v = contact(v, normal[I, slot], code, mus[a][side])
         elif ti.static(code == 4):
             v = prescribed(v, slot)
         if ti.static(measure and measuring):
@@ -137,11 +142,17 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     @ti.func
     def conditions(I, v, m, measure: ti.template()):
         for a in ti.static(range(dim)):
-            c = axes[a].coord(I[a], n_cells[a])
-            if c <= 0.0:
-                v = face(v, m, a, 0, measure)
-            if c >= ti.static(float(n_cells[a])):
-                v = face(v, m, a, 1, measure)
+            if ti.static(on_box):
+                c = axes[a].coord(I[a], n_cells[a])
+                if c <= 0.0:
+                    v = face(I, v, m, a, 0, measure)
+                if c >= ti.static(float(n_cells[a])):
+                    v = face(I, v, m, a, 1, measure)
+            elif ti.static(not (a == 0 and periodic)):
+                if I[a] == 0:
+                    v = face(I, v, m, a, 0, measure)
+                if I[a] == ti.static(last[a]):
+                    v = face(I, v, m, a, 1, measure)
         return v
 
     @ti.func

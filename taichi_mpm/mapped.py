@@ -25,10 +25,22 @@ import taichi as ti
 
 from .basis import Basis, make_bspline
 from .errors import ConfigError
-from .nurbs import annulus
+from . import mapgeom
+from .nurbs import Map, annulus
 
-WALL_CODES = {"free": 0, "sticky": 1, "slip": 2, "roller": 3}
 LOCATE_TOL = {"f32": 1e-4, "f64": 1e-13}      # Newton's residual |x(xi) - x_p|, relative to the smallest cell (f32: sums of 9 terms of ~|x| carry ~1e-7 |x| of round-off)
+
+
+def build_map(m):
+    """(nurbs.Map, periodic) of a `domain.map` config: the built-in annulus, or a `nurbs` map given as knots,
+    control points and weights (degree 2 per axis), refined by knot insertion (`refine`), knots scaled to cells."""
+    if m.type == "annulus":
+        angle = math.radians(m.angle)
+        n_angle, n_radial = m.cells
+        return annulus(m.inner_radius, m.outer_radius, angle, n_angle, n_radial, tuple(m.center)), m.angle >= 360.0
+    w = np.ones(np.shape(m.control_points)[:2]) if m.weights is None else np.asarray(m.weights, float)
+    knots, P, w = mapgeom.refine([m.knots.x, m.knots.y], m.control_points, w, m.refine)
+    return Map([mapgeom.cell_knots(t) for t in knots], [2, 2], P, w), m.periodic
 
 
 class MappedGrid:
@@ -38,39 +50,29 @@ class MappedGrid:
     def __init__(self, cfg):
         m = cfg.domain.map
         self.cfg = cfg
-        angle = math.radians(m.angle)
-        self.periodic = m.angle >= 360.0
-        n_angle, n_radial = m.cells
-        self.map = annulus(m.inner_radius, m.outer_radius, angle, n_angle, n_radial, tuple(m.center))
+        self.map, self.periodic = build_map(m)
         self.map.periodic = self.periodic
-        self.centre = np.asarray(m.center, float)
         n0, n1 = self.map.w.shape
         self.shape = [n0 - 1 if self.periodic else n0, n1]   # the seam column is the first one
-        # smallest cell: an inner arc of one angular cell, or one radial cell
-        self.h_max = max(m.outer_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
-        self.h_min = min(m.inner_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
-        self.normals = self._normals()
+        mp = self.map
+        if m.type == "annulus":
+            # an inner arc of one angular cell, or one radial cell (the annulus' own sizes, as the CFL rule used
+            # before the generic map: its measured runs keep their steps)
+            angle = math.radians(m.angle)
+            n_angle, n_radial = m.cells
+            self.h_max = max(m.outer_radius * 2 * math.sin(0.5 * angle / n_angle),
+                             (m.outer_radius - m.inner_radius) / n_radial)
+            self.h_min = min(m.inner_radius * 2 * math.sin(0.5 * angle / n_angle),
+                             (m.outer_radius - m.inner_radius) / n_radial)
+        else:
+            self.h_min, self.h_max = mapgeom.cell_sizes(mp.knots, mp.degrees, mp.P, mp.w)
+        self.normals = mapgeom.face_normals(mp.knots, mp.degrees, mp.P, mp.w, self.periodic)[: self.shape[0]]
         self.xi = None
 
     def basis(self) -> Basis:
         """The solver's view: quadratic (3 nodes per axis, APIC with B_p D_p^-1), contributions built here."""
         from dataclasses import replace
         return replace(make_bspline(2, "quadratic"), kind="mapped")
-
-    def _normals(self) -> np.ndarray:
-        """Outward unit normals per node and face (n0, n1, 4, 2): faces x_min (angle 0), x_max (the last angle),
-        y_min (inner circle), y_max (outer circle); zero where the node is not on that face."""
-        P = self.map.P[: self.shape[0]]
-        out = np.zeros(tuple(self.shape) + (4, 2))
-        radial = P - self.centre
-        radial /= np.linalg.norm(radial, axis=-1, keepdims=True)
-        out[:, 0, 2] = -radial[:, 0]
-        out[:, -1, 3] = radial[:, -1]
-        if not self.periodic:
-            a = math.radians(self.cfg.domain.map.angle)
-            out[0, :, 0] = [0.0, -1.0]                         # below the edge at angle 0
-            out[-1, :, 1] = [-math.sin(a), math.cos(a)]        # beyond the edge at the last angle
-        return out
 
     def materialize(self):
         self.map.materialize()
@@ -164,53 +166,6 @@ def make_stencil(ctx, mapped: MappedGrid):
 
     outer, inner = _loops(span, ctx.unroll)
     return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 9)
-
-
-def make_wall_condition(mapped: MappedGrid, faces, reaction=None):
-    """@ti.func (I, v) -> v with each parameter face's condition along the node's outward normal; `.measured`
-    (I, v, m) also adds the impulse m dv to reaction[face] (wall probes)."""
-    codes = [WALL_CODES[faces[a][s]] for a in range(2) for s in range(2)]
-    normal, periodic = mapped.normal, mapped.periodic
-    n0, n1 = mapped.shape
-    measuring = reaction is not None
-
-    @ti.func
-    def face(I, v, m, k: ti.template(), measure: ti.template()):
-        before = v
-        n = normal[I, k]
-        if ti.static(codes[k] == 1):
-            v = ti.Vector.zero(float, 2)
-        elif ti.static(codes[k] == 2):
-            v -= ti.max(v.dot(n), 0.0) * n
-        elif ti.static(codes[k] == 3):
-            v -= v.dot(n) * n
-        if ti.static(measure and measuring):
-            reaction[k] += m * (v - before)
-        return v
-
-    @ti.func
-    def conditions(I, v, m, measure: ti.template()):
-        if ti.static(not periodic):
-            if I[0] == 0:
-                v = face(I, v, m, 0, measure)
-            if I[0] == n0 - 1:
-                v = face(I, v, m, 1, measure)
-        if I[1] == 0:
-            v = face(I, v, m, 2, measure)
-        if I[1] == n1 - 1:
-            v = face(I, v, m, 3, measure)
-        return v
-
-    @ti.func
-    def apply(I, v):
-        return conditions(I, v, 0.0, False)
-
-    @ti.func
-    def apply_measured(I, v, m):
-        return conditions(I, v, m, True)
-
-    apply.measured = apply_measured
-    return apply
 
 
 def make_locate(ctx, mapped: MappedGrid, fail, n_codes: int, code: int):

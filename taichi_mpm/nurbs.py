@@ -20,29 +20,7 @@ import numpy as np
 import taichi as ti
 
 from .basis import make_knot_bspline
-
-
-def insert_knot(t: np.ndarray, p: int, Pw: np.ndarray, u: float, axis: int = 0):
-    """Boehm's knot insertion (The NURBS Book A5.1, one knot) along `axis` of homogeneous control points Pw
-    (w P, w): returns the new knot vector and points; the curve or surface does not change."""
-    k = int(np.searchsorted(t, u, side="right")) - 1          # t[k] <= u < t[k+1]
-    Pw = np.moveaxis(Pw, axis, 0)
-    n = Pw.shape[0]
-    Q = np.empty((n + 1,) + Pw.shape[1:])
-    Q[: k - p + 1] = Pw[: k - p + 1]
-    for i in range(k - p + 1, k + 1):
-        a = (u - t[i]) / (t[i + p] - t[i])
-        Q[i] = a * Pw[i] + (1 - a) * Pw[i - 1]
-    Q[k + 1:] = Pw[k:]
-    return np.insert(t, k + 1, u), np.moveaxis(Q, 0, axis)
-
-
-def homogeneous(P: np.ndarray, w: np.ndarray) -> np.ndarray:
-    return np.concatenate([P * w[..., None], w[..., None]], axis=-1)
-
-
-def cartesian(Pw: np.ndarray):
-    return Pw[..., :-1] / Pw[..., -1:], Pw[..., -1]
+from .mapgeom import bspline_values, cartesian, homogeneous, insert_knot, surface  # noqa: F401 (re-exported)
 
 
 def arc(angle: float, n_cells: int):
@@ -191,6 +169,10 @@ class Map:
         Nw = np.einsum("mi,mj,ij->mij", N[0], N[1], self.w)
         return Nw / Nw.sum(axis=(1, 2))[:, None, None]
 
+    def surface_host(self, xi: np.ndarray):
+        """x(xi) (M, 2) and the Jacobian (M, 2, 2), numpy (mapgeom.surface)."""
+        return surface(self.knots, self.degrees, self.P, self.w, xi)
+
     def evaluate(self, xi: np.ndarray) -> np.ndarray:
         """x(xi) for parameter points (M, 2), by de Boor-free brute force: all B-splines of each axis from the
         Cox-de Boor recursion in numpy (independent of the kernel's code path; for tests and drawing)."""
@@ -199,28 +181,3 @@ class Map:
         W = Nw.sum(axis=(1, 2))
         return np.einsum("mij,ijc->mc", Nw, self.P) / W[:, None]
 
-
-def bspline_values(t: np.ndarray, p: int, u: np.ndarray) -> np.ndarray:
-    """All B-splines of degree p on knots t at points u (M,) -> (M, n): the textbook recursion over degrees with
-    0/0 = 0, the last span closed on the right."""
-    t = np.asarray(t, float)
-    u = np.asarray(u, float)
-    m = len(t)
-    N = np.zeros((len(u), m - 1))
-    last = np.nonzero(t[:-1] < t[1:])[0][-1]
-    for i in range(m - 1):
-        inside = (t[i] <= u) & (u < t[i + 1])
-        if i == last:
-            inside |= u == t[-1]
-        N[:, i] = inside
-    for k in range(1, p + 1):
-        out = np.zeros((len(u), m - 1 - k))
-        for i in range(m - 1 - k):
-            a = t[i + k] - t[i]
-            b = t[i + k + 1] - t[i + 1]
-            if a > 0:
-                out[:, i] += (u - t[i]) / a * N[:, i]
-            if b > 0:
-                out[:, i] += (t[i + k + 1] - u) / b * N[:, i + 1]
-        N = out
-    return N

@@ -22,7 +22,7 @@ import taichi as ti
 from . import budget
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
-from .mapped import MappedGrid, make_locate, make_wall_condition as make_mapped_wall
+from .mapped import MappedGrid, make_locate
 from .stencils import KernelContext, make_corner_check, make_stencil
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
@@ -340,9 +340,8 @@ class Simulation:
         faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(dim)]
         friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
         moving = (self.loads.wall_given(), self.wall_v, self.work) if f["moving_walls"] else None
-        wall = make_wall_condition(dim, n_cells, faces, basis, friction, self.wall_reaction, moving)
-        if self.mapped is not None:   # walls on the map's parameter faces, along their normals
-            wall = make_mapped_wall(self.mapped, faces, self.wall_reaction)
+        # a mapped grid's walls act on its parameter faces, along their normals
+        wall = make_wall_condition(dim, n_cells, faces, basis, friction, self.wall_reaction, moving, self.mapped)
         # The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))`
         # with off = o + inner[k]. Unrolled, the outer range is a single point and `inner` lists every node, so
         # the weights stay in registers (3D quadratic: P2G 37 against 43 ms, G2P 7.5 against 11 ms CPU time for
