@@ -1,7 +1,9 @@
 """Mapped grids (`domain.map: annulus`, issue 12 step 3) in the solver, f64: a uniform stretch reproduced exactly
 on the curved grid (the patch test), slip walls on the circles conserving a spinning fluid ring's angular
 momentum to round-off, and config errors."""
+import copy
 import math
+import re
 
 import numpy as np
 import pytest
@@ -23,13 +25,30 @@ def ring_cfg(angle=360.0, cells=(24, 4), walls="slip", model="fluid", body=(0.55
                                              outer_radius=body[1]), material="m")])
 
 
-def test_uniform_stretch_is_reproduced_exactly():
+def as_nurbs(cfg, coarse=False):
+    """The same config with its annulus given as a generic `nurbs` map: the annulus' own knots, control points
+    and weights (coarse: its 4 rational quarter pieces x 1 radial cell, refined by knot insertion instead)."""
+    from taichi_mpm.nurbs import annulus
+    m = cfg["domain"]["map"]
+    n0, n1 = m["cells"]
+    pieces = max(1, math.ceil(m["angle"] / 90.0 - 1e-9))
+    mp = annulus(0.5, 1.0, math.radians(m["angle"]), pieces if coarse else n0, 1 if coarse else n1)
+    out = copy.deepcopy(cfg)
+    out["domain"]["map"] = dict(type="nurbs", knots=dict(x=mp.knots[0].tolist(), y=mp.knots[1].tolist()),
+                                control_points=mp.P.tolist(), weights=mp.w.tolist(), periodic=m["angle"] >= 360,
+                                refine=[n0 // pieces, n1] if coarse else [1, 1])
+    return out
+
+
+@pytest.mark.parametrize("grid", ["annulus", "nurbs"])
+def test_uniform_stretch_is_reproduced_exactly(grid):
     """An affine velocity v = L x (stretch + shear + spin) on a solid inside the ring, APIC (C_p = L): P2G gives
     every node v_i = L P_i, so G2P returns v_p = L x_p and grad v = sum v_i (x) grad_x R_i = L exactly (the
     isoparametric identity sum P_i (x) grad_x R_i = I). One step, tiny dt so that stress changes nothing
-    measurable: F = I + dt L to round-off (1e-12), positions x + dt L x."""
+    measurable: F = I + dt L to round-off (1e-12), positions x + dt L x. `nurbs`: the same on the generic map
+    given as data (the seed's patch test sum P_i (x) grad_x R_i = I through the config path)."""
     cfg = ring_cfg(walls="free", model="neo_hookean")
-    sim = tm.Simulation(cfg)
+    sim = tm.Simulation(cfg if grid == "annulus" else as_nurbs(cfg))
     X = sim.scene.x
     L = np.array([[0.3, 0.2], [-0.1, -0.2]])
     v = X @ L.T
@@ -47,6 +66,40 @@ def test_uniform_stretch_is_reproduced_exactly():
     assert np.abs((p["F"] - np.eye(2)) / dt - L).max() < 1e-12     # grad v = L: round-off of F (1e-16) / dt
     assert np.abs(p["v"] - v).max() < 1e-13     # sum R_i P_i = x_p up to Newton's residual (1e-13 h)
     assert np.abs(p["x"] - (X + dt * v)).max() < 1e-14
+
+
+def test_generic_nurbs_map_of_the_annulus_data_is_the_annulus():
+    """The annulus given as a `nurbs` map, once with its 24 x 4 control net and once as the coarse 4 quarter pieces
+    x 1 radial cell refined by knot insertion ([6, 4]): the same knots (cells), control points and weights to
+    round-off, the same wall normals, and the same simulation: 6 steps of a spinning, expanding solid at a fixed
+    dt agree in x, v and F to 1e-12 (the same kernels on the same data; round-off of the refinement ~1e-16).
+    The normals on the circles are radial to 1e-14 (no torque from slip walls)."""
+    from taichi_mpm.mapped import MappedGrid
+    cfg = ring_cfg(walls="free", model="neo_hookean")
+    cfg["solver"]["dt"] = 2e-3
+    ref = MappedGrid(tm.load_config(cfg))
+    for coarse in (False, True):
+        g = MappedGrid(tm.load_config(as_nurbs(cfg, coarse)))
+        assert g.shape == ref.shape and g.periodic
+        for a in range(2):
+            assert np.abs(g.map.knots[a] - ref.map.knots[a]).max() < 1e-13
+        assert np.abs(g.map.P - ref.map.P).max() < 1e-14 and np.abs(g.map.w - ref.map.w).max() < 1e-14
+        assert np.abs(g.normals - ref.normals).max() < 1e-14
+    P = ref.map.P[: ref.shape[0]]
+    radial = P / np.linalg.norm(P, axis=-1, keepdims=True)
+    assert np.abs(ref.normals[:, 0, 2] + radial[:, 0]).max() < 1e-14      # inner circle: towards the centre
+    assert np.abs(ref.normals[:, -1, 3] - radial[:, -1]).max() < 1e-14    # outer circle: away from it
+    runs = []
+    for c in (cfg, as_nurbs(cfg, coarse=True)):
+        sim = tm.Simulation(c)
+        X = sim.scene.x
+        sim.set_particles(v=0.3 * X + np.stack([-X[:, 1], X[:, 0]], 1))
+        for _ in range(6):
+            sim.step()
+        runs.append(sim.particles())
+    for key in ("x", "v", "F"):
+        assert np.abs(runs[0][key] - runs[1][key]).max() < 1e-12, key
+    assert np.abs(runs[0]["F"] - np.eye(2)).max() > 1e-3     # the solid did deform
 
 
 def test_a_particle_leaving_the_map_is_an_instability():
@@ -96,6 +149,51 @@ def test_map_config_errors():
         tm.Simulation(cfg)
 
 
+def nurbs_error(cfg):
+    with pytest.raises(ConfigError) as e:
+        tm.load_config(cfg)
+    return e.value
+
+
+def test_nurbs_map_config_errors(tmp_path):
+    """Wrong counts, a non-positive weight (named down to its row and column, with its YAML line), a folded net
+    (two control points swapped: det J changes sign), a periodic map whose seam does not close, bad knots."""
+    import yaml
+    base = as_nurbs(ring_cfg(angle=180.0, cells=(8, 4)))
+    m = base["domain"]["map"]
+    cfg = copy.deepcopy(base)
+    cfg["domain"]["map"]["control_points"].pop()
+    assert nurbs_error(cfg).key == "domain.map.control_points"
+    cfg = copy.deepcopy(base)
+    cfg["domain"]["map"]["weights"][3] = cfg["domain"]["map"]["weights"][3][:-1]
+    assert nurbs_error(cfg).key == "domain.map.weights"
+    cfg = copy.deepcopy(base)
+    cfg["domain"]["map"]["weights"][2][1] = 0.0
+    path = tmp_path / "w.yaml"
+    path.write_text(yaml.safe_dump(cfg, default_flow_style=None, sort_keys=False))
+    with pytest.raises(ConfigError) as e:
+        tm.load_config(path)
+    assert e.value.key == "domain.map.weights.2.1" and e.value.line is not None
+    lines = path.read_text().splitlines()
+    assert re.search(r"[\[ ]0\.0[,\]]", lines[e.value.line - 1])     # the row holding the zero weight
+    cfg = copy.deepcopy(base)
+    P = cfg["domain"]["map"]["control_points"]
+    P[4][1], P[4][2] = P[4][2], P[4][1]           # two radial control points swapped: the cells fold over
+    err = nurbs_error(cfg)
+    assert err.key == "domain.map.control_points" and "folds" in str(err)
+    cfg = copy.deepcopy(base)
+    cfg["domain"]["map"]["periodic"] = True       # a half ring does not close on itself
+    assert nurbs_error(cfg).key == "domain.map.periodic"
+    cfg = copy.deepcopy(base)
+    cfg["domain"]["map"]["knots"]["y"] = [0, 0, 1, 2, 3, 4, 4, 4]    # the first end only twice
+    assert nurbs_error(cfg).key == "domain.map.knots.y"
+    cfg = copy.deepcopy(base)
+    cfg["domain"]["upper"] = [0.9, 1.1]           # the box does not hold the half ring (x up to 1)
+    assert nurbs_error(cfg).key == "domain.upper"
+    assert m["type"] == "nurbs"
+    tm.load_config(base)
+
+
 def test_ring_channel_demo_config_validates():
     from pathlib import Path
     cfg = tm.load_config(Path(__file__).resolve().parents[1] / "configs" / "ring_channel.yaml")
@@ -117,3 +215,50 @@ def test_generalized_vortex_on_the_polar_grid():
     errs = [rms("polar", c) for c in cells]
     assert -np.polyfit(np.log(cells), np.log(errs), 1)[0] >= 1.8, errs
     assert errs[1] < rms("cartesian", 36)
+
+
+def incline_cfg(angle_deg, mu):
+    """An inclined channel as a generic `nurbs` map: a 1.0 x 0.25 m rectangle rotated by -angle (its floor, face
+    y_min, descends along +x), given as its 3 x 3 bilinear control net (corners and mid-points, weights 1) and
+    refined to 20 x 5 cells of 0.05 m; gravity straight down, so every wall normal is off the axes. The block
+    of tests/test_friction.py (0.2 x 0.1 m, neo-Hookean, PIC) rests on the floor, rotated with it."""
+    a = math.radians(angle_deg)
+    e1, e2 = np.array([math.cos(a), -math.sin(a)]), np.array([math.sin(a), math.cos(a)])
+    origin = np.array([0.0, 0.6])
+    net = [[(origin + 0.5 * i * e1 + 0.125 * j * e2).tolist() for j in range(3)] for i in range(3)]
+    centre = origin + 0.2 * e1 + 0.05 * e2
+    return dict(
+        name="incline", dim=2, precision="f64", arch="cpu",
+        domain=dict(lower=[-0.05, 0.0], upper=[1.05, 0.9], dx=0.05,
+                    boundaries=dict(default="slip", y_min=dict(type="slip", friction=mu)),
+                    map=dict(type="nurbs", knots=dict(x=[0, 0, 0, 1, 1, 1], y=[0, 0, 0, 1, 1, 1]),
+                             control_points=net, refine=[20, 5])),
+        solver=dict(basis="quadratic", transfer="pic", end_time=0.25, gravity=[0.0, -9.81]),
+        materials=dict(m=dict(model="neo_hookean", E=2.0e5, nu=0.3, density=1000.0)),
+        bodies=[dict(name="block", material="m", shape=dict(
+            type="box", lower=(centre - [0.1, 0.05]).tolist(), upper=(centre + [0.1, 0.05]).tolist(),
+            rotation=-angle_deg))]), e1
+
+
+@pytest.mark.slow   # a mapped kernel set per friction coefficient (~1 min cold each on 2 cores)
+@pytest.mark.parametrize("mu", [0.0, 0.3])
+def test_block_slides_down_a_mapped_incline_at_coulomb_acceleration(mu):
+    """Coulomb friction on a mapped face whose normal is off the axes (the shared wall condition with the node's
+    normal): the block's centre-of-mass velocity along the floor grows at g (sin a - mu cos a), a = 30 deg, as
+    on the Cartesian floor with gravity rotated instead (test_friction.py: within 0.03 % there). 2 %: a
+    friction force off by 2 % of mu N moves the acceleration by 1.5 % at mu = 0.3; a wall acting along the
+    axes instead of the normal would be off by tens of percent."""
+    G, T, angle = 9.81, 0.25, 30.0
+    cfg, e1 = incline_cfg(angle, mu)
+    sim = tm.Simulation(cfg)
+    mass = sim.scene.mass.sum()
+    t, v = [], []
+    while sim.time < T - 1e-12:
+        sim.step(min(sim.stable_dt(), T - sim.time))
+        t.append(sim.time)
+        v.append(float(np.dot(sim.momentum()["linear"][:2], e1)) / mass)
+    t, v = np.array(t), np.array(v)
+    late = t > 0.2 * T     # after the first contact-force oscillations (PIC damps them)
+    accel = np.polyfit(t[late], v[late], 1)[0]
+    a = math.radians(angle)
+    assert accel == pytest.approx(G * (math.sin(a) - mu * math.cos(a)), rel=0.02)
