@@ -112,7 +112,7 @@ def compare(config, vary: str, overrides: dict | None = None, out=None, overwrit
     """Run the variants of `config` (path, dict or Config) over `vary` ('KEY=A,B,...') and write the side-by-side
     frames, movie, curves and summary. Returns {"out", "frames", "movie", "curves", "summary", "variants",
     "render_seconds"}."""
-    from .render import FrameRenderer, _options, _write_png, color_fields, field_values, make_movie, \
+    from .render import FrameRenderer, _options, _write_png, color_fields, field_values, grid_lines, make_movie, \
         sequence_bounds, sequence_limits
 
     key, values = parse_vary(vary)
@@ -168,7 +168,7 @@ def compare(config, vary: str, overrides: dict | None = None, out=None, overwrit
     spacing = float(np.nanmedian([v.spacing for v in variants]))
     bounds = sequence_bounds([a for v in variants for a in v.x], spacing, base.dim) if base.dim == 3 else None
     renderers = [FrameRenderer(rc, base.dim, base.domain.lower, base.domain.upper, limits=limits, bounds=bounds,
-                               title=v.label) for v in variants]
+                               title=v.label, lines=grid_lines(v.cfg)) for v in variants]
     n_frames = max(len(v.times) for v in variants)
     frames = []
     try:

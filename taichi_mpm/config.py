@@ -682,7 +682,7 @@ class Config(Strict):
         if det <= 1e-9:
             raise _Located("domain.map.control_points", f"the map folds or pinches: det J = {det:.3g} (relative) at "
                            f"parameters ({where[0]:g}, {where[1]:g}) cells; control points must keep each cell "
-                           "convex-like and turning the same way (det J > 0 everywhere)")
+                           "turning the same way (det J of one sign everywhere)")
         # a map that does not fold is one-to-one, so its extremes lie on its boundary: sample the four faces
         s = [np.linspace(0.0, t[-1], 8 * int(round(t[-1])) + 1) for t in knots]
         edges = [np.stack([s[0], np.full_like(s[0], e)], -1) for e in (0.0, knots[1][-1])]

@@ -156,8 +156,10 @@ class FrameRenderer:
     One off-screen plotter serves the whole sequence; a frame only updates points, colours and the time label.
     """
 
-    def __init__(self, render_cfg, dim: int, lower, upper, limits=None, bounds=None, title: str | None = None):
+    def __init__(self, render_cfg, dim: int, lower, upper, limits=None, bounds=None, title: str | None = None,
+                 lines=None):
         o = _options(render_cfg)
+        self.lines = lines      # 2D: polylines (M, 2) drawn under the particles (a mapped grid's cells)
         self.color_by, self.size, self.camera = o["color_by"], o["size"], o["camera"]
         self.point_size, self.cmap, self.scale, self.percentiles = o["point_size"], o["cmap"], o["scale"], o["percentiles"]
         self.dim = int(dim)
@@ -299,6 +301,9 @@ class FrameRenderer:
         else:
             top = hi3[1] if self.dim == 2 else hi3[1]
             p.add_mesh(pv.Box(bounds=(lo3[0], hi3[0], lo3[1], top, 0, 0)).outline(), color="#8c8c8c", line_width=1)
+            for line in self.lines or []:    # behind the particles (z below them): the grid reads as background
+                p.add_mesh(pv.lines_from_points(np.c_[line, np.full(len(line), -1e-3 * (hi3[0] - lo3[0]))]),
+                           color="#b4b4b4", line_width=1)
         if self.dim == 1:
             self._place_camera(p, lo3, hi3)
         w, h = self.size
@@ -493,8 +498,9 @@ class FrameRecorder:
 
     PATTERN = ".record_*.npz"
 
-    def __init__(self, frames_dir, render_cfg, dim: int, lower, upper, title: str | None = None):
+    def __init__(self, frames_dir, render_cfg, dim: int, lower, upper, title: str | None = None, lines=None):
         self.dir = Path(frames_dir)
+        self.lines = lines
         self.render_cfg, self.dim, self.lower, self.upper, self.title = render_cfg, dim, lower, upper, title
         self.color_by = _options(render_cfg)["color_by"]
         if dim == 3 and _options(render_cfg)["camera"] not in _CAMERAS_3D:
@@ -534,7 +540,7 @@ class FrameRecorder:
         limits = sequence_limits(self.render_cfg, [d["values"] for d in data])
         bounds = sequence_bounds([d["x"] for d in data], spacing, self.dim) if self.dim == 3 else None
         renderer = FrameRenderer(self.render_cfg, self.dim, self.lower, self.upper, limits=limits, bounds=bounds,
-                                 title=self.title)
+                                 title=self.title, lines=self.lines)
         frames = []
         try:
             for r, d in zip(records, data):
@@ -549,6 +555,26 @@ class FrameRecorder:
             r.unlink()
         self.seconds += _time.perf_counter() - t0
         return frames
+
+
+def grid_lines(cfg, per_cell: int = 12):
+    """The cell edges of a mapped grid (domain.map) as polylines in physical space: the parameter lines through
+    every distinct knot, `per_cell` segments per cell (curved cells look curved). None without a map."""
+    if cfg.domain.map is None:
+        return None
+    from .mapped import build_map
+
+    mp = build_map(cfg.domain.map)[0]
+    knots = [np.unique(t) for t in mp.knots]
+    fine = [np.unique(np.concatenate([np.linspace(a, b, per_cell + 1) for a, b in zip(k[:-1], k[1:])]))
+            for k in knots]
+    lines = []
+    for axis in range(2):
+        for k in knots[axis]:
+            xi = np.empty((len(fine[1 - axis]), 2))
+            xi[:, axis], xi[:, 1 - axis] = k, fine[1 - axis]
+            lines.append(mp.evaluate(xi))
+    return lines
 
 
 def _write_png(path, img):

@@ -258,7 +258,7 @@ class Run:
         colour range and one camera for the whole sequence."""
         if self._renderer is None:
             try:
-                from .render import FrameRecorder
+                from .render import FrameRecorder, grid_lines
             except ImportError as e:
                 self.log(f"warning: no frames or movie: the renderer is not available ({e})")
                 self._frames = False
@@ -266,7 +266,7 @@ class Run:
             c = self.cfg
             try:
                 self._renderer = FrameRecorder(self.out_dir / "frames", c.output.render, c.dim, list(c.domain.lower),
-                                               list(c.domain.upper), title=c.name)
+                                               list(c.domain.upper), title=c.name, lines=grid_lines(c))
             except ValueError as e:  # an unknown camera
                 raise ConfigError(str(e), key="output.render.camera") from None
         try:
