@@ -104,8 +104,8 @@ def test_cantilever_quick(tmp_path):
 
 
 def test_round_tank_quick(tmp_path, capsys):
-    """The drop in the round-bottomed tank (a generic NURBS grid, 12 x 6 cells here) after 0.6 s: it fell 0.67 m
-    onto the arc at t = 0.37 s and is running along it. Every particle is inside the tank (a particle beyond the
+    """The drop in the round-bottomed tank (a generic NURBS grid, 12 x 6 cells here) after 0.6 s: it fell 0.19 m
+    onto the arc at t = 0.2 s and is running along it. Every particle is inside the tank (a particle beyond the
     map would have stopped the run; 1e-4 m: f32 positions), the water reached the bottom (y < -0.85; the arc is
     at -0.92 below the drop's centre), and the energy balance did not grow (walls and transfers only remove
     energy; 1 % of the largest kinetic energy for f32 sums over a few hundred steps)."""
