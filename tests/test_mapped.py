@@ -240,15 +240,8 @@ def incline_cfg(angle_deg, mu):
             rotation=-angle_deg))]), e1
 
 
-@pytest.mark.slow   # a mapped kernel set per friction coefficient (~1 min cold each on 2 cores)
-@pytest.mark.parametrize("mu", [0.0, 0.3])
-def test_block_slides_down_a_mapped_incline_at_coulomb_acceleration(mu):
-    """Coulomb friction on a mapped face whose normal is off the axes (the shared wall condition with the node's
-    normal): the block's centre-of-mass velocity along the floor grows at g (sin a - mu cos a), a = 30 deg, as
-    on the Cartesian floor with gravity rotated instead (test_friction.py: within 0.03 % there). 2 %: a
-    friction force off by 2 % of mu N moves the acceleration by 1.5 % at mu = 0.3; a wall acting along the
-    axes instead of the normal would be off by tens of percent."""
-    G, T, angle = 9.81, 0.25, 30.0
+def slide_on_incline(angle, mu, T=0.25):
+    """Times and the block's centre-of-mass velocity along the floor of the mapped incline."""
     cfg, e1 = incline_cfg(angle, mu)
     sim = tm.Simulation(cfg)
     mass = sim.scene.mass.sum()
@@ -257,8 +250,31 @@ def test_block_slides_down_a_mapped_incline_at_coulomb_acceleration(mu):
         sim.step(min(sim.stable_dt(), T - sim.time))
         t.append(sim.time)
         v.append(float(np.dot(sim.momentum()["linear"][:2], e1)) / mass)
-    t, v = np.array(t), np.array(v)
-    late = t > 0.2 * T     # after the first contact-force oscillations (PIC damps them)
+    return np.array(t), np.array(v)
+
+
+@pytest.mark.parametrize("mu", [pytest.param(0.0, marks=pytest.mark.slow), 0.3])  # a kernel set per mu (~14 s cold)
+def test_block_slides_down_a_mapped_incline_at_coulomb_acceleration(mu):
+    """Coulomb friction on a mapped face whose normal is off the axes (the shared wall condition with the node's
+    normal): the block's centre-of-mass velocity along the floor grows at g (sin a - mu cos a), a = 30 deg, as
+    on the Cartesian floor with gravity rotated instead (test_friction.py: within 0.03 % there). Measured: mu =
+    0.3: 8.1e-5 off, mu = 0: 3.6e-15. 2 %: a friction force off by 2 % of mu N moves the acceleration by 1.5 %
+    at mu = 0.3; a wall acting along the axes instead of the normal would be off by tens of percent."""
+    G, angle = 9.81, 30.0
+    t, v = slide_on_incline(angle, mu)
+    late = t > 0.05     # after the first contact-force oscillations (PIC damps them)
     accel = np.polyfit(t[late], v[late], 1)[0]
     a = math.radians(angle)
     assert accel == pytest.approx(G * (math.sin(a) - mu * math.cos(a)), rel=0.02)
+
+
+@pytest.mark.slow   # its own kernel set (mu = 0.5)
+def test_block_sticks_on_a_mapped_incline_below_the_friction_angle():
+    """tan 25 deg = 0.47 < mu = 0.5: the block stays put on the mapped floor. Against the speed g sin(25) T it
+    reaches on a frictionless floor: final speed below 1 % (measured 1e-6); after the first contact-force
+    oscillations (t > 0.05 s, as in the sliding test) below 2 % (measured 1.1 %; the largest, 2.0 %, is at
+    t = 0.011 s while the sudden load rings). A block sliding at 0.1 x the free acceleration would reach 10 %."""
+    t, v = slide_on_incline(25.0, 0.5)
+    free = 9.81 * math.sin(math.radians(25.0)) * 0.25
+    assert abs(v[-1]) < 0.01 * free
+    assert np.max(np.abs(v[t > 0.05])) < 0.02 * free
