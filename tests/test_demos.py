@@ -158,7 +158,8 @@ def test_vortex_polar_side_by_side(tmp_path):
     """demos/vortex_polar.py: the two grids' frames side by side (two panels and a 2-pixel separator), and each
     grid's RMS position error against the exact vortex at t = 1 s (the twist is back to zero): measured 0.0191 m
     (Cartesian) and 0.0189 m (polar) with the default 9 frame stops (this test stops twice). Bars: 0.025 m
-    each, and the two grids within 10 % of each other (measured 1 %): the same dx gives the same accuracy (docs/accuracy.md: within 7 %)."""
+    each, and the two grids within 10 % of each other (measured 1 %): the same dx gives the same accuracy
+    (docs/accuracy.md: within 7 %)."""
     import imageio.v2 as imageio
     out = load_demo("vortex_polar").main(["--cells", "24", "--frames", "2", "--out", str(tmp_path / "v")])
     assert len(out["frames"]) == 2
