@@ -651,19 +651,13 @@ class Config(Strict):
             if problem:
                 raise _Located(f"domain.map.knots.{axis}", f"{problem} (a nurbs map is quadratic: p = 2)")
         shape = (len(m.knots.x) - 3, len(m.knots.y) - 3)
-        rows = [len(r) for r in m.control_points]
-        if len(rows) != shape[0] or any(n != shape[1] for n in rows):
-            raise _Located("domain.map.control_points", f"the knots give {shape[0]} x {shape[1]} control points "
-                           f"(number of knots - 3 per axis), got {len(rows)} rows of {sorted(set(rows))} points")
+        _need_rows("domain.map.control_points", m.control_points, shape)
         for i, row in enumerate(m.control_points):
             for j, p in enumerate(row):
                 _need_len(f"domain.map.control_points.{i}.{j}", p, 2)
         P = np.asarray(m.control_points, float)
         if m.weights is not None:
-            wrows = [len(r) for r in m.weights]
-            if len(wrows) != shape[0] or any(n != shape[1] for n in wrows):
-                raise _Located("domain.map.weights", f"one weight per control point: {shape[0]} rows of {shape[1]}, "
-                               f"got {len(wrows)} rows of {sorted(set(wrows))}")
+            _need_rows("domain.map.weights", m.weights, shape)
             for i, row in enumerate(m.weights):
                 for j, wij in enumerate(row):
                     if not wij > 0:
@@ -743,6 +737,14 @@ def _keep_explicit_nulls(model: BaseModel, out: dict) -> dict:
         elif isinstance(value, BaseModel) and isinstance(out.get(name), dict):
             _keep_explicit_nulls(value, out[name])
     return out
+
+
+def _need_rows(key, rows, shape):
+    """A nurbs map's per-control-point table: shape[0] rows of shape[1] entries (knots - 3 per axis)."""
+    lengths = [len(r) for r in rows]
+    if len(lengths) != shape[0] or any(n != shape[1] for n in lengths):
+        raise _Located(key, f"the knots give {shape[0]} x {shape[1]} control points (number of knots - 3 per axis): "
+                            f"{shape[0]} rows of {shape[1]}, got {len(lengths)} rows of {sorted(set(lengths))}")
 
 
 def _need_len(key, v, d):

@@ -26,6 +26,20 @@ def cfg_factory():
     return lambda *a, **k: copy.deepcopy(make_cfg(*a, **k))
 
 
+def velocity_along(sim, direction, end_time):
+    """Step `sim` to end_time at its stable step: the times and the centre-of-mass velocity along `direction`
+    (a unit vector) after each step."""
+    import numpy as np
+
+    mass = sim.scene.mass.sum()
+    t, v = [], []
+    while sim.time < end_time - 1e-12:
+        sim.step(min(sim.stable_dt(), end_time - sim.time))
+        t.append(sim.time)
+        v.append(float(np.dot(sim.momentum()["linear"][:len(direction)], direction)) / mass)
+    return np.array(t), np.array(v)
+
+
 def fast_subset(cases, fast):
     """Parameters for a test matrix: every case runs under `pytest -m slow`; the default run keeps only `fast`
     (chosen so that each option still appears once). Each case compiles its own kernel set, and cold JIT time is

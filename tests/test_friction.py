@@ -6,7 +6,7 @@ import pytest
 
 import taichi_mpm as tm
 from taichi_mpm.config import load_config
-from conftest import make_cfg
+from conftest import make_cfg, velocity_along
 
 G, T = 9.81, 0.25
 
@@ -22,13 +22,8 @@ def slide(angle_deg, mu):
                    lower=[0.1, 0.0], upper=[0.3, 0.1], end_time=T, gravity=[G * np.sin(a), -G * np.cos(a)])
     cfg["domain"].update(upper=[1.0, 0.25], boundaries={"default": "slip", "y_min": {"type": "slip", "friction": mu}})
     sim = tm.Simulation(cfg)
-    mass = sim.scene.mass.sum()
-    t, v = [], []
-    while sim.time < T - 1e-12:
-        sim.step(min(sim.stable_dt(), T - sim.time))
-        t.append(sim.time)
-        v.append(sim.momentum()["linear"][0] / mass)
-    return np.array(t), np.array(v), sim.n_steps
+    t, v = velocity_along(sim, [1.0, 0.0], T)
+    return t, v, sim.n_steps
 
 
 @pytest.mark.parametrize("angle,mu", [(30, 0.0), (30, 0.3), (30, 0.5)])

@@ -10,6 +10,7 @@ import pytest
 
 import taichi_mpm as tm
 from taichi_mpm.errors import ConfigError
+from conftest import velocity_along
 
 
 def ring_cfg(angle=360.0, cells=(24, 4), walls="slip", model="fluid", body=(0.55, 0.95), **solver):
@@ -243,14 +244,7 @@ def incline_cfg(angle_deg, mu):
 def slide_on_incline(angle, mu, T=0.25):
     """Times and the block's centre-of-mass velocity along the floor of the mapped incline."""
     cfg, e1 = incline_cfg(angle, mu)
-    sim = tm.Simulation(cfg)
-    mass = sim.scene.mass.sum()
-    t, v = [], []
-    while sim.time < T - 1e-12:
-        sim.step(min(sim.stable_dt(), T - sim.time))
-        t.append(sim.time)
-        v.append(float(np.dot(sim.momentum()["linear"][:2], e1)) / mass)
-    return np.array(t), np.array(v)
+    return velocity_along(tm.Simulation(cfg), e1, T)
 
 
 @pytest.mark.parametrize("mu", [pytest.param(0.0, marks=pytest.mark.slow), 0.3])  # a kernel set per mu (~14 s cold)
