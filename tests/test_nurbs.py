@@ -154,3 +154,53 @@ def test_newton_inversion_and_patch_identities_on_the_annulus():
     identity = np.einsum("ijc,mijd->mcd", mp.P, G)
     assert np.abs(identity - np.eye(2)).max() < 1e-12
     assert np.abs(G.sum(axis=(1, 2))).max() < 1e-12
+
+
+def test_host_geometry_derivatives_normals_and_refinement():
+    """mapgeom (numpy, used by config validation and the wall normals): B-spline derivatives equal scipy's
+    (1e-12, a double knot included); the Jacobian of a random rational map equals central differences of x
+    (h = 1e-6: 1e-7 as above); refinement by knot insertion leaves x(xi) unchanged at random points (1e-14);
+    the face normals of a rotated rectangle with a bumpy interior net are its four edge normals (1e-14); the
+    plain rectangle refined to 8 x 4 has cells of 0.25."""
+    from scipy.interpolate import BSpline
+    from taichi_mpm import mapgeom
+
+    rng = np.random.default_rng(7)
+    t = np.array([0, 0, 0, 0, 1.3, 2, 2, 3, 3, 3, 3], float)
+    u = rng.uniform(0, 3, 200)
+    for p in (2, 3):
+        tp = t[1:-1] if p == 2 else t
+        n = len(tp) - p - 1
+        dN = mapgeom.bspline_derivatives(tp, p, u)
+        ref = np.stack([BSpline(tp, np.eye(n)[i], p).derivative()(u) for i in range(n)], 1)
+        assert np.abs(dN - ref).max() < 1e-12
+    mp = random_map(rng)
+    xi = np.stack([rng.uniform(0.01, 3.99, 100), rng.uniform(0.01, 2.99, 100)], 1)
+    x, J = mp.surface_host(xi)
+    h = 1e-6
+    for a in range(2):
+        e = np.zeros(2)
+        e[a] = h
+        fd = (mp.surface_host(xi + e)[0] - mp.surface_host(xi - e)[0]) / (2 * h)
+        assert np.abs(J[:, :, a] - fd).max() < 1e-7
+    # a 2 x 1 rectangle rotated by 0.4 rad, quadratic x quadratic on one span, interior point moved, random weights
+    c, s = math.cos(0.4), math.sin(0.4)
+    R = np.array([[c, -s], [s, c]])
+    g = np.stack(np.meshgrid([0.0, 1.0, 2.0], [0.0, 0.5, 1.0], indexing="ij"), -1)
+    g[1, 1] += [0.2, -0.1]
+    P = g @ R.T
+    w = np.ones((3, 3))
+    w[1, 1] = 1.7
+    knots = [np.array([0, 0, 0, 1, 1, 1.0])] * 2
+    kr, Pr, wr = mapgeom.refine(knots, P, w, [4, 4])
+    kr = [mapgeom.cell_knots(k) for k in kr]
+    q = rng.uniform(0, 1, (200, 2))
+    assert np.abs(mapgeom.surface(knots, [2, 2], P, w, q)[0] - mapgeom.surface(kr, [2, 2], Pr, wr, 4 * q)[0]).max() < 1e-14
+    N = mapgeom.face_normals(kr, [2, 2], Pr, wr)
+    for k, n in enumerate([[-1, 0], [1, 0], [0, -1], [0, 1]]):
+        rows = N[0, :, 0] if k == 0 else N[-1, :, 1] if k == 1 else N[:, 0, 2] if k == 2 else N[:, -1, 3]
+        assert np.abs(rows - R @ np.array(n, float)).max() < 1e-14
+    g[1, 1] -= [0.2, -0.1]                # the plain rectangle, weights 1: 8 x 4 cells of 0.25 x 0.25
+    kr, Pr, wr = mapgeom.refine(knots, g @ R.T, np.ones((3, 3)), [8, 4])
+    kr = [mapgeom.cell_knots(k) for k in kr]
+    assert np.allclose(mapgeom.cell_sizes(kr, [2, 2], Pr, wr), (0.25, 0.25), rtol=0, atol=1e-14)
