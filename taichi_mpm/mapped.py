@@ -9,12 +9,14 @@ APIC, linear reproduction and the F update hold as on the Cartesian grid). After
 found again by Newton's method on x(xi) = x_p from the old xi_p (`locate`); a particle that leaves the mapped
 region or whose iteration fails stops the run (InstabilityError, cause "particle left the mapped grid").
 
-A full ring is periodic in the angle: its last control-point column coincides with the first and is stored as
-that same node (the seam is a C0 joint, like the rational pieces' double knots).
+The map is the built-in annulus or a `nurbs` patch given as data (`build_map`; host geometry in mapgeom.py). A
+full ring (or a `periodic` patch) wraps in its first parameter: its last control-point column coincides with the
+first and is stored as that same node (the seam is a C0 joint, like the rational pieces' double knots).
 
-Walls act on the control points of the parameter faces along their outward normals (the annulus: radial on the
-circles, so a slip or roller circle gives every node an impulse through the centre and no torque): sticky v = 0,
-slip: no outward normal velocity, roller: no normal velocity. Bodies are given in physical space.
+Walls (grid.make_wall_condition) act on the control points of the parameter faces along their outward normals
+(`normal`, from mapgeom.face_normals; on a circle radial, so a slip or roller circle gives every node an impulse
+through the centre and no torque): sticky v = 0, slip: no outward normal velocity, roller: no normal velocity,
+Coulomb friction on slip and roller faces. Bodies are given in physical space.
 Physics code only: no CLI, rendering or file I/O here.
 """
 
@@ -24,7 +26,6 @@ import numpy as np
 import taichi as ti
 
 from .basis import Basis, make_bspline
-from .errors import ConfigError
 from . import mapgeom
 from .nurbs import Map, annulus
 
