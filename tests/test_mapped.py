@@ -272,3 +272,20 @@ def test_block_sticks_on_a_mapped_incline_below_the_friction_angle():
     free = 9.81 * math.sin(math.radians(25.0)) * 0.25
     assert abs(v[-1]) < 0.01 * free
     assert np.max(np.abs(v[t > 0.05])) < 0.02 * free
+
+
+def test_the_curved_grid_is_drawn():
+    """render.grid_lines: the parameter lines through every knot of the annulus (25 spokes at the angular knots,
+    then 5 lines at the radial knots), those 5 on the circles r = 0.5 + 0.125 k (1e-14: exact circles), and a
+    frame drawn with them differs from the frame without them in the line pixels."""
+    from taichi_mpm.render import FrameRenderer, grid_lines
+    cfg = tm.load_config(ring_cfg())
+    lines = grid_lines(cfg)
+    assert len(lines) == 25 + 5
+    for k, line in enumerate(lines[25:]):
+        assert np.abs(np.linalg.norm(line, axis=1) - (0.5 + 0.125 * k)).max() < 1e-14
+    x = np.array([[0.75, 0.0]])
+    images = [FrameRenderer({"color_by": "speed", "size": [200, 200]}, 2, [-1.1, -1.1], [1.1, 1.1], lines=ls)
+              .image(x, np.zeros(1), 0.0, spacing=0.05) for ls in (None, lines)]
+    grey = (images[1].astype(int) - images[0]).any(axis=-1)
+    assert grey.sum() > 500     # circles and spokes: measured 1910 pixels at 200 x 200 (one particle: ~20)
