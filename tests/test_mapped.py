@@ -288,4 +288,4 @@ def test_the_curved_grid_is_drawn():
     images = [FrameRenderer({"color_by": "speed", "size": [200, 200]}, 2, [-1.1, -1.1], [1.1, 1.1], lines=ls)
               .image(x, np.zeros(1), 0.0, spacing=0.05) for ls in (None, lines)]
     grey = (images[1].astype(int) - images[0]).any(axis=-1)
-    assert grey.sum() > 500     # circles and spokes: measured 1910 pixels at 200 x 200 (one particle: ~20)
+    assert grey.sum() > 500     # circles and spokes: measured 1910 pixels at 200 x 200
