@@ -44,4 +44,5 @@ def fast_subset(cases, fast):
     """Parameters for a test matrix: every case runs under `pytest -m slow`; the default run keeps only `fast`
     (chosen so that each option still appears once). Each case compiles its own kernel set, and cold JIT time is
     what makes the default suite slow."""
-    return [c if c in fast else pytest.param(*c, marks=pytest.mark.slow) for c in cases]
+    return [c if c in fast else pytest.param(*(c if isinstance(c, tuple) else (c,)), marks=pytest.mark.slow)
+            for c in cases]

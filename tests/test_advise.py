@@ -85,6 +85,7 @@ def test_richardson_recovers_a_known_limit():
     assert recs[0]["error_observed"] == pytest.approx(0.5 * 0.16 / 2)
 
 
+@pytest.mark.slow
 def test_observed_values_of_a_function_and_an_allowed_callable(tmp_path):
     # a 1D block gliding at 0.5 m/s (no gravity, away from the walls): its mean x moves by exactly 0.5 t and its
     # kinetic energy stays m v^2 / 2; one run, both observables (the callable in the study, the function in a
@@ -146,6 +147,7 @@ def check_against_exhaustive(result, table, true_error, tol, dim=1):
     assert work(row, dim) <= 1.5 * min(feasible)
 
 
+@pytest.mark.slow
 def test_advise_mms_small_matches_the_exhaustive_sweep(tmp_path, capsys):
     # 2 bases x 2 levels of the 1D manufactured solution; error_rel is the true error (against the exact
     # solution) relative to the amplitude. Measured at this size: linear 0.110 / 0.028, quadratic 0.155 / 0.042:

@@ -109,6 +109,7 @@ def test_problem_registry_and_config_overrides():
         assert cfg.solver.basis == "cubic" and cfg.precision == "f64"
 
 
+@pytest.mark.slow
 def test_vortex_converges():
     """G = 0.05 vortex, quadratic FLIP, 2 particles per cell: error at 48 cells (dx = 1/16) measured 2.5e-3,
     at 24 cells 1.9e-2."""
@@ -127,6 +128,7 @@ def test_vibrating_bar_fixed_free_centre_of_mass():
     assert err["error_com_velocity"] < 0.02 * pr.v0
 
 
+@pytest.mark.slow
 def test_colliding_disks_energy_measures():
     """No exact solution: the disks bounce apart, total energy never grows, APIC keeps most of it."""
     pr = an.make_problem({"type": "colliding_disks"})

@@ -24,6 +24,7 @@ def test_reference_benchmark_runs_both_kernels():
     assert all(r["particles"] == rows[0]["particles"] and r["particle_steps_per_s"] > 0 for r in rows)
 
 
+@pytest.mark.slow
 def test_throughput_benchmark_reports_each_case():
     # one case (a cold kernel set costs ~20 s of compile); the case loop is the product of the option lists
     rows = load("throughput").main(["--tiny", "--dims", "2", "--bases", "quadratic",
@@ -39,6 +40,7 @@ def test_memory_benchmark_minimal_scene_is_small():
     assert rows[1]["bytes_per_particle"] > minimal["bytes_per_particle"]  # APIC adds C
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("script", [pytest.param("sparse_domain", marks=pytest.mark.slow), "compile_time",
                                     pytest.param("threads", marks=pytest.mark.slow)])
 def test_subprocess_benchmarks_run(script):

@@ -145,6 +145,7 @@ def test_run_writes_vtu_series_diagnostics_checkpoint_config(tmp_path, capsys):
     np.testing.assert_array_equal(state["x"], io.read_vtu(files[-1], 2)["x"])
 
 
+@pytest.mark.slow
 def test_python_api_run_writes_outputs(tmp_path):
     cfg = tm.load_config(scene_cfg(tmp_path))
     sim = tm.Simulation(cfg).run()
@@ -270,6 +271,7 @@ def test_run_progress_bar_then_render_run_dir(tmp_path, capsys):
     assert main(["study", str(tmp_path / "none.yaml")]) == 2
 
 
+@pytest.mark.slow
 def test_resume_of_a_plastic_run_keeps_plastic_strain_and_jp(tmp_path):
     """`taichi-mpm run --resume` of a drucker_prager block moving into the floor at 1 m/s:
     it starts on the floor, so it yields from the first steps; the resumed run ends with the plastic_strain and J_p

@@ -49,7 +49,7 @@ def stressed_moving_block(dim, basis, transfer, sparse=True, steps=20):
 
 @pytest.mark.parametrize("basis, transfer", fast_subset(
     list(itertools.product(BASES, TRANSFERS)),
-    {("linear", "flip"), ("gimp", "pic"), ("quadratic", "apic"), ("cubic", "pic")}))
+    {("quadratic", "apic")}))
 def test_linear_momentum_2d(basis, transfer):
     P0, P1, scale = stressed_moving_block(2, basis, transfer)
     assert np.abs(P1 - P0).max() < 1e-10 * scale
@@ -79,6 +79,7 @@ def test_apic_angular_momentum_spinning_disk():
     assert abs(L1 - L0) < 1e-5 * abs(L0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("basis, update", [("gimp", "usl"), pytest.param("cubic", "musl", marks=pytest.mark.slow)])
 def test_apic_angular_momentum_exact_for_varying_inertia(basis, update):
     """GIMP's D_p varies with position; storing B_p keeps the affine part's angular momentum exact anyway
@@ -87,6 +88,7 @@ def test_apic_angular_momentum_exact_for_varying_inertia(basis, update):
     assert abs(L1 - L0) < 1e-10 * abs(L0)
 
 
+@pytest.mark.slow
 def test_apic_angular_momentum_linear_is_approximate():
     """Multilinear APIC keeps C = sum v grad(w)^T (D_p is singular at nodes, so B_p cannot be stored): moving a
     particle changes its D_p and so the affine part's angular momentum. Measured: -0.76 % over 200 steps here.
@@ -119,6 +121,7 @@ def drift(hist):
     return abs(np.mean(hist[-len(hist) // 10:]) - 1.0)
 
 
+@pytest.mark.slow
 def test_flip_energy_drift():
     """FLIP (blend 1), MUSL, cfl 0.2, 16 cells across the block, 2000 steps (~12 periods): measured
     end 0.987, range 0.971..1.022."""

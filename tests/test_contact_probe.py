@@ -12,6 +12,7 @@ from taichi_mpm.runner import Run, Simulation
 G = 10.0
 
 
+@pytest.mark.slow
 def test_stacked_blocks_contact_force_is_the_upper_weight(tmp_path):
     c = make_cfg(2, transfer="pic", dx=0.1, lower=[0.3, 0.0], upper=[0.7, 0.3], end_time=1.0, gravity=[0, -G])
     c["bodies"][0]["name"] = "lower"

@@ -84,7 +84,7 @@ def cpdi_cfg(dim, **solver):
                     boundaries="free", **solver)
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_stencil_identities_random_F(dim):
     """Random F (stretch 0.2-5, shear, rotation) and random positions: partition of unity, linear reproduction,
     zero gradient sum and sum x_i (x) grad S = I to 1e-12 (|grad S| up to 1 / (0.2 * 0.025) = 200 per m)."""
@@ -260,6 +260,7 @@ def test_crack_finder_with_ddmp_is_a_config_error():
     assert e.value.key == "crack" and "ddmp" in str(e.value)
 
 
+@pytest.mark.slow
 def test_crack_finder_cpdi_blocks_separate():
     """tests/test_crack.py's separation check with cpdi, dx = 0.04 so that the interface x = 0.5 lies inside a
     cell. Measured: block velocities -+0.196 (imposed 0.2), gap rate 0.397 (relative speed 0.392). With dx = 0.05

@@ -72,7 +72,7 @@ def _check_partition(cfg):
 
 
 @pytest.mark.parametrize("dim, basis", fast_subset([(d, b) for d in (2, 3) for b in BASES],
-                                                   {(2, "linear"), (2, "cubic")}))  # quadratic: the 3D test below
+                                                   {(2, "linear")}))
 def test_modified_functions_partition_of_unity(dim, basis):
     """Masked particles (cut in tension, and cut with normal contact when approaching): both rescaled
     families sum to 1 and their gradients to 0, to 1e-12 in f64."""
@@ -82,6 +82,7 @@ def test_modified_functions_partition_of_unity(dim, basis):
     assert (closing[:, 0] == 2).sum() > 0                 # contact state: normal part kept across
 
 
+@pytest.mark.slow
 def test_modified_functions_partition_3d_quadratic():
     _check_partition(blocks_cfg(3, "quadratic", v=0.2, dx=0.1))
 
@@ -100,6 +101,7 @@ def _reference_run(dim, crack):
     return sim
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])  # 3D: ~60 s of cold compile
 def test_scene_without_crack_is_unchanged(dim):
     ref = np.load(DATA / "no_crack_reference.npz")
@@ -145,6 +147,7 @@ def test_two_blocks_stay_joined_without_crack_finder():
     assert smax > 50.0                                         # tension builds up (E = 1e4, v = 0.2)
 
 
+@pytest.mark.slow
 def test_two_blocks_separate_with_crack_finder():
     """Each block keeps its imposed velocity within 5 %; the gap between their facing surfaces opens at
     their relative speed (averaged over 40 steps: the freed faces vibrate)."""
@@ -193,6 +196,7 @@ def _bar(crack, v0, basis="quadratic"):
     return p["stress"][near, 0, 0].mean(), p["x"][right, 0].min() - p["x"][left, 0].max()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("basis", ["quadratic", pytest.param("linear", marks=pytest.mark.slow),
                                    pytest.param("gimp", marks=pytest.mark.slow),
                                    pytest.param("cubic", marks=pytest.mark.slow)])
@@ -203,6 +207,7 @@ def test_precracked_bar_in_tension(basis):
     assert abs(cracked) < 0.05 * plain
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("basis", ["quadratic", pytest.param("linear", marks=pytest.mark.slow),
                                    pytest.param("gimp", marks=pytest.mark.slow),
                                    pytest.param("cubic", marks=pytest.mark.slow)])
@@ -215,6 +220,7 @@ def test_closed_crack_in_compression(basis):
 
 
 # ---------------------------------------------------------------- colliding disks
+@pytest.mark.slow
 @pytest.mark.parametrize("transfer,update", [("apic", "usl"), pytest.param("flip", "musl", marks=pytest.mark.slow),
                                              pytest.param("pic", "musl", marks=pytest.mark.slow)])
 def test_colliding_disks_with_interfaces(transfer, update):
@@ -270,6 +276,7 @@ def test_rankine_law_softens_linearly():
     assert out[-1, 0] == 1.0
 
 
+@pytest.mark.slow
 def test_load_to_failure_crack_grows():
     """A notched bar whose ends are jerked outwards: the two tension waves meet at the notch, damage
     nucleates at its tip and runs through the section; the crack finder then lets the halves drift apart

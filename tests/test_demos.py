@@ -64,6 +64,7 @@ def test_sphere_impact_quick(tmp_path):
     assert (tmp_path / "run" / "checkpoint.npz").is_file()
 
 
+@pytest.mark.slow
 def test_colliding_disks_quick(tmp_path, capsys):
     sim = load_demo("colliding_disks").main(quick(tmp_path, 0.1, 0.5))
     # the script prints its theory check: zero total momentum (to the round-off of the config's f32: 1e-6 of the
@@ -89,6 +90,7 @@ def test_vibrating_bar_quick_matches_first_mode(tmp_path):
     assert np.abs(p["x"][[0, -1], 0] - [sim.scene.x[0, 0], sim.scene.x[-1, 0]]).max() < 0.02  # ends stay put
 
 
+@pytest.mark.slow
 def test_cantilever_quick(tmp_path):
     sim = load_demo("cantilever").main(quick(tmp_path, 0.05, 0.05))
     p = sim.particles()
@@ -118,6 +120,7 @@ def test_round_tank_quick(tmp_path, capsys):
     assert check["growth"] < 0.01
 
 
+@pytest.mark.slow
 def test_dam_break_quick(tmp_path, capsys):
     sim = load_demo("dam_break").main(quick(tmp_path, 0.1, 0.3))
     x = sim.particles()["x"]
@@ -131,6 +134,7 @@ def test_dam_break_quick(tmp_path, capsys):
     assert np.all(np.isfinite(x))
 
 
+@pytest.mark.slow
 def test_jelly_drop_quick_free_fall(tmp_path):
     sim0 = tm.Simulation(tm.load_config(ROOT / "configs" / "jelly_drop.yaml", overrides={"arch": "cpu", "domain.dx": 0.125}))
     y0 = sim0.particles()["x"][:, 1].mean()
@@ -141,6 +145,7 @@ def test_jelly_drop_quick_free_fall(tmp_path):
     assert y0 - y == pytest.approx(0.5 * 9.81 * 0.1**2, rel=0.01)
 
 
+@pytest.mark.slow
 def test_granular_collapse_quick(tmp_path):
     """A coarse column (dx 0.025: 4 cells across) in 0.25 s: the sand slumps and spreads, yielding all along the
     failure wedge; every particle stays finite and on or above the floor."""

@@ -25,6 +25,7 @@ def free_fall(dim, dx, E, chunks, T):
     return sim, (y0 - sim.particles()["x"][:, -1].mean()) / (0.5 * G * T * T)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("chunks", [1, 13])
 def test_soft_free_fall_any_advance_duration(chunks):
     """E = 1 Pa: the elastic step alone would be 0.55 s (one step for advance(1.0): fall 2x too far); the
@@ -61,6 +62,7 @@ def viscous_block(mu, steps=None, **kw):
     return sim
 
 
+@pytest.mark.slow
 def test_very_viscous_fluid_is_limited_by_viscosity_and_balances():
     """1000 Pa s: dt = cfl rho dx^2 / (2 d mu) (the viscous limit; fixed steps blew up above 0.35-0.5
     rho dx^2 / mu, measured). The dissipation the model computes accounts for the kinetic energy lost: FLIP
@@ -106,7 +108,7 @@ def test_energy_balance_with_body_force_work():
     assert -0.05 < b["ratio"] <= 0.0
 
 
-@pytest.mark.parametrize("push", [None, constant_push], ids=["no_force", "body_force"])
+@pytest.mark.parametrize("push", [pytest.param(None, id="no_force", marks=pytest.mark.slow), pytest.param(constant_push, id="body_force")])
 def test_cfl_1_2_is_stopped_with_and_without_body_force(push):
     """Measured: stopped at steps 24-28 with growth 11-31 % (the growth is x1.5-2 per step, checked every step
     once the energy is above the balance)."""
@@ -116,6 +118,7 @@ def test_cfl_1_2_is_stopped_with_and_without_body_force(push):
     assert "CFL number 1.2" in str(err.value) and "lower solver.cfl" in str(err.value)
 
 
+@pytest.mark.slow
 def test_weak_fluid_warns_up_front_and_stops_on_collapse():
     """K = 2000 Pa below rho g H = 7850 Pa: the column used to finish with a quarter of its volume."""
     cfg = make_cfg(2, basis="quadratic", transfer="flip", model="fluid", E=2000.0, dx=0.05, lower=[0.0, 0.0],
@@ -135,7 +138,7 @@ def test_stiff_fluid_does_not_warn():
         tm.Simulation(cfg)
 
 
-@pytest.mark.parametrize("basis", ["linear", "quadratic", pytest.param("cubic", marks=pytest.mark.slow)])  # cold compile
+@pytest.mark.parametrize("basis", [pytest.param("linear", marks=pytest.mark.slow), "quadratic", pytest.param("cubic", marks=pytest.mark.slow)])  # cold compile
 def test_apic_particles_exactly_on_a_wall(basis):
     """D_p = 0 for a B-spline particle on the wall's control point: it used to be inverted (NaN at step 1)."""
     cfg = make_cfg(2, basis=basis, transfer="apic", dx=0.1, E=1e4, end_time=1.0, gravity=[0.0, -G])

@@ -95,6 +95,7 @@ def volume(sim):
     return float(np.sum(sim.scene.volume * np.linalg.det(sim._read("F"))))
 
 
+@pytest.mark.slow
 def test_uniform_volume_change_left_alone_and_volume_kept():
     sim = small_block()
     rng = np.random.default_rng(0)
@@ -120,6 +121,7 @@ def test_uniform_volume_change_left_alone_and_volume_kept():
     assert np.abs(iso(F2, J2) - iso(F1, J1)).max() < 1e-12
 
 
+@pytest.mark.slow
 def test_momentum_kept():
     """F-bar changes only F (a scalar factor: Kirchhoff stress stays symmetric), so a drifting, spinning,
     breathing block keeps linear and APIC angular momentum to round-off (standard: 1e-15 relative)."""
@@ -140,6 +142,7 @@ def test_momentum_kept():
     assert np.abs(sim._read("F") - np.eye(2)).max() > 1e-3       # it did deform
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim, basis, transfer, update, precision, sparse, model", [
     (2, "linear", "pic", "usl", "f64", True, "neo_hookean"),
     (2, "gimp", "flip", "musl", "f32", False, "fixed_corotated"),
@@ -173,6 +176,7 @@ def test_every_option_runs_and_keeps_volume(dim, basis, transfer, update, precis
     assert np.abs(F - np.eye(dim)).max() > 1e-4
 
 
+@pytest.mark.slow
 def test_1d_is_the_identity():
     """1D has no locking (all deformation is volumetric): no F-bar object, the same steps as standard."""
     out = {}
@@ -202,6 +206,7 @@ def test_config_key():
         load_config(both)
 
 
+@pytest.mark.slow
 def test_resume_reads_the_volume_history_from_F():
     """set_state re-reads J^n from the F it sets: resuming from a saved state takes the same steps as going on
     (without the re-read the next step would measure its volume change from a stale J^n)."""

@@ -26,7 +26,8 @@ def slide(angle_deg, mu):
     return t, v, sim.n_steps
 
 
-@pytest.mark.parametrize("angle,mu", [(30, 0.0), (30, 0.3), (30, 0.5)])
+@pytest.mark.slow
+@pytest.mark.parametrize("angle,mu", [pytest.param(30, 0.0, marks=pytest.mark.slow), (30, 0.3), pytest.param(30, 0.5, marks=pytest.mark.slow)])
 def test_block_slides_at_coulomb_acceleration(angle, mu):
     t, v, steps = slide(angle, mu)
     assert steps < 300
@@ -39,6 +40,7 @@ def test_block_slides_at_coulomb_acceleration(angle, mu):
     assert accel == pytest.approx(exact, rel=0.02)
 
 
+@pytest.mark.slow
 def test_block_sticks_below_the_friction_angle():
     t, v, _ = slide(25, 0.5)  # tan 25 = 0.47 < 0.5
     free = G * np.sin(np.radians(25)) * T  # its speed after T on a frictionless floor

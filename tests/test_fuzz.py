@@ -7,7 +7,7 @@ runs): configs go through `taichi-mpm validate` (or its load_config + build_scen
 `taichi-mpm study --dry-run`, command lines point at missing or invalid files.
 
 Runs are derandomized (the same examples every run) and count their examples; together they check more than
-10 000 generated configs.
+10 000 generated configs under `pytest -m slow`, and the first quarter of them in the default run.
 """
 import contextlib
 import copy
@@ -30,6 +30,8 @@ from taichi_mpm.config import ConfigError, load_config
 from taichi_mpm.scene import build_scene, shape_bounds
 
 N_DICT, N_YAML, N_ARGV, N_STUDY = 8000, 2000, 400, 300
+# the default run checks a quarter of the examples (the same first ones: derandomized), `-m slow` all of them
+SHARE = [pytest.param(4, id="quarter"), pytest.param(1, id="all", marks=pytest.mark.slow)]
 
 
 def fuzz_settings(n):
@@ -384,11 +386,14 @@ def validate_dict(data) -> int:
         return 2
 
 
-def test_generated_config_dicts(tmp_path, monkeypatch):
+@pytest.mark.parametrize("share", SHARE)
+def test_generated_config_dicts(tmp_path, monkeypatch, share):
     monkeypatch.chdir(tmp_path)
     seen = {0: 0, 2: 0}
 
-    @fuzz_settings(N_DICT)
+    n = N_DICT // share
+
+    @fuzz_settings(n)
     @given(configs)
     def check(data):
         with WATCH.around(tmp_path):
@@ -398,7 +403,7 @@ def test_generated_config_dicts(tmp_path, monkeypatch):
 
     check()
     print(f"config dicts: {seen[0]} valid, {seen[2]} refused")
-    assert seen[0] + seen[2] >= N_DICT and seen[0] > N_DICT // 10 and seen[2] > N_DICT // 3, seen
+    assert seen[0] + seen[2] >= n and seen[0] > n // 10 and seen[2] > n // 3, seen
 
 
 # ---------------------------------------------------------------- configs as YAML files: the CLI in-process
@@ -444,12 +449,15 @@ def yaml_texts():
     return st.one_of(dumped, dumped, damaged_yaml(dumped))
 
 
-def test_generated_config_files_through_the_cli(tmp_path, monkeypatch, guarded):
+@pytest.mark.parametrize("share", SHARE)
+def test_generated_config_files_through_the_cli(tmp_path, monkeypatch, guarded, share):
     monkeypatch.chdir(tmp_path)
     path = tmp_path / "config.yaml"
     seen = {0: 0, 2: 0}
 
-    @fuzz_settings(N_YAML)
+    n = N_YAML // share
+
+    @fuzz_settings(n)
     @given(yaml_texts(), st.binary(max_size=12), st.lists(OVERRIDES, max_size=2))
     def check(text, raw, overrides):
         if text is None:
@@ -464,7 +472,7 @@ def test_generated_config_files_through_the_cli(tmp_path, monkeypatch, guarded):
 
     check()
     print(f"config files: {seen[0]} valid, {seen[2]} refused")
-    assert seen[0] + seen[2] >= N_YAML and seen[0] > N_YAML // 20 and seen[2] > N_YAML // 3, seen
+    assert seen[0] + seen[2] >= n and seen[0] > n // 20 and seen[2] > n // 3, seen
 
 
 def test_at_least_ten_thousand_configs():

@@ -56,6 +56,7 @@ def test_push_pulls_only_nearby_particles_towards_the_drag_velocity():
     np.testing.assert_allclose(v[inner, 0], 2.0 * np.exp(-(r[inner] / 0.05) ** 2), rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_session_keys_pause_step_reset_and_colour():
     import taichi as ti
 

@@ -6,7 +6,7 @@ import pytest
 
 import taichi_mpm as tm
 from taichi_mpm.solver import ENERGY_GROWTH, FAIL_CAUSES
-from conftest import make_cfg
+from conftest import fast_subset, make_cfg
 
 
 def block_cfg(dt=None, **kw):
@@ -37,6 +37,7 @@ def test_oversized_dt_raises_with_cause():
     assert "dt=" in msg
 
 
+@pytest.mark.slow
 def test_same_scene_with_stable_dt_runs():
     sim = tm.Simulation(block_cfg(dt=0.3 * wave_dt_limit()))
     X = sim.scene.x
@@ -78,6 +79,7 @@ def test_energy_growth_past_the_cfl_limit_is_caught():
     assert "lower solver.cfl" in str(err.value) and "limited by elastic" in str(err.value)
 
 
+@pytest.mark.slow
 def test_without_the_energy_check_the_same_run_ends_silently_wrong():
     sim = _vibrating_block(1.2, None)
     e0 = sim.energy()
@@ -87,8 +89,9 @@ def test_without_the_energy_check_the_same_run_ends_silently_wrong():
 
 
 # ---------------------------------------------------------------- API guards
-@pytest.mark.parametrize("call", ["advance(-0.1)", "advance(math.inf)", "advance(math.nan)", "step(-1e-3)",
-                                  "step(math.nan)", "step(0.0)", "advance_to(-1.0)"])
+@pytest.mark.parametrize("call", fast_subset(["advance(-0.1)", "advance(math.inf)", "advance(math.nan)", "step(-1e-3)",
+                                              "step(math.nan)", "step(0.0)", "advance_to(-1.0)"],
+                                             ["advance(math.nan)", "step(-1e-3)"]))
 def test_clock_never_moves_on_bad_input(call):
     sim = tm.Simulation(block_cfg())
     sim.advance(0.01)
@@ -98,6 +101,7 @@ def test_clock_never_moves_on_bad_input(call):
     assert (sim.time, sim.n_steps) == (t, n)
 
 
+@pytest.mark.slow
 def test_set_state_validates_everything_before_applying():
     sim = tm.Simulation(block_cfg())
     sim.advance(0.01)

@@ -196,6 +196,7 @@ def lsq_rate(cells, errs):
     return -np.polyfit(np.log(cells), np.log(errs), 1)[0]
 
 
+@pytest.mark.slow
 def test_nonuniform_knots_mms_accuracy():
     """One run of the convergence study below (16 cells, the default suite's share): error 0.0507 measured,
     beside the uniform grid's 0.0429. The bar 0.065 is the uniform error + 50 %; a basis that lost consistency

@@ -29,6 +29,7 @@ def bar(lower=0.0, upper=1.0, boundaries=None, dx=1 / 32, basis="quadratic", end
 
 
 # ---------------------------------------------------------------- initial fields
+@pytest.mark.slow
 def test_vibrating_bar_runs_from_its_config_alone():
     """configs/vibrating_bar.yaml sets v = v0 sin(pi x / L) by an expression; at its own resolution the run follows
     u = v0/omega sin(omega t) sin(pi X / L). Measured: 0.13 % of the amplitude at half a period (0.25 % after a full
@@ -44,6 +45,7 @@ def test_vibrating_bar_runs_from_its_config_alone():
     assert np.abs(u - exact.exact_displacement(X, 2.5)).max() < 0.01 * amplitude
 
 
+@pytest.mark.slow
 def test_initial_stress_releases_into_the_first_mode():
     """A stored initial stress S0 = E A k cos(k X) (k = pi / L) in a bar at rest between fixed ends: the total stress
     S0 + E u' is that of w = u + A sin(k X), so u = A sin(k X) (cos(omega t) - 1). Measured 0.42 % of A at half a
@@ -162,6 +164,7 @@ def test_end_traction_oscillates_about_the_static_extension():
     assert mean == pytest.approx(sigma * X[tip] / E, rel=0.02)
 
 
+@pytest.mark.slow
 def test_traction_work_and_momentum():
     """A free bar pulled at one end by a ramped traction: the momentum equals the traction's impulse (P2G conserves
     momentum and the ramp is taken at each step's midpoint, exact on the linear parts of the ramp: what is left is
@@ -207,6 +210,7 @@ def test_cantilever_tip_load_matches_euler_bernoulli():
 
 
 # ---------------------------------------------------------------- prescribed velocities
+@pytest.mark.slow
 def test_grips_pull_a_bar_quasi_statically(tmp_path):
     """Grips at both ends, the left held, the right pulled at 0.01 m/s (c / 1000) after a smooth start: the bar is
     in quasi-static equilibrium, so both grips carry the same force and that force is E delta / L_free with
@@ -236,6 +240,7 @@ def test_grips_pull_a_bar_quasi_statically(tmp_path):
     assert abs(bal["growth"]) < 0.01 * bal["work"]
 
 
+@pytest.mark.slow
 def test_velocity_wall_impact_stress_is_rho_c_v():
     """A velocity wall at x_min driving a bar at rest with V: a wave carries the stress -rho c V behind its front,
     and the wall pushes with rho c V (per unit area) until the wave returns (t < 2 L / c = 0.2 s). Measured: force
@@ -253,6 +258,7 @@ def test_velocity_wall_impact_stress_is_rho_c_v():
     assert sim.particles()["stress"][behind, 0, 0].mean() == pytest.approx(-RHO * C * V, rel=0.01)
 
 
+@pytest.mark.slow
 def test_block_on_a_moving_floor_takes_its_speed():
     """2D: a block resting on a floor (y_min, type velocity) that speeds up to 0.5 m/s. The floor's impulse
     (wall probe) is exactly the block's momentum change (to round-off), and the block's mean velocity averaged over

@@ -10,6 +10,7 @@ from test_demos import load_demo, quick
 
 
 # ---------------------------------------------------------------- snowball
+@pytest.mark.slow
 def test_snowball_quick_free_flight(tmp_path):
     """Before it reaches the wall (t = 0.02 s < 0.027 s) the ball flies freely: the centre of mass moves v0 t along
     x and drops g t^2 / 2 (symplectic Euler: x_n = g dt^2 n (n + 1) / 2), and a rigid translation leaves J_p = 1
@@ -25,6 +26,7 @@ def test_snowball_quick_free_flight(tmp_path):
 
 
 # ---------------------------------------------------------------- necking
+@pytest.mark.slow
 def test_necking_quick_carries_the_plane_strain_yield_load(tmp_path):
     """A coarse bar (4 cells across) pulled for 12 ms (nominal strain 3 %, past the yield strain of 1 %): the load
     cell reads the plane-strain yield load of the cross-section, 2 / sqrt(3) (sigma_y + H alpha) w0 exp(-eps)
@@ -40,6 +42,7 @@ def test_necking_quick_carries_the_plane_strain_yield_load(tmp_path):
 
 
 # ---------------------------------------------------------------- sand pile (hopper)
+@pytest.mark.slow
 def test_sand_pile_quick_hopper_holds_and_drains(tmp_path):
     """A coarser hopper (dx 5 mm: the 3 cm orifice is 6 cells; at 1 cm the walls' held nodes close it) for 0.15 s:
     the gripped walls do not move, and the sand starts to drain through the orifice: it comes down, but slower
@@ -55,6 +58,7 @@ def test_sand_pile_quick_hopper_holds_and_drains(tmp_path):
 
 
 # ---------------------------------------------------------------- 3D granular collapse
+@pytest.mark.slow
 def test_granular_collapse_3d_quick_is_axisymmetric(tmp_path):
     """A coarse column (dx 2 cm: R0 = 3 cells) for 0.15 s: it slumps and spreads, yielding, and the spreading is
     the same along x and z (the scene is symmetric under swapping the grid's two horizontal axes; the fronts may

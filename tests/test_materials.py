@@ -51,7 +51,8 @@ def test_rotation_matches_svd_polar_decomposition_3d():
     assert np.abs(R.to_numpy() - exact).max() < 1e-12
 
 
-@pytest.mark.parametrize("d", [2, 3])
+@pytest.mark.slow
+@pytest.mark.parametrize("d", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_kirchhoff_stress_is_the_energy_derivative(d):
     """tau = (dpsi/dF) F^T to 1e-6 relative (central differences, h = 1e-6) for every registered model."""
     _init()

@@ -99,6 +99,7 @@ def random_map(rng):
     return Map([t0, t1], [2, 3], P, w)
 
 
+@pytest.mark.slow
 def test_rational_basis_identities_and_exact_gradients_for_random_weights():
     """sum R = 1 (1e-14) and sum grad R = 0 for random weights; the analytic quotient-rule gradients against
     central differences of R (h = 1e-6: truncation ~h^2 |R'''| < 1e-9, round-off ~1e-16 / h = 1e-10; 1e-7
@@ -131,6 +132,7 @@ def test_rational_basis_identities_and_exact_gradients_for_random_weights():
     assert np.abs(J[:M, :, 1] - (Xp1 - Xm1) / (2 * h)).max() < 1e-7
 
 
+@pytest.mark.slow
 def test_newton_inversion_and_patch_identities_on_the_annulus():
     """Random physical points of a 3/4 annulus: Newton from the middle of the parameter box finds xi with
     x(xi) = x to 1e-13 and the exact radial parameter eta = 4 (r - 1) (independent: r is linear in eta);

@@ -56,7 +56,7 @@ def four_material_sim(dim):
     return sim, F
 
 
-@pytest.mark.parametrize("dim", [1, 2])
+@pytest.mark.parametrize("dim", [pytest.param(1, marks=pytest.mark.slow), 2])
 def test_every_model_gives_its_out_of_plane_stress(dim):
     sim, F = four_material_sim(dim)
     p = sim.particles()

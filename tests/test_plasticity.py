@@ -11,7 +11,7 @@ import taichi_mpm as tm
 from taichi_mpm.config import Material
 from taichi_mpm.materials import MODELS
 
-from conftest import make_cfg
+from conftest import fast_subset, make_cfg
 
 E, NU = 1.0e6, 0.3
 MU, LAM = E / (2 * (1 + NU)), E * NU / ((1 + NU) * (1 - 2 * NU))
@@ -96,8 +96,8 @@ def dev_norm(t):
     return np.sqrt(np.einsum("nij,nij->n", dev, dev))
 
 
-@pytest.mark.parametrize("dim", [1, 2, 3])
-@pytest.mark.parametrize("model", PLASTIC)
+@pytest.mark.parametrize("model, dim", fast_subset([(m, d) for m in PLASTIC for d in (1, 2, 3)],
+                                                  [("von_mises", 2), ("drucker_prager", 2)]))
 def test_return_mapping_lands_on_or_inside_the_yield_surface(model, dim):
     """1500 random F from far inside to far outside: the returned state is admissible to 1e-10 relative; a trial
     inside is returned unchanged (bit for bit); a trial outside lands on the surface; the dissipation is >= 0
@@ -145,6 +145,7 @@ def test_return_mapping_lands_on_or_inside_the_yield_surface(model, dim):
             assert 0 < at_apex[outside].sum() < outside.sum()         # both the cone and the apex returns occur
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", PLASTIC)
 def test_return_mapping_in_f32(model):
     """f32 (the default precision): the same random trials in 3D land inside the yield surface to 1e-5 relative
@@ -263,6 +264,7 @@ def shear_velocity(X, amplitude, dim):
     return v
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", PLASTIC)
 def test_plastic_models_conserve_linear_momentum(model):
     """As the elastic models (tests/test_conservation.py): a drifting, spinning, yielding block, 20 steps."""
@@ -282,6 +284,7 @@ def test_plastic_models_conserve_linear_momentum(model):
     assert sim.particles()["plastic_strain"].max() > 1e-3              # it yielded
 
 
+@pytest.mark.slow
 def test_j2_energy_is_accounted_within_2_percent():
     """A von_mises block sheared by an initial velocity field (free, no gravity: nothing does work on it) yields
     (plastic strain up to ~0.08) and dissipates ~60 % of its energy: kinetic + strain (elastic + hardening) + plastic
@@ -303,6 +306,7 @@ def test_j2_energy_is_accounted_within_2_percent():
     assert sim.particles()["plastic_strain"].max() > 0.05
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["von_mises", "drucker_prager"])
 def test_checkpoint_carries_the_plastic_state(model, tmp_path):
     """get_state / checkpoint file / set_state carry the material state (plastic strain, J_p, the held stretch of

@@ -34,6 +34,7 @@ def resting_block(tmp_path_factory):
     return out, float(sim.scene.mass.sum()), sim
 
 
+@pytest.mark.slow
 def test_wall_reaction_equals_the_weight_of_a_resting_block(resting_block):
     out, M, _ = resting_block
     floor, body = read_probe(out / "probes/floor.csv"), read_probe(out / "probes/block.csv")
@@ -162,6 +163,7 @@ def _probe_run(out, max_steps=None, resume=False, every="step"):
     return sim
 
 
+@pytest.mark.slow
 def test_sampling_every_step_and_resume_keeps_the_rows_up_to_the_checkpoint(tmp_path):
     full = _probe_run(tmp_path / "full")
     assert full.n_steps > 10
@@ -181,6 +183,7 @@ def test_sampling_every_step_and_resume_keeps_the_rows_up_to_the_checkpoint(tmp_
     assert np.isnan(floor["fy [N/m]"][0]) and np.all(np.isfinite(floor["fy [N/m]"][1:]))
 
 
+@pytest.mark.slow
 def test_sampling_every_interval_takes_the_first_step_after_each_multiple(tmp_path):
     sim = _probe_run(tmp_path, every=0.004)
     t = read_probe(tmp_path / "probes/tip.csv")["time [s]"]

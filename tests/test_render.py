@@ -269,6 +269,7 @@ def test_render_options_are_validated_with_their_key():
     assert tm.load_config(cfg).output.render.percentiles == [5, 95]
 
 
+@pytest.mark.slow
 def test_run_renders_its_frames_at_the_end_with_one_colour_range(tmp_path):
     """A run keeps frame data per output and renders the sequence at its end: every frame's colour bar (its
     labels are the range) is the same picture although the speeds change, and no frame data is left behind."""

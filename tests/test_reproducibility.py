@@ -37,6 +37,7 @@ def assert_identical(a, b):
         assert np.array_equal(a[k], b[k]), k
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_deterministic_runs_and_resumed_runs_are_bit_identical(dim, tmp_path):
     cfg = spinning_block(dim)

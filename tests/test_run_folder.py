@@ -101,6 +101,7 @@ def test_second_writer_is_refused_while_the_first_holds_the_folder(tmp_path, cap
     assert not (out / LOCK_NAME).exists()                          # released at the end of the run
 
 
+@pytest.mark.slow
 def test_rerun_into_a_folder_with_results_needs_overwrite_or_resume(finished, tmp_path, capsys):
     path, out = copy_of(finished, tmp_path)
     mtime = (out / "checkpoint.npz").stat().st_mtime_ns
@@ -119,6 +120,7 @@ def test_rerun_into_a_folder_with_results_needs_overwrite_or_resume(finished, tm
     assert not (out / LOCK_NAME).exists()
 
 
+@pytest.mark.slow
 def test_leftover_temporary_files_are_removed_and_others_kept(finished, tmp_path, capsys):
     """A killed run can leave `.NAME.tmpPID` files of io's atomic writes; the next run holding the lock removes
     them (and only them)."""
@@ -183,6 +185,7 @@ def test_corrupt_truncated_or_mismatched_checkpoint_exits_2_naming_the_file(fini
         assert not (out / "particles_000002.vtu").exists(), kind    # nothing run, nothing written
 
 
+@pytest.mark.slow
 def test_changed_output_every_is_followed_on_resume(finished, tmp_path, capsys):
     """Before, the checkpoint's interval silently won; output.* may change on --resume (docs/contract.md)."""
     path, out = copy_of(finished, tmp_path)

@@ -9,6 +9,7 @@ by other load on a shared machine."""
 import time
 
 import numpy as np
+import pytest
 
 import taichi_mpm as tm
 
@@ -43,6 +44,7 @@ def step_time(sim, repeats=15) -> float:
     return float(np.min(times))
 
 
+@pytest.mark.slow
 def test_sparse_grid_memory_and_time_follow_particles():
     small = disk_sim(256)             # one live Simulation at a time: time it before making the next
     n_small = small.n

@@ -62,6 +62,7 @@ def fast_map(tmp_path_factory):
     return _rows(out)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("i", range(len(FAST)), ids=[str(c) for c, _, _ in FAST])
 def test_fast_stability_case(fast_map, i):
     case, outcome, cause = FAST[i]
@@ -73,6 +74,7 @@ def test_fast_stability_case(fast_map, i):
         assert row["cause"] == cause
 
 
+@pytest.mark.slow
 def test_fast_map_physics(fast_map):
     rows = {i: r for i, r in enumerate(fast_map)}
     # the stiff steel block and the soft one take about the same number of steps (time scales with c)

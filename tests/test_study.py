@@ -40,6 +40,7 @@ def small_study(tmp_path_factory):
     return path, out
 
 
+@pytest.mark.slow
 def test_small_study_writes_csv_plots_and_rates(small_study):
     _, out = small_study
     rows = _rows(out)
@@ -69,6 +70,7 @@ def test_small_study_writes_csv_plots_and_rates(small_study):
     assert float(line.split("|")[2]) == pytest.approx(rate_q, abs=0.01)
 
 
+@pytest.mark.slow
 def test_resume_skips_finished_cases(small_study, tmp_path):
     path, out = small_study
     before = {f.name: f.read_text() for f in (out / "cases").glob("*.json")}
@@ -82,6 +84,7 @@ def test_resume_skips_finished_cases(small_study, tmp_path):
     assert len(_rows(out)) == 4
 
 
+@pytest.mark.slow
 def test_unstable_case_is_recorded_and_others_finish(tmp_path):
     path = _write(tmp_path, dict(study="blowup", problem=PROBLEM, set={"domain.dx": 0.0625}, samples=2,
                                  cases=[{"solver.dt": 1.0e-4}, {"solver.dt": 0.05}, {"solver.basis": "no_such_basis"}]))
@@ -139,6 +142,7 @@ def test_pareto_front_and_rates():
     assert "z" not in fits
 
 
+@pytest.mark.slow
 def test_two_cases_on_a_local_dask_cluster(tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     path = _write(tmp_path, dict(study="dask2", problem=PROBLEM, set={"domain.dx": 0.0625}, samples=2,
@@ -154,6 +158,7 @@ def test_two_cases_on_a_local_dask_cluster(tmp_path):
     assert all(float(r["error_rms"]) < 3e-4 for r in rows), [r["error_rms"] for r in rows]
 
 
+@pytest.mark.slow
 def test_study_over_a_base_config_file(tmp_path):
     """`base:` a config file (relative to the study file); no exact solution: energy drift is the metric."""
     from conftest import make_cfg

@@ -19,6 +19,7 @@ def blocks(kind):
     return re.findall(rf"```{kind}\n(.*?)```", TUTORIAL.read_text(), flags=re.S)
 
 
+@pytest.mark.slow
 def test_tutorial_blocks_run_and_match_theory(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     configs = blocks("yaml")
