@@ -168,7 +168,6 @@ class Simulation:
             body_force=self.body_force is not None,
             # particle domains of more than one size (gimp, cpdi) keep a per-particle half-width
             domain_per_particle=c.solver.basis in ("gimp", "cpdi") and len(spacing) > 1,
-            gravity=any(g != 0 for g in c.gravity),
             viscosity=uses_viscosity,
             tractions=bool(s.loads),             # particle forces of bodies[].tractions
             grips=bool(s.grips),                 # bodies[].prescribed_velocity on the nodes the grip touches
@@ -176,7 +175,9 @@ class Simulation:
             moving_walls=bool(self.loads.walls),  # domain.boundaries faces of type velocity
             plastic=any(MODELS[m.model].plastic for m in self._materials),  # a return mapping after the F update
             # positions by the trapezoid of the start and end velocities of the step (exact for a uniform
-            # acceleration) wherever an acceleration acts on free bodies; not in crack scenes (their own transfer)
+            # acceleration) wherever an acceleration acts on free bodies; not in crack scenes (their own transfer).
+            # Decided by the config's gravity: gravity switched on live (set_gravity) moves positions by the new
+            # grid velocity. (The gravity term itself is always compiled: gravity is a runtime value.)
             trapezoid=(any(g != 0 for g in c.gravity) or self.body_force is not None) and c.crack is None,
         )
 
