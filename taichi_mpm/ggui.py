@@ -100,7 +100,7 @@ def run_ggui(session, title, max_frames=None, screenshot=None, show=True, script
     """The GGUI window's loop over a gui.Session (see gui.run_gui for the arguments); returns the last simulation."""
     import taichi as ti
 
-    from .gui import HELP
+    from .gui import HELP, SLIDER_TOLERANCE
 
     res = tuple(int(r) for r in session.res)
     window = buffers = shown = None
@@ -127,7 +127,7 @@ def run_ggui(session, title, max_frames=None, screenshot=None, show=True, script
             with gui.sub_window("controls", *PANEL) as w:
                 for label, lo, hi, _, attr, setter in session.sliders():
                     value = w.slider_float(label, float(getattr(session, attr)), float(lo), float(hi))
-                    if abs(value - getattr(session, attr)) > 1e-9:
+                    if abs(value - getattr(session, attr)) > SLIDER_TOLERANCE:
                         setter(value)
                 if w.button("next basis"):
                     keys.append("basis")

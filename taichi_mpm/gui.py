@@ -178,6 +178,9 @@ def window_title(cfg, kind: str | None = None, support: tuple[bool, bool] | None
 
 GRAVITY_MAX = 20.0                 # m/s^2: the gravity slider's range (at least the config's |g|)
 STIFFNESS_RANGE = (0.1, 4.0)       # the stiffness-scale slider's range
+# a slider "moved" when it differs from the session's value by more than this: the widgets hold float32, so the
+# config's 0.99 comes back as 0.99000001 and would otherwise count as a move every frame
+SLIDER_TOLERANCE = 1e-6
 
 
 def down_direction(cfg) -> np.ndarray:
@@ -471,7 +474,7 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None, view:
             if not all([session.press(k) for k in keys]):
                 break
             for label, _, _, _, attr, setter in session.sliders():
-                if abs(sliders[label].value - getattr(session, attr)) > 1e-9:
+                if abs(sliders[label].value - getattr(session, attr)) > SLIDER_TOLERANCE:
                     setter(sliders[label].value)
             cursor = np.asarray(gui.get_cursor_pos(), float)
             held = gui.is_pressed(ti.GUI.LMB)

@@ -132,6 +132,7 @@ sim = run_gui(cfg, max_frames=4, screenshot=sys.argv[2], script=script)
 p = sim.particles()
 print("STATE", json.dumps(dict(time=sim.time, basis=sim.cfg.solver.basis, cfl=sim.cfg.solver.cfl,
                                gravity=sim.gravity.tolist(), stiffness=sim.stiffness_scale(),
+                               flip_blend=sim.flip_blend,
                                v=(p["mass"] @ p["v"] / p["mass"].sum()).tolist())))
 """
 
@@ -139,12 +140,13 @@ print("STATE", json.dumps(dict(time=sim.time, basis=sim.cfg.solver.basis, cfl=si
 @pytest.mark.parametrize("dim", [2, 3])
 def test_gui_runs_under_xvfb_and_saves_a_screenshot(tmp_path, xvfb, dim):
     """A few frames in a real window; in 2D the time-step and stiffness sliders are moved (frame 1) and the basis
-    switched (frame 2, the "next basis" button's event), so the window's widgets reach the simulation; in 3D the
-    block falls under gravity for two frames, then the gravity slider goes to 0 (frame 2) and it stops
+    switched (frame 2, the "next basis" button's event), so the window's widgets reach the simulation; in 3D (FLIP)
+    the block falls under gravity for two frames, then the gravity slider goes to 0 (frame 2) and it stops
     accelerating."""
     import imageio.v2 as imageio
 
-    cfg = make_cfg(dim, precision="f32", velocity=[0.5] + [0.0] * (dim - 1), end_time=1.0)
+    cfg = make_cfg(dim, precision="f32", velocity=[0.5] + [0.0] * (dim - 1), end_time=1.0,
+                   transfer="apic" if dim == 2 else "flip")
     cfg["solver"]["cfl"] = 0.4
     cfg["output"] = {"every": 0.002, "render": {"size": [320, 240], "color_by": "speed"}}
     if dim == 2:
@@ -172,6 +174,7 @@ def test_gui_runs_under_xvfb_and_saves_a_screenshot(tmp_path, xvfb, dim):
         assert state["gravity"] == [0.0, 0.0, 0.0]
         assert state["v"][1] == pytest.approx(-9.81 * 2 * 0.002, rel=1e-4)
         assert state["v"][0] == pytest.approx(0.5, rel=1e-4)
+        assert state["flip_blend"] == 0.99   # untouched: the widget's float32 copy of 0.99 is not a move
     img = imageio.imread(shot)
     assert img.shape[:2] == (240, 320)
     assert img[..., :3].astype(float).var() > 100.0
