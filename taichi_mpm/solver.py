@@ -1467,7 +1467,9 @@ class Simulation:
         """Scale a material's stiffness (every material's when `material` is None) by `scale` > 0 from the next
         step on, without recompiling: the stress the model gives at any deformation times `scale`, i.e. every
         stress-like parameter (moduli, yield stress, cohesion, hardening, viscosity) scaled alike; the model's
-        strain-space behaviour (yield strain, friction angle) is unchanged. Waves travel sqrt(scale) times faster,
+        strain-space behaviour (yield strain, friction angle) is unchanged. Not scaled: the crack finder's Rankine
+        law (tensile_strength, fracture_energy), so a stiffened material starts to crack at a smaller strain, and
+        bodies[].stress. Waves travel sqrt(scale) times faster,
         so the CFL time step shrinks with it; the stored energy scales too, and the energy balance's reference moves
         with that jump. 1 is the config's material, bit for bit."""
         if not _is_real(scale) or not math.isfinite(scale) or scale <= 0:
