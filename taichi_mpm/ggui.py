@@ -15,6 +15,16 @@ import numpy as np
 
 FOV = 40.0            # vertical field of view, degrees
 PANEL = (0.01, 0.01, 0.30, 0.42)   # the ImGui panel: x, y (from the top-left), width, height in window units
+SWITCH_KEYS = ("b", "basis", "t", "transfer")   # keys and button events that restart Taichi (a new Simulation)
+
+
+def _chart_capacity() -> int:
+    from .gui import CHART_LENGTH
+
+    return 8 + 3 * 2 * (CHART_LENGTH - 1)   # the frame's 4 segments, 3 series of CHART_LENGTH - 1 segments
+
+
+CHART_VERTICES = _chart_capacity()
 
 
 class PerspectiveView:
@@ -61,7 +71,8 @@ def box_vertices(lower, upper) -> np.ndarray:
 
 
 def chart_vertices(session):
-    """The strip chart's segments as (vertices (M, 2), colours (M, 3)) in GGUI canvas units (y up)."""
+    """The strip chart's segments as (vertices (M, 2), colours (M, 3)) in GGUI canvas units (y up), padded to
+    CHART_VERTICES with segments outside the window (so the fields keep one size)."""
     from .gui import CHART, CHART_COLOURS
 
     x0, y0, x1, y1 = CHART
@@ -72,7 +83,15 @@ def chart_vertices(session):
         rgb = np.array([(c >> 16) & 255, (c >> 8) & 255, c & 255]) / 255.0
         verts.append(np.stack([begin, end], axis=1).reshape(-1, 2))
         cols.append(np.tile(rgb, (2 * len(begin), 1)))
-    return np.concatenate(verts), np.concatenate(cols)
+    verts, cols = np.concatenate(verts), np.concatenate(cols)
+    pad = CHART_VERTICES - len(verts)
+    return np.r_[verts, np.full((pad, 2), -1.0)], np.r_[cols, np.ones((pad, 3))]
+
+
+def particle_data(session, p):
+    """(centres (N, 3), colours (N, 3) in [0, 1], both float32, and the status line): what GGUI's particles draw."""
+    rgb, status = session.colours(p)
+    return p["x"].astype(np.float32), (rgb / 255.0).astype(np.float32), status
 
 
 class _Buffers:
@@ -83,15 +102,10 @@ class _Buffers:
         self.colours = ti.Vector.field(3, ti.f32, n)
         self.box = ti.Vector.field(3, ti.f32, len(box))
         self.box.from_numpy(box.astype(np.float32))
-        self.chart_n = 0
-        self.chart = self.chart_colours = None
-        self.ti = ti
+        self.chart = ti.Vector.field(2, ti.f32, CHART_VERTICES)
+        self.chart_colours = ti.Vector.field(3, ti.f32, CHART_VERTICES)
 
     def set_chart(self, verts, cols):
-        if len(verts) != self.chart_n:   # the chart grows for its first CHART_LENGTH frames
-            self.chart_n = len(verts)
-            self.chart = self.ti.Vector.field(2, self.ti.f32, self.chart_n)
-            self.chart_colours = self.ti.Vector.field(3, self.ti.f32, self.chart_n)
         self.chart.from_numpy(verts.astype(np.float32))
         self.chart_colours.from_numpy(cols.astype(np.float32))
 
@@ -137,10 +151,13 @@ def run_ggui(session, title, max_frames=None, screenshot=None, show=True, script
                     w.text(HELP)
                 if session.message:
                     w.text(session.message, color=(0.8, 0.0, 0.0))
+            if any(k in SWITCH_KEYS for k in keys):   # close the window before the switch restarts Taichi
+                window.destroy()
+                window = shown = None
             if not all([session.press(k) for k in keys]):
                 break
             if session.sim is not shown:
-                continue                   # switched: rebuild the window for the new simulation first
+                continue                   # switched (or tried to): a new window for the simulation first
             view = PerspectiveView(session.view)
             cursor = np.asarray(window.get_cursor_pos(), float)
             held = window.is_pressed(ti.ui.LMB) and not _over_panel(cursor)
@@ -148,20 +165,19 @@ def run_ggui(session, title, max_frames=None, screenshot=None, show=True, script
                 session.drag(prev_cursor, cursor, view=view)
             prev_cursor = cursor if held else None
             session.advance()
-            p = session.sim.particles()
-            rgb, status = session.colours(p)
-            buffers.centers.from_numpy(p["x"].astype(np.float32))
-            buffers.colours.from_numpy(rgb.astype(np.float32))
+            centres, colours, status = particle_data(session, session.sim.particles())
+            buffers.centers.from_numpy(centres)
+            buffers.colours.from_numpy(colours)
             with gui.sub_window("status", 0.32, 0.01, 0.67, 0.05) as w:
                 w.text(status)
-            camera.position(*view.eye)
-            camera.lookat(*view.center)
-            camera.up(*view.up)
-            camera.fov(view.fov)
+            camera.position(*map(float, view.eye))
+            camera.lookat(*map(float, view.center))
+            camera.up(*map(float, view.up))
+            camera.fov(float(view.fov))
             scene = window.get_scene()
             scene.set_camera(camera)
             scene.ambient_light((0.35, 0.35, 0.35))
-            scene.point_light(pos=tuple(view.light()), color=(0.9, 0.9, 0.9))
+            scene.point_light(pos=tuple(map(float, view.light())), color=(0.9, 0.9, 0.9))
             scene.particles(buffers.centers, radius=session.sphere_radius, per_vertex_color=buffers.colours)
             scene.lines(buffers.box, width=1.0, color=(0.6, 0.6, 0.6))
             canvas = window.get_canvas()

@@ -6,7 +6,7 @@ import pytest
 import taichi_mpm as tm
 from conftest import make_cfg
 from taichi_mpm import gui
-from taichi_mpm.ggui import PerspectiveView, box_vertices
+from taichi_mpm.ggui import CHART_VERTICES, PerspectiveView, box_vertices, chart_vertices, particle_data
 
 
 @pytest.mark.parametrize("support, kind, says", [((True, True), "ggui", "GGUI scene, lit spheres"),
@@ -85,3 +85,42 @@ def test_session_drag_through_the_perspective_camera():
     touched = s.drag(win[k], win[k] + [0.02, 0.0], view=pv)
     v = sim.particles()["v"]
     assert touched > 0 and v[k] @ pv.right > 0 and abs(v[k] @ pv.toward) < 1e-12
+
+
+def test_ggui_frame_data_colours_and_chart():
+    """What the GGUI window hands to its fields: float32 centres, colours in [0, 1] that follow the colour field (a
+    spinning block: speed grows with the radius, so colours differ), the strip chart padded to its fixed size with
+    segments outside the window."""
+    sim = tm.Simulation(make_cfg(3, dx=0.1, end_time=1.0))
+    x = sim.scene.x - sim.scene.x.mean(axis=0)
+    sim.set_particles(v=np.c_[-x[:, 1], x[:, 0], np.zeros(len(x))])
+    s = gui.Session(sim, (320, 240))
+    s.field = "speed"
+    s.limits = s._limits()
+    s.advance()
+    centres, colours, status = particle_data(s, sim.particles())
+    assert centres.dtype == colours.dtype == np.float32 and centres.shape == colours.shape == (sim.n, 3)
+    assert colours.min() >= 0.0 and colours.max() <= 1.0 and len(np.unique(colours, axis=0)) > 3
+    assert "speed" in status
+    verts, cols = chart_vertices(s)
+    assert verts.shape == (CHART_VERTICES, 2) and cols.shape == (CHART_VERTICES, 3)
+    drawn = verts[:, 0] >= 0
+    assert np.all((verts[drawn] >= 0) & (verts[drawn] <= 1)) and np.all(verts[~drawn] == -1.0)
+    assert drawn.sum() == 8 + 3 * 2 * (len(s.chart) - 1)   # the frame and three series of len - 1 segments
+
+
+def test_cli_gui_view_option(tmp_path, monkeypatch):
+    """`taichi-mpm gui CONFIG --view ggui|projection` forces the 3D view (auto: the choice above); an unknown view
+    exits 2 (argparse's usage error) before anything runs."""
+    import yaml
+
+    from taichi_mpm.cli import main
+
+    seen = []
+    monkeypatch.setattr(gui, "run_gui", lambda cfg, **kw: seen.append(kw["view"]))
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(make_cfg(3)))
+    assert main(["gui", str(path), "--view", "projection"]) == 0
+    assert main(["gui", str(path)]) == 0
+    assert seen == ["projection", None]
+    assert main(["gui", str(path), "--view", "vulkan"]) == 2 and len(seen) == 2
