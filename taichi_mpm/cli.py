@@ -6,7 +6,7 @@
     taichi-mpm render RUN_DIR [--color-by FIELD] [--size WxH] [--camera CAMERA] [--movie FILE|mp4|gif]
     taichi-mpm compare CONFIG --vary KEY=A,B[,C] [--set KEY=VALUE]... [--out DIR] [--overwrite] [--color-by FIELD]
                     [--size WxH] [--camera CAMERA] [--no-movie] [--arch ARCH] [--quiet]
-    taichi-mpm gui CONFIG [--set KEY=VALUE]... [--arch ARCH] [--max-frames N] [--screenshot PNG]
+    taichi-mpm gui CONFIG [--set KEY=VALUE]... [--arch ARCH] [--max-frames N] [--screenshot PNG] [--view VIEW]
     taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume | --overwrite]
                     [--allow-problem MODULE:FACTORY]... [--dry-run]
     taichi-mpm plot RUN_DIR [--probe NAME] [--out PNG]
@@ -153,6 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_options(p, run=False)
     p.add_argument("--max-frames", type=_positive_int, metavar="N", help="close after N frames")
     p.add_argument("--screenshot", metavar="PNG", help="save the last frame to this file")
+    p.add_argument("--view", choices=["auto", "ggui", "projection"], default="auto",
+                   help="3D view: GGUI scene where a Vulkan device exists (auto), or force one")
 
     p = sub.add_parser("study", help="speed/accuracy sweep (docs/study.md)")
     p.add_argument("study", metavar="STUDY.yaml")
@@ -419,7 +421,8 @@ def cmd_gui(args) -> int:
     from .gui import run_gui
 
     try:
-        run_gui(cfg, max_frames=args.max_frames, screenshot=args.screenshot)
+        run_gui(cfg, max_frames=args.max_frames, screenshot=args.screenshot,
+                view=None if args.view == "auto" else args.view)
     except ConfigError as e:
         raise locate(e, cfg) from None
     return EXIT_OK

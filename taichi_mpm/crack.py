@@ -152,7 +152,7 @@ class CrackFinder:
         dim = self.dim
         sten = ctx.stencil
         span = sten.span
-        kirchhoff, wall, gravity, has_gravity = ctx.kirchhoff, ctx.wall, ctx.gravity, ctx.has_gravity
+        kirchhoff, wall, gravity = ctx.kirchhoff, ctx.wall, ctx.gravity   # gravity: the solver's runtime field
         vgrad, basis, mat = ctx.vgrad, ctx.basis, ctx.mat
         grid = sim.grid
         gm, gv = grid.m, grid.vec["v"]
@@ -620,9 +620,7 @@ class CrackFinder:
             for I in ti.grouped(gm):
                 m, A = node_mass(I)
                 if m > 0 or A.norm_sqr() > 0:
-                    vel = solve(m, A, gv[I])
-                    if ti.static(has_gravity):
-                        vel += dt * gravity
+                    vel = solve(m, A, gv[I]) + dt * gravity[None]
                     gv[I] = wall(I, vel)
                     if ti.static(flip):
                         gv_old[I] = solve(m, A, gv_old[I])

@@ -4,16 +4,19 @@ Keys: space pause/resume, s single step (while paused), r reset, c next colour f
 transfer, arrow keys turn a 3D view, h hide/show help, Esc quit. Drag with the left mouse button to push
 particles: those near the cursor are pulled towards the drag velocity.
 
-Side panel (ti.GUI widgets): sliders for what changes without a recompile, the time-step scale (solver.cfl is read
-on the host when each dt is chosen) and the push strength; buttons that switch the basis or the transfer, which
-restarts the scene (those are compile-time choices). A strip chart at the bottom right draws the kinetic, strain
-and total energy of the last frames.
+Side panel (ti.GUI widgets): sliders for what changes without a recompile: the time-step scale (solver.cfl is read
+on the host when each dt is chosen), the push strength, gravity (m/s^2 along the config's gravity direction, or
+down the last screen axis), the stiffness scale of every material and FLIP's blend (the solver's runtime
+parameters, Simulation.set_gravity / set_stiffness_scale / set_flip_blend); buttons that switch the basis or the
+transfer, which restart the scene (those are compile-time choices; the sliders' values carry over). A strip chart
+at the bottom right draws the kinetic, strain and total energy of the last frames.
 
-1D bars are drawn along x, 2D scenes as they are, 3D scenes as an orthographic projection that the arrow keys
-rotate, painter-ordered and depth-shaded (ti.GUI draws 2D only). The title says which 3D view is used: Taichi's
-GGUI needs a Vulkan device, which this window looks for and names when missing. Colour limits are robust
-(percentiles of the recent frames, colour_range.LiveLimits). The view logic (`View`), the push (`push_particles`)
-and the session (`Session`: keys, sliders, switches, chart) are plain numpy, testable without a window.
+1D bars are drawn along x, 2D scenes as they are. A 3D scene opens Taichi's GGUI scene (ggui.py: lit spheres, a
+depth buffer, a perspective camera) where GGUI is built in and a Vulkan device answers (`view_3d_kind`), else an
+orthographic projection in ti.GUI, painter-ordered and depth-shaded; the arrow keys turn either, and the title says
+which is used and, for the fallback, why. Colour limits are robust (percentiles of the recent frames,
+colour_range.LiveLimits). The view logic (`View`), the push (`push_particles`) and the session (`Session`: keys,
+sliders, switches, chart) are plain numpy, testable without a window.
 """
 from __future__ import annotations
 
@@ -140,28 +143,55 @@ def _pack(rgb):
     return (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
 
 
-def view_3d_kind() -> str:
-    """Which 3D view the window can give: 'ggui' (Taichi's GGUI scene: real depth and shading) where Taichi was
-    built with Vulkan and a Vulkan device answers, else 'projection' (ti.GUI points, painter's order, depth shade)."""
+def ggui_support() -> tuple[bool, bool]:
+    """(GGUI built into this Taichi, a Vulkan device answers). Taichi's own probe (with_vulkan) creates a Vulkan
+    instance and asks for a device; any failure counts as no device."""
     try:
-        import taichi as ti
-
-        if not ti._lib.core.with_vulkan():
-            return "projection"
         from taichi._lib import core
 
-        return "ggui" if core.is_vulkan_available() else "projection"  # noqa: (absent in some builds: except)
+        built = bool(getattr(core, "GGUI_AVAILABLE", False))
+        return built, built and bool(core.with_vulkan())
     except Exception:
-        return "projection"
+        return False, False
 
 
-def window_title(cfg, kind: str | None = None) -> str:
+def view_3d_kind(support: tuple[bool, bool] | None = None) -> str:
+    """Which 3D view the window gives: 'ggui' (Taichi's GGUI scene: lit spheres, a depth buffer, a perspective
+    camera) where GGUI is built in and a Vulkan device answers, else 'projection' (ti.GUI points in painter's order,
+    depth-shaded). `support`: ggui_support()'s answer (probed when None)."""
+    built, device = support if support is not None else ggui_support()
+    return "ggui" if built and device else "projection"
+
+
+def window_title(cfg, kind: str | None = None, support: tuple[bool, bool] | None = None) -> str:
+    """The title names the 3D view in use and, for the fallback, why GGUI is not used."""
     if cfg.dim < 3:
         return f"taichi-mpm: {cfg.name}"
-    kind = kind or view_3d_kind()
+    support = support if support is not None else ggui_support()
+    kind = kind or view_3d_kind(support)
     if kind == "ggui":
-        return f"taichi-mpm: {cfg.name} [3D: projected points; GGUI scene available but not used by this window]"
-    return f"taichi-mpm: {cfg.name} [3D: projected, depth-shaded points; no Vulkan device for a GGUI scene]"
+        return f"taichi-mpm: {cfg.name} [3D: GGUI scene, lit spheres with depth]"
+    why = ("this Taichi has no GGUI" if not support[0] else "no Vulkan device for a GGUI scene" if not support[1]
+           else "chosen instead of the GGUI scene")
+    return f"taichi-mpm: {cfg.name} [3D: projected, depth-shaded points; {why}]"
+
+
+GRAVITY_MAX = 20.0                 # m/s^2: the gravity slider's range (at least the config's |g|)
+STIFFNESS_RANGE = (0.1, 4.0)       # the stiffness-scale slider's range
+# a slider "moved" when it differs from the session's value by more than this: the widgets hold float32, so the
+# config's 0.99 comes back as 0.99000001 and would otherwise count as a move every frame
+SLIDER_TOLERANCE = 1e-6
+
+
+def down_direction(cfg) -> np.ndarray:
+    """The unit vector the gravity slider acts along: the config's gravity direction, else -y (-x in 1D)."""
+    g = np.asarray(cfg.gravity, float)
+    n = float(np.linalg.norm(g))
+    if n > 0:
+        return g / n
+    d = np.zeros(cfg.dim)
+    d[min(cfg.dim, 2) - 1] = -1.0
+    return d
 
 
 class Session:
@@ -171,8 +201,20 @@ class Session:
     def __init__(self, sim, res):
         self.res = res
         self.dt_scale, self.push_strength = 1.0, 1.0
+        c = sim.cfg
+        self.down = down_direction(c)
+        self.gravity = float(np.linalg.norm(c.gravity))    # m/s^2 along `down`
+        self.stiffness, self.flip_blend = 1.0, float(c.solver.flip_blend)
         self.paused, self.message, self.show_help = False, "", True
         self._start(sim)
+
+    def sliders(self):
+        """(label, minimum, maximum, step, session attribute, setter) of every slider of the side panel."""
+        return (("time-step scale", 0.05, 1.0, 0.05, "dt_scale", self.set_dt_scale),
+                ("push strength", 0.0, 1.0, 0.05, "push_strength", self.set_push_strength),
+                ("gravity", 0.0, max(GRAVITY_MAX, round(self.gravity + 0.5)), 0.5, "gravity", self.set_gravity),
+                ("stiffness scale", *STIFFNESS_RANGE, 0.1, "stiffness", self.set_stiffness),
+                ("FLIP blend", 0.0, 1.0, 0.05, "flip_blend", self.set_flip_blend))
 
     def _start(self, sim):
         """Take on a (new) simulation: the basis/transfer switch restarts the scene with its own kernels."""
@@ -190,11 +232,17 @@ class Session:
         self.limits = self._limits()
         self.frame_time = c.output.every
         self.radius_px = max(1.0, 0.6 * float(np.median(sim.scene.spacing)) * self.view.scale)
+        self.sphere_radius = 0.5 * float(np.median(sim.scene.spacing))   # world units (the GGUI scene)
         wave = float(getattr(sim, "wave_speed", 0.0) or 0.0)
         self.speed_cap = 0.25 * wave if wave > 0 else 10.0
         self._step_once = False
         self.chart = []            # (kinetic, strain, total) per frame, the last CHART_LENGTH frames
         self._gravity0 = None
+        # the runtime parameters the sliders set carry over to a restarted scene
+        sim.set_gravity(self.gravity * self.down)
+        sim.set_stiffness_scale(self.stiffness)
+        if c.solver.transfer == "flip":
+            sim.set_flip_blend(self.flip_blend)
         self.record_energy()
 
     def _limits(self):
@@ -211,6 +259,31 @@ class Session:
     def set_push_strength(self, strength: float):
         """How far a drag pulls the particles under the cursor towards the drag velocity (0: not at all, 1: fully)."""
         self.push_strength = float(np.clip(strength, 0.0, 1.0))
+
+    def set_gravity(self, magnitude: float):
+        """Gravity of `magnitude` m/s^2 along `down` from the next step on (Simulation.set_gravity). The strip chart's
+        total moves its potential reference with the jump, so it stays level where energy is conserved."""
+        self.gravity = max(0.0, float(magnitude))
+        before = self.sim.energy()["gravity"]
+        self.sim.set_gravity(self.gravity * self.down)
+        if self._gravity0 is not None:
+            self._gravity0 += self.sim.energy()["gravity"] - before
+
+    def set_stiffness(self, scale: float):
+        """Every material's stiffness times `scale` (Simulation.set_stiffness_scale): stress and stored energy scale,
+        waves run sqrt(scale) times faster, the time step shrinks accordingly."""
+        self.stiffness = float(np.clip(scale, *STIFFNESS_RANGE))
+        self.sim.set_stiffness_scale(self.stiffness)
+
+    def set_flip_blend(self, a: float) -> bool:
+        """FLIP's blend (0: PIC velocities, 1: pure FLIP); kept for a later switch to FLIP when the transfer is
+        another (False and a message then)."""
+        self.flip_blend = float(np.clip(a, 0.0, 1.0))
+        if self.cfg.solver.transfer != "flip":
+            self.message = f"FLIP blend applies to transfer flip (now {self.cfg.solver.transfer}; t switches)"
+            return False
+        self.sim.set_flip_blend(self.flip_blend)
+        return True
 
     # ------------------------------------------------------------ switches (restart the scene)
     def switch(self, what: str, value: str | None = None) -> bool:
@@ -270,15 +343,17 @@ class Session:
             self.view.pitch = max(-89.0, self.view.pitch - 10)
         return True
 
-    def drag(self, prev, cursor, radius=0.06) -> int:
-        """A mouse drag from prev to cursor (window units): push the particles under the cursor."""
-        u = self.view.to_world_delta(np.asarray(cursor, float) - np.asarray(prev, float)) / self.frame_time
+    def drag(self, prev, cursor, radius=0.06, view=None) -> int:
+        """A mouse drag from prev to cursor (window units): push the particles under the cursor (as `view`, the
+        window's camera, shows them; the projection view by default)."""
+        view = view or self.view
+        u = view.to_world_delta(np.asarray(cursor, float) - np.asarray(prev, float)) / self.frame_time
         speed = float(np.linalg.norm(u))
         if speed == 0 or self.push_strength == 0:
             return 0
         if speed > self.speed_cap:
             u *= self.speed_cap / speed
-        return push_particles(self.sim, cursor, u, radius=radius, view=self.view, strength=self.push_strength)
+        return push_particles(self.sim, cursor, u, radius=radius, view=view, strength=self.push_strength)
 
     def advance(self):
         """One frame: a single step when asked, else one output interval unless paused or done."""
@@ -328,33 +403,39 @@ class Session:
         end = self.cfg.solver.end_time
         return self.sim.time >= end - 1e-12 * max(1.0, end)
 
+    def colours(self, p):
+        """(N, 3) 8-bit RGB of the particles (the colour field under the live limits) and the status line."""
+        from .colour_range import normalise
+
+        values = field_values(p, self.field, self.cfg.dim)
+        clim = self.limits.update(values)
+        cmap = "tab10" if self.field in ("body", "material", "interface") else self.cmap
+        scale = self.limits.scale if self.field not in ("body", "material", "interface") else "linear"
+        rgb = _colour_ints(normalise(values, clim, scale), cmap)
+        state = "paused" if self.paused else ("done" if self.done else "running")
+        s = self.cfg.solver
+        status = (f"t = {self.sim.time:.4g} s   steps {self.sim.n_steps}   {state}   {s.basis}/{s.transfer}   "
+                  f"colour: {self.field} [{clim[0]:.3g}, {clim[1]:.3g}]")
+        return rgb, status
+
     def picture(self):
         """(positions, packed colours) in drawing order, and the status line."""
         p = self.sim.particles()
-        values = field_values(p, self.field, self.cfg.dim)
-        clim = self.limits.update(values)
+        rgb, status = self.colours(p)
         pos, depth = self.view.project(p["x"])
-        cmap = "tab10" if self.field in ("body", "material", "interface") else self.cmap
-        from .colour_range import normalise
-
-        scale = self.limits.scale if self.field not in ("body", "material", "interface") else "linear"
-        rgb = _colour_ints(normalise(values, clim, scale), cmap)
         if self.cfg.dim == 3:  # painter's order and depth shading: far particles first and darker
             order = np.argsort(depth)
             span = float(np.ptp(depth)) or 1.0
             shade = 0.55 + 0.45 * (depth - depth.min()) / span
             rgb = (rgb * shade[:, None]).astype(np.uint32)
             pos, rgb = pos[order], rgb[order]
-        state = "paused" if self.paused else ("done" if self.done else "running")
-        s = self.cfg.solver
-        status = (f"t = {self.sim.time:.4g} s   steps {self.sim.n_steps}   {state}   {s.basis}/{s.transfer}   "
-                  f"colour: {self.field} [{clim[0]:.3g}, {clim[1]:.3g}]")
         return pos, _pack(rgb), status
 
 
-def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None):
+def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None, view: str | None = None):
     """Open the interactive window for a config (path, dict or Config); returns the simulation shown last (a basis
-    or transfer switch replaces it). With `max_frames` the window closes by itself after that many frames; `screenshot` saves the last frame as a PNG. `script` (for tests and
+    or transfer switch replaces it). A 3D scene opens Taichi's GGUI scene where a Vulkan device exists (ggui.py),
+    else the ti.GUI projection; `view` ('ggui' or 'projection') overrides the choice, and the title says which. With `max_frames` the window closes by itself after that many frames; `screenshot` saves the last frame as a PNG. `script` (for tests and
     demos): {frame: [action, ...]} applied before that frame's events, an action being ("slider", label, value)
     (moves a slider widget, read back like a hand's move) or ("event", name) (a key or a button's event name)."""
     import taichi as ti
@@ -365,10 +446,18 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None):
     cfg = cfg if hasattr(cfg, "model_dump") else load_config(cfg)
     res = tuple(int(s) for s in cfg.output.render.size)
     session = Session(Simulation(cfg), res)
-    gui = ti.GUI(window_title(cfg), res=res, background_color=0xFFFFFF, show_gui=show)
-    sliders = {"time-step scale": gui.slider("time-step scale", 0.05, 1.0, 0.05),
-               "push strength": gui.slider("push strength", 0.0, 1.0, 0.05)}
-    sliders["time-step scale"].value, sliders["push strength"].value = session.dt_scale, session.push_strength
+    support = ggui_support() if cfg.dim == 3 else (False, False)
+    kind = view or view_3d_kind(support)
+    title = window_title(cfg, kind, support)
+    if cfg.dim == 3 and kind == "ggui":
+        from .ggui import run_ggui
+
+        return run_ggui(session, title, max_frames, screenshot, show, script)
+    gui = ti.GUI(title, res=res, background_color=0xFFFFFF, show_gui=show)
+    sliders = {}
+    for label, lo, hi, step, attr, _ in session.sliders():
+        sliders[label] = gui.slider(label, lo, hi, step)
+        sliders[label].value = getattr(session, attr)
     gui.button("next basis", "basis")
     gui.button("next transfer", "transfer")
     prev_cursor = None
@@ -384,10 +473,9 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None):
             keys = [e.key for e in gui.get_events(ti.GUI.PRESS)] + injected
             if not all([session.press(k) for k in keys]):
                 break
-            if abs(sliders["time-step scale"].value - session.dt_scale) > 1e-9:
-                session.set_dt_scale(sliders["time-step scale"].value)
-            if abs(sliders["push strength"].value - session.push_strength) > 1e-9:
-                session.set_push_strength(sliders["push strength"].value)
+            for label, _, _, _, attr, setter in session.sliders():
+                if abs(sliders[label].value - getattr(session, attr)) > SLIDER_TOLERANCE:
+                    setter(sliders[label].value)
             cursor = np.asarray(gui.get_cursor_pos(), float)
             held = gui.is_pressed(ti.GUI.LMB)
             if held and prev_cursor is not None:

@@ -128,7 +128,7 @@ class ContactProbe:
         self.columns = probe_columns(spec, sim.dim)
         p = sim.particles()   # the momentum at the start (or at the checkpoint's time, resuming)
         m = p["mass"][self.mask]
-        self.weight = float(m.sum()) * np.asarray(sim.cfg.gravity[: sim.dim], dtype=float)
+        self.mass = float(m.sum())
         self.momentum = m @ p["v"][self.mask]
 
     def row(self, p, sim, impulse, elapsed):
@@ -136,7 +136,7 @@ class ContactProbe:
         change, self.momentum = momentum - self.momentum, momentum
         if elapsed <= 0:
             return [math.nan] * sim.dim
-        return list(change / elapsed - self.weight)
+        return list(change / elapsed - self.mass * sim.gravity)  # gravity now (Simulation.set_gravity)
 
 
 class GripProbe(WallProbe):

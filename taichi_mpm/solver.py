@@ -2,7 +2,10 @@
 
 Every option a scene does not use is left out when the kernels are built: the dimension, basis,
 transfer, update scheme, material models and features (body force, viscosity, crack finder) are
-compile-time constants captured by the kernel closures and tested with `ti.static`.
+compile-time constants captured by the kernel closures and tested with `ti.static`. Three parameters are
+runtime values instead (small fields the kernels read, set from Python without a recompile, e.g. by the
+interactive window's sliders): gravity (`set_gravity`), a per-material stiffness scale (`set_stiffness_scale`)
+and FLIP's blend (`set_flip_blend`).
 
 One step (USL):   clear grid -> P2G (mass, momentum, stress force) -> grid update (gravity, walls)
                   -> G2P (velocity by transfer, positions, F, checks)
@@ -133,7 +136,12 @@ class Simulation:
             self.mapped.materialize()
             self.h_cfl = self.mapped.h_min
         self._materials = [c.materials[name] for name in self.scene.materials]
-        self.wave_speed = max(wave_speed(m) for m in self._materials)
+        self._wave_speeds = np.array([wave_speed(m) for m in self._materials])  # at stiffness scale 1
+        # the runtime parameters' host copies (their fields: _allocate); the config's values to start with
+        self._gravity = np.asarray(c.gravity, dtype=np.float64)
+        self._stiffness = np.ones(len(self._materials))
+        self._flip_blend = float(c.solver.flip_blend)
+        self.wave_speed = self._wave_speed()
         self.time, self.n_steps, self.dt = 0.0, 0, 0.0
         self.dt_limit = None  # which rate limited the last CFL-rule dt (one of DT_LIMITS)
         self._balance = None  # energy balance reference (see _check_energy_balance)
@@ -160,7 +168,6 @@ class Simulation:
             body_force=self.body_force is not None,
             # particle domains of more than one size (gimp, cpdi) keep a per-particle half-width
             domain_per_particle=c.solver.basis in ("gimp", "cpdi") and len(spacing) > 1,
-            gravity=any(g != 0 for g in c.gravity),
             viscosity=uses_viscosity,
             tractions=bool(s.loads),             # particle forces of bodies[].tractions
             grips=bool(s.grips),                 # bodies[].prescribed_velocity on the nodes the grip touches
@@ -168,7 +175,9 @@ class Simulation:
             moving_walls=bool(self.loads.walls),  # domain.boundaries faces of type velocity
             plastic=any(MODELS[m.model].plastic for m in self._materials),  # a return mapping after the F update
             # positions by the trapezoid of the start and end velocities of the step (exact for a uniform
-            # acceleration) wherever an acceleration acts on free bodies; not in crack scenes (their own transfer)
+            # acceleration) wherever an acceleration acts on free bodies; not in crack scenes (their own transfer).
+            # Decided by the config's gravity: gravity switched on live (set_gravity) moves positions by the new
+            # grid velocity. (The gravity term itself is always compiled: gravity is a runtime value.)
             trapezoid=(any(g != 0 for g in c.gravity) or self.body_force is not None) and c.crack is None,
         )
 
@@ -214,6 +223,13 @@ class Simulation:
         self.fbar = fbar.create(self)  # solver.volumetric: fbar (fbar.py), else None
         self.fail = ti.field(ti.i32, ())
         self.vmax2 = ti.field(float, ())
+        # runtime parameters (set_gravity, set_stiffness_scale, set_flip_blend): read by the kernels, no recompile
+        self.gravity_field = ti.Vector.field(d, float, ())
+        self.gravity_field[None] = self._gravity.tolist()
+        self.stiffness_field = ti.field(float, len(self._materials))
+        self.stiffness_field.from_numpy(self._stiffness)
+        self.flip_blend_field = ti.field(float, ())
+        self.flip_blend_field[None] = self._flip_blend
         self.diag = ti.field(ti.f64, 8)  # reduction slots for energies and momenta
         # accumulated per step: external work (body forces, tractions, prescribed velocities), viscous and plastic
         # dissipation (the plastic work of the return mappings, docs/materials.md)
@@ -307,7 +323,7 @@ class Simulation:
         n_cells = self.n_cells
         lower = ti.Vector(self.lower.tolist())
         upper = ti.Vector(self.upper.tolist())
-        gravity = ti.Vector(list(self.cfg.gravity))
+        gravity, stiff = self.gravity_field, self.stiffness_field  # runtime values (set_gravity, ...)
         # each material's Taichi funcs, its parameters compile-time constants (materials/: the model registry)
         nq = max(1, self.n_state)
         mats = [MODELS[m.model].build(m, dim, nq) for m in self._materials]
@@ -315,7 +331,7 @@ class Simulation:
         viscous = [m.viscous_power is not None for m in mats]
         state, has_state = self.state, self.state is not None
         has_fbar = self.fbar is not None
-        alpha = self.cfg.solver.flip_blend
+        alpha = self.flip_blend_field  # set_flip_blend
         x, v, F, C, vol0, mat = self.x, self.v, self.F, self.C, self.vol0, self.mat
         body_acc = self.body_acc
         has_C, has_body_acc = C is not None, body_acc is not None
@@ -351,7 +367,7 @@ class Simulation:
             precision=self.cfg.precision, x=x, v=v, F=F, C=C, vol0=vol0, mat=mat, half_width=self.half_width,
             domain_lp0=0.5 * float(self.scene.spacing[0]) / dx if self.n else 0.5,
             gimp_deforming=self.cfg.solver.gimp_domain == "deforming", unroll=self._unroll(), grid=self.grid,
-            wall=wall, gravity=gravity, has_gravity=f["gravity"], extra=dict(mapped=self.mapped))
+            wall=wall, gravity=gravity, extra=dict(mapped=self.mapped))
         sten = ctx.stencil = make_stencil(ctx)
         if self.mapped is not None:
             self._locate, self._locate_from = make_locate(ctx, self.mapped, self.fail, _CODES, 6)
@@ -392,11 +408,11 @@ class Simulation:
             tau = ti.Matrix.zero(float, 3, 3)
             q = state_of(p)
             if ti.static(len(mats) == 1):
-                tau = mats[0].kirchhoff3(F[p], Lp, q)
+                tau = stiff[0] * mats[0].kirchhoff3(F[p], Lp, q)
             else:
                 for k in ti.static(range(len(mats))):
                     if mat[p] == k:
-                        tau = mats[k].kirchhoff3(F[p], Lp, q)
+                        tau = stiff[k] * mats[k].kirchhoff3(F[p], Lp, q)
             return tau + embed3(initial_kirchhoff(p, F[p]), 0.0)
 
         @ti.func
@@ -419,14 +435,16 @@ class Simulation:
 
         @ti.func
         def model_kirchhoff(p, Fp, Lp):
+            """The material model's stress times its stiffness scale (set_stiffness_scale: every stress parameter,
+            moduli, yield stress, viscosity, scaled alike; 1 leaves it bit for bit as it was)."""
             tau = ti.Matrix.zero(float, Fp.n, Fp.n)
             q = state_of(p)
             if ti.static(len(mats) == 1):
-                tau = mats[0].kirchhoff(Fp, Lp, q)
+                tau = stiff[0] * mats[0].kirchhoff(Fp, Lp, q)
             else:
                 for k in ti.static(range(len(mats))):
                     if mat[p] == k:
-                        tau = mats[k].kirchhoff(Fp, Lp, q)
+                        tau = stiff[k] * mats[k].kirchhoff(Fp, Lp, q)
             return tau
 
         @ti.func
@@ -434,11 +452,11 @@ class Simulation:
             psi = 0.0
             q = state_of(p)
             if ti.static(len(mats) == 1):
-                psi = mats[0].energy(Fp, q)
+                psi = stiff[0] * mats[0].energy(Fp, q)
             else:
                 for k in ti.static(range(len(mats))):
                     if mat[p] == k:
-                        psi = mats[k].energy(Fp, q)
+                        psi = stiff[k] * mats[k].energy(Fp, q)
             return psi
 
         @ti.func
@@ -463,9 +481,9 @@ class Simulation:
             for k in ti.static(range(len(mats))):
                 if ti.static(viscous[k]):
                     if ti.static(len(mats) == 1):
-                        P = mats[k].viscous_power(Fp, Lp)
+                        P = stiff[k] * mats[k].viscous_power(Fp, Lp)
                     elif mat[p] == k:
-                        P = mats[k].viscous_power(Fp, Lp)
+                        P = stiff[k] * mats[k].viscous_power(Fp, Lp)
             return P
 
         @ti.func
@@ -476,10 +494,14 @@ class Simulation:
             diss = 0.0
             for k in ti.static(range(len(mats))):
                 if ti.static(projects[k]):
+                    # the return mapping is the same in strain space at any stiffness scale (yield stress and
+                    # moduli scale alike); the dissipated energy scales with the stress
                     if ti.static(len(mats) == 1):
                         Fp, q, diss = mats[k].project(Fp, q)
+                        diss *= stiff[k]
                     elif mat[p] == k:
                         Fp, q, diss = mats[k].project(Fp, q)
+                        diss *= stiff[k]
             if ti.static(has_state):
                 state[p] = q
             work[2] += vol0[p] * diss
@@ -572,9 +594,8 @@ class Simulation:
             for I in ti.grouped(gm):
                 m = gm[I]
                 if m > 0:
-                    vel = gv[I] / m
-                    if ti.static(f["gravity"]):
-                        vel += dt * gravity
+                    # always compiled, so that set_gravity can switch gravity on (adding 0 changes nothing)
+                    vel = gv[I] / m + dt * gravity[None]
                     vel = wall.measured(I, vel, m)  # adds m dv per face to wall_reaction (wall probes only)
                     gv[I] = grip_condition(I, vel, m, True)
                     if ti.static(f["flip"]):
@@ -723,7 +744,8 @@ class Simulation:
                         v_pic, dv, B, G = crk.g2p(p, st, deform)
                 if ti.static(velocity):
                     if ti.static(f["flip"]):
-                        v[p] = alpha * (v[p] + dv) + (1.0 - alpha) * v_pic
+                        a = alpha[None]
+                        v[p] = a * (v[p] + dv) + (1.0 - a) * v_pic
                     else:
                         v[p] = v_pic
                     if ti.static(has_body_acc):
@@ -769,8 +791,6 @@ class Simulation:
         # diagnostics ----------------------------------------------------
         acc = self.diag
 
-        g_norm = float(np.linalg.norm(self.cfg.gravity))
-
         @ti.kernel
         def energies():
             """Kinetic, strain (degraded where damaged), gravity potential; slot 3: sum m |g| |x| (the
@@ -784,8 +804,8 @@ class Simulation:
                 if ti.static(crack):
                     psi = crk.degrade_energy(p, F[p], psi, kirchhoff(p, F[p]))
                 acc[1] += vol0[p] * psi
-                acc[2] -= mp * gravity.dot(x[p])
-                acc[3] += mp * g_norm * x[p].norm()
+                acc[2] -= mp * gravity[None].dot(x[p])
+                acc[3] += mp * gravity[None].norm() * x[p].norm()
 
         @ti.kernel
         def body_moments():
@@ -865,7 +885,9 @@ class Simulation:
         """The time-step bound of every rate in the scene (seconds), by name (see DT_LIMITS):
         elastic waves + particle speed: cfl dx / (c + |v|max), named `elastic` or `speed` by the larger;
         acceleration: cfl sqrt(dx / |a|), |a| = |g| + max |b| (named `body_force` when b dominates);
-        viscosity: cfl rho dx^2 / (VISCOUS_DIFFUSION d mu) per viscous material."""
+        viscosity: cfl rho dx^2 / (VISCOUS_DIFFUSION d mu) per viscous material.
+        The runtime parameters count as they are now: gravity (set_gravity), c and mu times the stiffness scale's
+        square root and the scale itself (set_stiffness_scale)."""
         cfl, dx = self.cfg.solver.cfl, self.h_cfl
         c, v = self.wave_speed, self._vmax
         out = {"elastic" if c >= v else "speed": cfl * dx / (c + v) if c + v > 0 else math.inf}
@@ -873,9 +895,10 @@ class Simulation:
         b = self._body_acc_now()
         if g + b > 0:
             out["body_force" if b > g else "gravity"] = cfl * math.sqrt(dx / (g + b))
-        for m in self._materials:
+        for m, scale in zip(self._materials, self._stiffness):
             if getattr(m, "viscosity", 0.0) > 0:
-                dt_v = cfl * m.density * dx * dx / (VISCOUS_DIFFUSION * self.dim * m.viscosity)
+                visc = m.viscosity * scale  # the stiffness scale scales the viscous stress too
+                dt_v = cfl * m.density * dx * dx / (VISCOUS_DIFFUSION * self.dim * visc)
                 out["viscosity"] = min(out.get("viscosity", math.inf), dt_v)
         return out
 
@@ -891,7 +914,7 @@ class Simulation:
 
     @property
     def _g_norm(self) -> float:
-        return float(np.linalg.norm(self.cfg.gravity))
+        return float(np.linalg.norm(self._gravity))
 
     def _body_acc_now(self) -> float:
         """Evaluate body_force at the current time (once per time), upload it; returns max |b|."""
@@ -1033,7 +1056,7 @@ class Simulation:
         return (1e-8 if f32 else 1e-12) * stiffness + (1e-6 if f32 else 1e-12) * potential_scale + 1e-300
 
     def _stiffness_per_particle(self) -> np.ndarray:
-        mod = np.array([m.modulus for m in self._materials])
+        mod = np.array([m.modulus for m in self._materials]) * self._stiffness
         return mod[self.scene.material] if len(mod) > 1 else np.full(self.n, mod[0])
 
     def energy_balance(self) -> dict:
@@ -1143,7 +1166,7 @@ class Simulation:
                 continue
             H = 0.0
             if g > 0:
-                down = -np.asarray(self.cfg.gravity, float) / g
+                down = -self._gravity / g
                 h = self.scene.x[sel] @ down
                 H = float(h.max() - h.min()) + float(np.min(self.scene.spacing))
             c = math.sqrt(m.K / m.density)
@@ -1411,6 +1434,100 @@ class Simulation:
 
     def max_speed(self) -> float:
         return _max_speed(self._read("v"))
+
+    # ------------------------------------------------------------------ runtime parameters (no recompile)
+    @property
+    def gravity(self) -> np.ndarray:
+        """The gravity acceleration now (dim,): the config's solver.gravity until set_gravity changes it."""
+        return self._gravity.copy()
+
+    def set_gravity(self, g):
+        """Change gravity from the next step on (dim numbers, m/s^2), without recompiling. The time step
+        (dt_limits), the gravity potential of energy() and the energy balance use the new value from then on; the
+        balance's reference moves with the potential's jump (a change of g does no work at that instant), so the
+        energy check stays right across the change."""
+        try:
+            value = np.asarray(g, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise ValueError(f"set_gravity: gravity must be {self.dim} numbers, got {g!r}") from None
+        if value.shape != (self.dim,) or not np.isfinite(value).all():
+            raise ValueError(f"set_gravity: gravity must be {self.dim} finite numbers, got {g!r}")
+
+        def apply():
+            self._gravity = value
+            self.gravity_field[None] = value.tolist()
+        self._change_live(apply)
+
+    def stiffness_scale(self, material: Optional[str] = None) -> float:
+        """The stiffness scale of a material (by its name in the config; the only one when omitted)."""
+        return float(self._stiffness[self._material_slots(material)[0]])
+
+    def set_stiffness_scale(self, scale: float, material: Optional[str] = None):
+        """Scale a material's stiffness (every material's when `material` is None) by `scale` > 0 from the next
+        step on, without recompiling: the stress the model gives at any deformation times `scale`, i.e. every
+        stress-like parameter (moduli, yield stress, cohesion, hardening, viscosity) scaled alike; the model's
+        strain-space behaviour (yield strain, friction angle) is unchanged. Not scaled: the crack finder's Rankine
+        law (tensile_strength, fracture_energy), so a stiffened material starts to crack at a smaller strain, and
+        bodies[].stress. Waves travel sqrt(scale) times faster,
+        so the CFL time step shrinks with it; the stored energy scales too, and the energy balance's reference moves
+        with that jump. 1 is the config's material, bit for bit."""
+        if not _is_real(scale) or not math.isfinite(scale) or scale <= 0:
+            raise ValueError(f"set_stiffness_scale: scale must be a finite number > 0, got {scale!r}")
+        slots = self._material_slots(material) if material is not None else range(len(self._materials))
+
+        def apply():
+            for k in slots:
+                self._stiffness[k] = float(scale)
+            self.stiffness_field.from_numpy(self._stiffness)
+            self.wave_speed = self._wave_speed()
+        self._change_live(apply)
+
+    @property
+    def flip_blend(self) -> float:
+        """FLIP's blend now: v = a (v + grid change) + (1 - a) v_grid (solver.flip_blend until set_flip_blend)."""
+        return self._flip_blend
+
+    def set_flip_blend(self, a: float):
+        """Change FLIP's blend (0: PIC's velocity, 1: pure FLIP) from the next step on, without recompiling.
+        Only for solver.transfer: flip (other transfers have no blend: ValueError)."""
+        if self.cfg.solver.transfer != "flip":
+            raise ValueError(f"set_flip_blend: the blend belongs to transfer flip; this simulation uses "
+                             f"{self.cfg.solver.transfer}")
+        if not _is_real(a) or not 0.0 <= a <= 1.0:
+            raise ValueError(f"set_flip_blend: the blend must be a number in [0, 1], got {a!r}")
+        self._check_live()
+        self._flip_blend = float(a)
+        self.flip_blend_field[None] = float(a)
+
+    def _material_slots(self, material: Optional[str]) -> list[int]:
+        names = list(self.scene.materials)
+        if material is None:
+            if len(names) != 1:
+                raise ValueError(f"name the material (this scene has {', '.join(names)})")
+            return [0]
+        if material not in names:
+            raise ValueError(f"no material {material!r} in this scene (it has {', '.join(names)})")
+        return [names.index(material)]
+
+    def _wave_speed(self) -> float:
+        """The fastest P-wave speed at the present stiffness scales (the CFL rule's c)."""
+        return float(np.max(self._wave_speeds * np.sqrt(self._stiffness)))
+
+    def _change_live(self, apply: Callable):
+        """Apply a runtime parameter change that makes the potential or stored energy jump, keeping the energy
+        balance: its reference total moves by the jump (nothing did work at that instant), its round-off floor and
+        scale follow the new values."""
+        self._check_live()
+        if self._balance is None:
+            apply()
+            return
+        before, _ = self._energy_parts()
+        apply()
+        after, _ = self._energy_parts()
+        ref = self._balance
+        ref["total"] += float(np.sum(after[:3]) - np.sum(before[:3]))
+        ref["floor"] = max(ref["floor"], self._energy_floor(after[3]))
+        ref["scale"] = max(ref["scale"], after[5])
 
     def cfl_number(self) -> float:
         return self.dt * (self.wave_speed + self._vmax) / self.h_cfl

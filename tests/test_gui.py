@@ -130,20 +130,31 @@ from taichi_mpm.gui import run_gui
 cfg = tm.load_config(json.loads(sys.argv[1]))
 script = {int(k): [tuple(a) for a in v] for k, v in json.loads(sys.argv[3]).items()}
 sim = run_gui(cfg, max_frames=4, screenshot=sys.argv[2], script=script)
-print("STATE", json.dumps(dict(time=sim.time, basis=sim.cfg.solver.basis, cfl=sim.cfg.solver.cfl)))
+p = sim.particles()
+print("STATE", json.dumps(dict(time=sim.time, basis=sim.cfg.solver.basis, cfl=sim.cfg.solver.cfl,
+                               gravity=sim.gravity.tolist(), stiffness=sim.stiffness_scale(),
+                               flip_blend=sim.flip_blend,
+                               v=(p["mass"] @ p["v"] / p["mass"].sum()).tolist())))
 """
 
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_gui_runs_under_xvfb_and_saves_a_screenshot(tmp_path, xvfb, dim):
-    """A few frames in a real window; in 2D the time-step slider is moved (frame 1) and the basis switched
-    (frame 2, the "next basis" button's event), so the window's widgets reach the simulation."""
+    """A few frames in a real window; in 2D the time-step and stiffness sliders are moved (frame 1) and the basis
+    switched (frame 2, the "next basis" button's event), so the window's widgets reach the simulation; in 3D (FLIP)
+    the block falls under gravity for two frames, then the gravity slider goes to 0 (frame 2) and it stops
+    accelerating."""
     import imageio.v2 as imageio
 
-    cfg = make_cfg(dim, precision="f32", velocity=[0.5] + [0.0] * (dim - 1), end_time=1.0)
+    cfg = make_cfg(dim, precision="f32", velocity=[0.5] + [0.0] * (dim - 1), end_time=1.0,
+                   transfer="apic" if dim == 2 else "flip")
     cfg["solver"]["cfl"] = 0.4
     cfg["output"] = {"every": 0.002, "render": {"size": [320, 240], "color_by": "speed"}}
-    script = {1: [["slider", "time-step scale", 0.5]], 2: [["event", "basis"]]} if dim == 2 else {}
+    if dim == 2:
+        script = {1: [["slider", "time-step scale", 0.5], ["slider", "stiffness scale", 2.0]], 2: [["event", "basis"]]}
+    else:
+        cfg["solver"]["gravity"] = [0.0, -9.81, 0.0]
+        script = {2: [["slider", "gravity", 0.0]]}
     shot = tmp_path / "shot.png"
     env = dict(os.environ, DISPLAY=xvfb)
     res = subprocess.run([sys.executable, "-c", GUI_SCRIPT, json.dumps(cfg), str(shot), json.dumps(script)], env=env,
@@ -156,9 +167,15 @@ def test_gui_runs_under_xvfb_and_saves_a_screenshot(tmp_path, xvfb, dim):
         assert state["basis"] == "cubic"
         assert state["cfl"] == pytest.approx(0.2)
         assert state["time"] == pytest.approx(2 * 0.002, rel=1e-6)
+        assert state["stiffness"] == pytest.approx(2.0)              # the stiffness slider's value carried over too
     else:
         assert state["basis"] == "quadratic" and state["cfl"] == pytest.approx(0.4)
         assert state["time"] == pytest.approx(4 * 0.002, rel=1e-6)  # four frames, one output interval each
+        # gravity for frames 0 and 1 only: the fall speed of two frames, not four (f32: 1e-4 is round-off)
+        assert state["gravity"] == [0.0, 0.0, 0.0]
+        assert state["v"][1] == pytest.approx(-9.81 * 2 * 0.002, rel=1e-4)
+        assert state["v"][0] == pytest.approx(0.5, rel=1e-4)
+        assert state["flip_blend"] == 0.99   # untouched: the widget's float32 copy of 0.99 is not a move
     img = imageio.imread(shot)
     assert img.shape[:2] == (240, 320)
     assert img[..., :3].astype(float).var() > 100.0
@@ -195,3 +212,31 @@ def test_session_sliders_switch_and_energy_chart():
     assert s.sim is not sim and s.sim.cfg.solver.transfer == "pic" and s.sim.time == 0.0
     assert s.sim.cfg.solver.cfl == pytest.approx(0.25 * s.base_cfl)  # the scale carries over to the new scene
     assert not s.switch("basis", "wavelet") and "not possible" in s.message
+
+
+def test_session_gravity_stiffness_and_flip_sliders_reach_the_solver():
+    """Without a window: the gravity, stiffness and FLIP-blend setters change the running simulation (no restart),
+    the chart's total stays level across a gravity change (its potential reference moves with the jump), and a
+    transfer switch carries the values over to the new simulation."""
+    cfg = make_cfg(2, dx=0.1, end_time=1.0, gravity=[0.0, -9.81])
+    cfg["output"] = {"every": 0.01}
+    sim = tm.Simulation(cfg)
+    s = Session(sim, (300, 300))
+    assert s.gravity == pytest.approx(9.81) and {x[0] for x in s.sliders()} >= {"gravity", "stiffness scale",
+                                                                                 "FLIP blend"}
+    s.advance()
+    total = s.chart[-1][2]
+    s.set_gravity(0.0)
+    assert s.sim is sim and np.all(sim.gravity == 0.0)
+    s.record_energy()
+    assert s.chart[-1][2] == pytest.approx(total, rel=1e-12)        # no step since: the total did not move
+    v = sim.momentum()["linear"].copy()
+    s.advance()
+    np.testing.assert_allclose(sim.momentum()["linear"], v, atol=1e-9)  # no gravity, no walls reached: no force
+    c0 = sim.wave_speed
+    s.set_stiffness(4.0)
+    assert sim.stiffness_scale() == 4.0 and sim.wave_speed == pytest.approx(2.0 * c0, rel=1e-12)
+    assert not s.set_flip_blend(0.3) and "transfer flip" in s.message   # apic: kept for a switch to flip
+    assert s.switch("transfer", "flip")
+    assert s.sim.flip_blend == pytest.approx(0.3) and s.sim.stiffness_scale() == 4.0
+    assert np.all(s.sim.gravity == 0.0)
