@@ -118,6 +118,7 @@ def test_vortex_converges():
     assert errs[0] / errs[1] > 4.0
 
 
+@pytest.mark.slow
 def test_vibrating_bar_fixed_free_centre_of_mass():
     """Fixed-free bar over one period (t = 10): displacement and centre-of-mass velocity follow the exact
     solution (measured at 16 cells, quadratic: rms 8.6e-4 at t = 5 against an amplitude of 0.16)."""

@@ -33,6 +33,7 @@ def test_throughput_benchmark_reports_each_case():
     assert rows[0]["cost_vs_quadratic_apic"] == 1.0 and rows[0]["particle_steps_per_s"] > 0
 
 
+@pytest.mark.slow
 def test_memory_benchmark_minimal_scene_is_small():
     rows = load("memory").main(["--tiny"])
     minimal = rows[0]

@@ -176,6 +176,7 @@ def full_run(tmp_path_factory):
     return tmp / "full"
 
 
+@pytest.mark.slow
 def test_resume_reproduces_uninterrupted_run(tmp_path, full_run):
     path = scene_cfg(tmp_path)
     full, part = full_run, tmp_path / "part"

@@ -141,6 +141,7 @@ def _pull(cfg, steps=30):
     return sim, p, b, np.array(gaps), np.array(times), smax
 
 
+@pytest.mark.slow
 def test_two_blocks_stay_joined_without_crack_finder():
     sim, p, b, gaps, t, smax = _pull(blocks_cfg(crack=False))
     assert gaps.max() < 0.05                                   # below one cell

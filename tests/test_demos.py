@@ -105,6 +105,7 @@ def test_cantilever_quick(tmp_path):
     assert np.abs(p["x"][wall] - sim.scene.x[wall]).max() < 2e-3  # the clamp block stays put
 
 
+@pytest.mark.slow
 def test_round_tank_quick(tmp_path, capsys):
     """The drop in the round-bottomed tank (a generic NURBS grid, 12 x 6 cells here, 179 particles) after 0.4 s:
     it fell 0.19 m onto the arc at t = 0.2 s and runs along it. Every particle is inside the tank (a particle

@@ -138,6 +138,7 @@ def test_stiff_fluid_does_not_warn():
         tm.Simulation(cfg)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("basis", [pytest.param("linear", marks=pytest.mark.slow), "quadratic", pytest.param("cubic", marks=pytest.mark.slow)])  # cold compile
 def test_apic_particles_exactly_on_a_wall(basis):
     """D_p = 0 for a B-spline particle on the wall's control point: it used to be inverted (NaN at step 1)."""

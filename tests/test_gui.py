@@ -138,7 +138,7 @@ print("STATE", json.dumps(dict(time=sim.time, basis=sim.cfg.solver.basis, cfl=si
 """
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_gui_runs_under_xvfb_and_saves_a_screenshot(tmp_path, xvfb, dim):
     """A few frames in a real window; in 2D the time-step and stiffness sliders are moved (frame 1) and the basis
     switched (frame 2, the "next basis" button's event), so the window's widgets reach the simulation; in 3D (FLIP)

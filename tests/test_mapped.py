@@ -41,7 +41,7 @@ def as_nurbs(cfg, coarse=False):
     return out
 
 
-@pytest.mark.parametrize("grid", ["annulus", "nurbs"])
+@pytest.mark.parametrize("grid", [pytest.param("annulus", marks=pytest.mark.slow), "nurbs"])
 def test_uniform_stretch_is_reproduced_exactly(grid):
     """An affine velocity v = L x (stretch + shear + spin) on a solid inside the ring, APIC (C_p = L): P2G gives
     every node v_i = L P_i, so G2P returns v_p = L x_p and grad v = sum v_i (x) grad_x R_i = L exactly (the
@@ -69,6 +69,7 @@ def test_uniform_stretch_is_reproduced_exactly(grid):
     assert np.abs(p["x"] - (X + dt * v)).max() < 1e-14
 
 
+@pytest.mark.slow
 def test_generic_nurbs_map_of_the_annulus_data_is_the_annulus():
     """The annulus given as a `nurbs` map, once with its 24 x 4 control net and once as the coarse 4 quarter pieces
     x 1 radial cell refined by knot insertion ([6, 4]): the same knots (cells), control points and weights to
@@ -247,6 +248,7 @@ def slide_on_incline(angle, mu, T=0.25):
     return velocity_along(tm.Simulation(cfg), e1, T)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mu", [pytest.param(0.0, marks=pytest.mark.slow), 0.3])  # a kernel set per mu (~14 s cold)
 def test_block_slides_down_a_mapped_incline_at_coulomb_acceleration(mu):
     """Coulomb friction on a mapped face whose normal is off the axes (the shared wall condition with the node's

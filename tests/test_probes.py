@@ -54,6 +54,7 @@ def test_wall_reaction_equals_the_weight_of_a_resting_block(resting_block):
     assert np.abs(read_probe(out / "probes/left.csv")["fx [N/m]"][1:]).max() < 1e-9 * M * G  # not touched
 
 
+@pytest.mark.slow
 def test_region_and_body_probes_agree_and_the_point_probe_follows_its_particle(resting_block):
     out, M, sim = resting_block
     body, region = read_probe(out / "probes/block.csv"), read_probe(out / "probes/all.csv")

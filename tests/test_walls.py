@@ -36,6 +36,7 @@ def test_sticky_wall_holds_both_components():
     assert vy < 0.15                                          # wall-layer drag slows the tangential motion
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("wall", ["slip", pytest.param("roller", marks=pytest.mark.slow)])
 def test_friction_acts_only_while_the_wall_pushes(wall):
     """Coulomb friction scales with the velocity the wall removes from flow *into* it: a block leaving a slip wall,
