@@ -9,11 +9,12 @@ on the host when each dt is chosen) and the push strength; buttons that switch t
 restarts the scene (those are compile-time choices). A strip chart at the bottom right draws the kinetic, strain
 and total energy of the last frames.
 
-1D bars are drawn along x, 2D scenes as they are, 3D scenes as an orthographic projection that the arrow keys
-rotate, painter-ordered and depth-shaded (ti.GUI draws 2D only). The title says which 3D view is used: Taichi's
-GGUI needs a Vulkan device, which this window looks for and names when missing. Colour limits are robust
-(percentiles of the recent frames, colour_range.LiveLimits). The view logic (`View`), the push (`push_particles`)
-and the session (`Session`: keys, sliders, switches, chart) are plain numpy, testable without a window.
+1D bars are drawn along x, 2D scenes as they are (a mapped grid's cells, domain.map, behind the particles), 3D
+scenes as an orthographic projection that the arrow keys rotate, painter-ordered and depth-shaded (ti.GUI draws 2D
+only). The title says which 3D view is used: Taichi's GGUI needs a Vulkan device, which this window looks for and
+names when missing. Colour limits are robust (percentiles of the recent frames, colour_range.LiveLimits). The view
+logic (`View`), the push (`push_particles`) and the session (`Session`: keys, sliders, switches, chart) are plain
+numpy, testable without a window.
 """
 from __future__ import annotations
 
@@ -189,6 +190,7 @@ class Session:
         self.cmap = c.output.render.colormap
         self.limits = self._limits()
         self.frame_time = c.output.every
+        self.grid_segments = self._grid_segments()
         self.radius_px = max(1.0, 0.6 * float(np.median(sim.scene.spacing)) * self.view.scale)
         wave = float(getattr(sim, "wave_speed", 0.0) or 0.0)
         self.speed_cap = 0.25 * wave if wave > 0 else 10.0
@@ -196,6 +198,16 @@ class Session:
         self.chart = []            # (kinetic, strain, total) per frame, the last CHART_LENGTH frames
         self._gravity0 = None
         self.record_energy()
+
+    def _grid_segments(self):
+        """(begin, end) window-unit segments of a mapped grid's cell edges (render.grid_lines), or None."""
+        from .render import grid_lines
+
+        lines = grid_lines(self.cfg)
+        if not lines:
+            return None
+        projected = [self.view.project(line)[0] for line in lines]
+        return np.concatenate([p[:-1] for p in projected]), np.concatenate([p[1:] for p in projected])
 
     def _limits(self):
         r = self.cfg.output.render
@@ -397,6 +409,8 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None):
             pos, colours, status = session.picture()
             begin, end = session.view.box_edges()
             gui.lines(begin, end, radius=1, color=0x999999)
+            if session.grid_segments is not None:
+                gui.lines(*session.grid_segments, radius=1, color=0xCCCCCC)
             gui.circles(pos, radius=session.radius_px, color=colours)
             _draw_chart(gui, session)
             gui.text(status, pos=(0.01, 0.99), font_size=16, color=0x000000)
