@@ -80,3 +80,39 @@ def test_default_folder_takes_only_a_plain_key_name():
     base = Path(cfg.output.dir.replace("{name}", cfg.name))
     assert _out_dir(cfg, "solver.basis", None) == base.parent / f"{base.name}_compare_basis"
     assert _out_dir(cfg, "materials.a/../../x", None) == base.parent / f"{base.name}_compare_vary"
+
+
+def test_compare_on_a_mapped_grid(tmp_path, monkeypatch):
+    """`compare` on a mapped scene (the annulus of tests/test_mapped.py, its stretch-test kernels): two spin
+    rates side by side. The kinetic energy at t = 0 goes as omega^2 (exactly 4x, 1e-12: the same particles),
+    both runs finish, and each panel's renderer gets the curved grid's cell edges (25 spokes and 5 circles;
+    that the renderer draws them is tests/test_mapped.py::test_the_curved_grid_is_drawn; counting grey pixels
+    here separated them poorly: 281 against 177 without the lines, the colour bar being grey too)."""
+    import taichi_mpm.render as render
+    from test_mapped import ring_cfg
+
+    given = []
+
+    class Spy(render.FrameRenderer):
+        def __init__(self, *a, lines=None, **k):
+            given.append(lines)
+            super().__init__(*a, lines=lines, **k)
+
+    monkeypatch.setattr(render, "FrameRenderer", Spy)
+
+    cfg = ring_cfg(walls="free", model="neo_hookean")
+    cfg["solver"]["end_time"] = 0.04
+    cfg["output"] = {"every": 0.02, "render": {"color_by": "speed", "size": [400, 200]}}
+    res = compare(cfg, "bodies.0.angular_velocity=0.5,1.0", out=tmp_path / "cmp")
+    ke = [[r["kinetic"] for r in v.rows] for v in res["variants"]]
+    assert ke[1][0] == pytest.approx(4 * ke[0][0], rel=1e-12) and ke[0][0] > 0
+    rows = list(csv.DictReader(open(res["summary"])))
+    assert all(r["status"] == "ok" for r in rows)
+    img = imageio.imread(res["frames"][-1])[..., :3]
+    assert img.shape[:2] == (200, 2 * 200 + 2) and img.astype(float).var() > 100
+    expected = render.grid_lines(tm.load_config(cfg))
+    panels = given[-2:]          # the first renderer only checks the render options
+    assert len(given) == 3 and all(len(lines) == 25 + 5 for lines in panels)
+    for lines in panels:
+        for a, b in zip(lines, expected):
+            np.testing.assert_array_equal(a, b)
