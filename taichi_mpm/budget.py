@@ -4,6 +4,9 @@
 solver's fields, as in `Simulation._bytes_per_particle`, plus the scene's host arrays), the grid's memory (dense:
 every node; sparse: the pointer arrays, which are dense, plus the leaf blocks around the bodies), the steps
 (end_time / dt, dt from the CFL rule unless solver.dt is given) and the outputs (end_time / output.every).
+A mapped grid (`domain.map`) is sized from its map: nodes are its control points in parameter space, each
+particle keeps its parametric coordinates, the map keeps its control points, weights and wall normals, and the CFL
+rule uses its smallest cell.
 `check(cfg)` refuses a run that does not fit (ConfigError, exit 2) and warns about absurd step or output counts,
 which are usually a unit slip (E in Pa given as GPa x 1e9 twice, dt = 1e-12, output.every = 1e-9).
 See docs/reliability.md.
@@ -19,6 +22,7 @@ import numpy as np
 
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
+from .mapped import MappedGrid
 from .config import Config, ConfigError
 from .grid import LEAF, MAX_TOP_POINTERS, _pow2
 from . import materials as material_models
@@ -111,6 +115,7 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
     floats += d if body_force else 0
     floats += 1 if cfg.solver.basis in ("gimp", "cpdi") and len(spacings) > 1 else 0   # domain half-widths
     floats += material_models.state_size(mats, d)                 # plastic strain, J_p, ... (materials/)
+    floats += MappedGrid.PARTICLE_FLOATS if cfg.domain.map is not None else 0   # parametric coordinates xi_p
     n = floats * size + (1 if len(mats) > 1 else 0)
     if cfg.crack is not None:
         has_law = any(getattr(m, "tensile_strength", None) is not None and material_models.MODELS[m.model].damage
@@ -121,12 +126,22 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
     return n
 
 
-def grid_layout(cfg: Config) -> dict:
-    """Nodes per axis and, for a sparse grid, the pointer levels as `grid.Grid` builds them."""
+def _mapped(cfg: Config) -> MappedGrid | None:
+    """The host side of a mapped grid (numpy only: allocates no Taichi field), or None."""
+    return MappedGrid(cfg) if cfg.domain.map is not None else None
+
+
+def grid_layout(cfg: Config, mapped: MappedGrid | None = None) -> dict:
+    """Nodes per axis and, for a sparse grid, the pointer levels as `grid.Grid` builds them. A mapped grid's
+    nodes are its control points (parameter space), not the box divided by domain.dx."""
     d = cfg.dim
     basis = make_basis(cfg.solver.basis, grid_knots(cfg))
-    cells = [round((u - l) / cfg.domain.dx) for l, u in zip(cfg.domain.lower, cfg.domain.upper)]
-    nodes = [basis.axis(a).nodes(c) for a, c in enumerate(cells)]
+    mapped = mapped if mapped is not None else _mapped(cfg)
+    if mapped is not None:
+        cells, nodes = [int(c) for c in mapped.map.n_cells], list(mapped.shape)
+    else:
+        cells = [round((u - l) / cfg.domain.dx) for l, u in zip(cfg.domain.lower, cfg.domain.upper)]
+        nodes = [basis.axis(a).nodes(c) for a, c in enumerate(cells)]
     out = dict(cells=cells, nodes=nodes, stencil=basis.stencil)
     if cfg.domain.sparse:
         leaf = LEAF[d]
@@ -157,16 +172,24 @@ def _active_blocks(cfg: Config, layout: dict, base_dir) -> tuple[int, int]:
     return min(leaves, math.prod(layout["blocks"])), min(tops, math.prod(layout["levels"][0]))
 
 
-def _grid_bytes(cfg: Config, base_dir) -> tuple[int, str, list[int]]:
+def _grid_bytes(cfg: Config, base_dir, mapped: MappedGrid | None = None) -> tuple[int, str, list[int]]:
     d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
-    layout = grid_layout(cfg)
+    layout = grid_layout(cfg, mapped)
+    map_bytes = mapped.field_floats() * size if mapped is not None else 0
     vectors = 1 + (cfg.solver.transfer == "flip") + (cfg.solver.update == "musl") + (d if cfg.crack else 0)
     node_bytes = size * (1 + d * vectors)
     nodes = math.prod(layout["nodes"])
     ddmp = cfg.solver.basis == "ddmp"   # its nodal volumes live on a grid of their own, one scalar per node
     if not cfg.domain.sparse:
-        return nodes * (node_bytes + (size if ddmp else 0)), f"dense, {nodes:.3g} nodes", layout["cells"]
-    leaves, tops = _active_blocks(cfg, layout, base_dir)
+        return (nodes * (node_bytes + (size if ddmp else 0)) + map_bytes, f"dense, {nodes:.3g} nodes",
+                layout["cells"])
+    if mapped is not None:
+        # bodies are given in physical space: the parameter blocks they touch are not known without inverting
+        # the map, so count every block (a map's grid is small: the bound costs little)
+        leaves = math.prod(layout["blocks"])
+        tops = math.prod(layout["levels"][0])
+    else:
+        leaves, tops = _active_blocks(cfg, layout, base_dir)
     grids = 2 if cfg.crack is not None else 1  # the crack finder keeps node normals on a second sparse grid
     top_slots = math.prod(layout["levels"][0])
     pointers = top_slots + (tops * layout["mid"] ** d if len(layout["levels"]) > 1 else 0)
@@ -174,10 +197,11 @@ def _grid_bytes(cfg: Config, base_dir) -> tuple[int, str, list[int]]:
     total = grids * pointers * POINTER_SLOT_BYTES + leaf_nodes * (node_bytes + (size * (1 + d) if grids > 1 else 0))
     if ddmp:
         total += pointers * POINTER_SLOT_BYTES + leaf_nodes * size
+    total += map_bytes
     return total, f"sparse, {top_slots:.3g} top pointers, ~{leaves:,} active blocks", layout["cells"]
 
 
-def _time_step(cfg: Config, base_dir) -> tuple[float, str]:
+def _time_step(cfg: Config, base_dir, mapped: MappedGrid | None = None) -> tuple[float, str]:
     s = cfg.solver
     if s.dt is not None:
         return s.dt, "from solver.dt"
@@ -193,7 +217,8 @@ def _time_step(cfg: Config, base_dir) -> tuple[float, str]:
                 v += float(np.linalg.norm(np.atleast_1d(b.angular_velocity))) * 0.5 * float(np.linalg.norm(hi - lo))
         if fastest is None or v > vmax:
             vmax, fastest = v, i
-    dt = s.cfl * smallest_span(cfg) / (c + vmax)   # dx, or the shortest span of domain.knots
+    h = mapped.h_min if mapped is not None else smallest_span(cfg)   # the map's smallest cell, else dx or a knot span
+    dt = s.cfl * h / (c + vmax)
     if not dt > 0:  # a speed (or wave speed) so large that the step underflows: found by tests/test_fuzz.py
         key = f"bodies.{fastest}.velocity" if vmax >= c else f"materials.{which}"
         raise ConfigError(f"the CFL time step underflows to zero (wave speed {c:.3g} m/s, body speed {vmax:.3g} m/s, "
@@ -216,8 +241,9 @@ def estimate(cfg: Config, body_force: bool = False) -> Estimate:
         per_body.append(int(round(count)))
         lo, hi = shape_bounds(b.shape, d, base_dir, key)
         lattice = max(lattice, math.prod(int(math.ceil(e / h)) + 1 for e in hi - lo) * d * 8 * 3)
-    grid_bytes, grid_detail, cells = _grid_bytes(cfg, base_dir)
-    dt, dt_source = _time_step(cfg, base_dir)
+    mapped = _mapped(cfg)
+    grid_bytes, grid_detail, cells = _grid_bytes(cfg, base_dir, mapped)
+    dt, dt_source = _time_step(cfg, base_dir, mapped)
     steps = cfg.solver.end_time / dt
     if cfg.solver.max_steps is not None and cfg.solver.max_steps < steps:
         steps, dt_source = float(cfg.solver.max_steps), dt_source + "; capped by solver.max_steps"

@@ -356,7 +356,7 @@ def cmd_validate(args) -> int:
     except ConfigError as e:
         raise locate(e, cfg) from None
     print(yaml.safe_dump(io.config_dict(cfg), sort_keys=False, default_flow_style=None), end="")
-    counts = [round((u - l) / cfg.domain.dx) for l, u in zip(cfg.domain.lower, cfg.domain.upper)]
+    counts = estimate.grid_cells   # the box / domain.dx, or a mapped grid's cells (budget.grid_layout)
     print(f"valid: {scene.n} particles in {len(cfg.bodies)} bod{'y' if len(cfg.bodies) == 1 else 'ies'}, "
           f"grid {'x'.join(map(str, counts))} cells", file=sys.stderr)
     print(estimate.summary(), file=sys.stderr)

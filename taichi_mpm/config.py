@@ -615,7 +615,9 @@ class Config(Strict):
         if self.domain.knots is not None:
             raise _Located("domain.knots", "give either domain.knots or domain.map (the map has its own knots)")
         if self.crack is not None:
-            raise _Located("domain.map", "mapped grids are not available with a crack section")
+            raise _Located("domain.map", "domain.map cannot be combined with the crack finder (section 'crack'): its "
+                                         "SPH reach, cell list and crack normals assume the Cartesian grid; remove "
+                                         "one of the two")
         if m.type == "nurbs":
             self._check_nurbs_map(m)
         else:

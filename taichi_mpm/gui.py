@@ -11,12 +11,13 @@ parameters, Simulation.set_gravity / set_stiffness_scale / set_flip_blend); butt
 transfer, which restart the scene (those are compile-time choices; the sliders' values carry over). A strip chart
 at the bottom right draws the kinetic, strain and total energy of the last frames.
 
-1D bars are drawn along x, 2D scenes as they are. A 3D scene opens Taichi's GGUI scene (ggui.py: lit spheres, a
-depth buffer, a perspective camera) where GGUI is built in and a Vulkan device answers (`view_3d_kind`), else an
-orthographic projection in ti.GUI, painter-ordered and depth-shaded; the arrow keys turn either, and the title says
-which is used and, for the fallback, why. Colour limits are robust (percentiles of the recent frames,
-colour_range.LiveLimits). The view logic (`View`), the push (`push_particles`) and the session (`Session`: keys,
-sliders, switches, chart) are plain numpy, testable without a window.
+1D bars are drawn along x, 2D scenes as they are (a mapped grid's cells, domain.map, behind the particles). A 3D
+scene opens Taichi's GGUI scene (ggui.py: lit spheres, a depth buffer, a perspective camera) where GGUI is built in
+and a Vulkan device answers (`view_3d_kind`), else an orthographic projection in ti.GUI, painter-ordered and
+depth-shaded; the arrow keys turn either, and the title says which is used and, for the fallback, why. Colour
+limits are robust (percentiles of the recent frames, colour_range.LiveLimits). The view logic (`View`), the push
+(`push_particles`) and the session (`Session`: keys, sliders, switches, chart) are plain numpy, testable without a
+window.
 """
 from __future__ import annotations
 
@@ -231,6 +232,7 @@ class Session:
         self.cmap = c.output.render.colormap
         self.limits = self._limits()
         self.frame_time = c.output.every
+        self.grid_segments = self._grid_segments()
         self.radius_px = max(1.0, 0.6 * float(np.median(sim.scene.spacing)) * self.view.scale)
         self.sphere_radius = 0.5 * float(np.median(sim.scene.spacing))   # world units (the GGUI scene)
         wave = float(getattr(sim, "wave_speed", 0.0) or 0.0)
@@ -244,6 +246,16 @@ class Session:
         if c.solver.transfer == "flip":
             sim.set_flip_blend(self.flip_blend)
         self.record_energy()
+
+    def _grid_segments(self):
+        """(begin, end) window-unit segments of a mapped grid's cell edges (render.grid_lines), or None."""
+        from .render import grid_lines
+
+        lines = grid_lines(self.cfg)
+        if not lines:
+            return None
+        projected = [self.view.project(line)[0] for line in lines]
+        return np.concatenate([p[:-1] for p in projected]), np.concatenate([p[1:] for p in projected])
 
     def _limits(self):
         r = self.cfg.output.render
@@ -485,6 +497,8 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None, view:
             pos, colours, status = session.picture()
             begin, end = session.view.box_edges()
             gui.lines(begin, end, radius=1, color=0x999999)
+            if session.grid_segments is not None:
+                gui.lines(*session.grid_segments, radius=1, color=0xCCCCCC)
             gui.circles(pos, radius=session.radius_px, color=colours)
             _draw_chart(gui, session)
             gui.text(status, pos=(0.01, 0.99), font_size=16, color=0x000000)

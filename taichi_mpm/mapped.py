@@ -83,6 +83,13 @@ class MappedGrid:
     def allocate_particles(self, n: int):
         self.xi = ti.Vector.field(2, float, max(n, 1))
 
+    PARTICLE_FLOATS = 2    # xi_p, per particle (budget.py counts it)
+
+    def field_floats(self) -> int:
+        """Floats of the map's own fields: control points (2) and weights (1) per control point, the wall normals
+        (4 faces x 2 per node); the knot vectors' few floats are left out. budget.py counts them."""
+        return 3 * int(np.prod(self.map.w.shape)) + 8 * int(np.prod(self.shape))
+
     def initial_guess(self, x: np.ndarray) -> np.ndarray:
         """Per physical point, the parameters of the nearest of 3 x 3 samples per cell (Newton starts there,
         within a third of a cell of the answer). Points are sorted into the cells of a coarse box grid first, and

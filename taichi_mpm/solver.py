@@ -244,6 +244,8 @@ class Simulation:
         if self.crack is not None:
             self.bytes_per_particle += self.crack.bytes_per_particle()
         self.bytes_per_particle += self.fbar.bytes_per_particle() if self.fbar is not None else 0
+        if self.mapped is not None:   # the parametric coordinates xi_p
+            self.bytes_per_particle += MappedGrid.PARTICLE_FLOATS * (8 if self.cfg.precision == "f64" else 4)
 
     def _unroll(self) -> bool:
         """Unroll the stencil loop: always for `solver.unroll: true`, for auto when it has at most 16 nodes."""

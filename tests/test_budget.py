@@ -181,3 +181,43 @@ def test_ddmp_counts_its_nodal_volume_grid():
             assert with_vol - plain == 8 * nodes
         else:
             assert with_vol > plain
+
+
+@pytest.mark.parametrize("sparse", [False, True])
+def test_mapped_grid_is_sized_from_its_map(sparse):
+    """domain.map: the grid's nodes are the map's control points in parameter space (a full annulus of 24 x 4
+    cells: 4 quarter pieces joined by double knots, the seam column stored once), not the box [-1.1, 1.1]^2 / dx
+    (44 x 44 cells, 46 x 46 nodes); each particle carries its parametric coordinates xi_p (2 floats); the map
+    keeps control points, weights and wall normals; the CFL step follows the map's smallest cell. Held against
+    what Simulation allocates (the stretch scene of tests/test_mapped.py: the same kernels)."""
+    import taichi as ti
+    from test_mapped import ring_cfg
+
+    data = ring_cfg(walls="free", model="neo_hookean")
+    data["domain"]["sparse"] = sparse
+    cfg = tm.load_config(data)
+    sim = tm.Simulation(cfg)
+    layout = budget.grid_layout(cfg)
+    assert layout["nodes"] == list(sim.grid.shape) == [24 + 3 + 1, 4 + 2]   # 24 + 2 + 3 double knots, minus the seam
+    assert layout["cells"] == [24, 4]
+    assert budget.device_bytes_per_particle(cfg) == sim.bytes_per_particle
+    plain = copy.deepcopy(data)
+    del plain["domain"]["map"]
+    xi = sim.mapped.xi
+    assert xi.shape == (sim.n,) and xi.n == 2 and xi.dtype == ti.f64
+    assert budget.device_bytes_per_particle(cfg) - budget.device_bytes_per_particle(tm.load_config(plain)) == 2 * 8
+    est = budget.estimate(cfg)
+    nodes = 28 * 6
+    map_floats = 3 * 29 * 6 + 8 * nodes        # P (2) and w (1) per control point (the seam column twice), normals
+    if sparse:
+        assert tuple(sim.grid.levels[0].shape) == tuple(layout["levels"][0])
+        blocks = math.prod(layout["blocks"])     # every block counted: the parameter grid is small
+        assert est.grid_bytes == (math.prod(layout["levels"][0]) * budget.POINTER_SLOT_BYTES
+                                  + blocks * budget.LEAF[2] ** 2 * 8 * 3 + map_floats * 8)
+    else:
+        assert est.grid_bytes == nodes * 8 * 3 + map_floats * 8     # mass and velocity per node, f64
+    assert sim.mapped.map.w.size * 3 + 8 * nodes == map_floats
+    assert est.dt == pytest.approx(sim.stable_dt(), rel=1e-12)      # at rest: cfl h_min / c on both sides
+    # the smallest cell is a radial one, 0.5 / 4 = 0.125 m (inner arcs 2 * 0.5 sin(pi / 24) = 0.13 m), not dx
+    assert est.dt == pytest.approx(0.4 * 0.125 / sim.wave_speed, rel=1e-12)
+    assert est.particles == pytest.approx(sim.n, rel=0.05)

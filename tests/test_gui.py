@@ -214,6 +214,7 @@ def test_session_sliders_switch_and_energy_chart():
     assert not s.switch("basis", "wavelet") and "not possible" in s.message
 
 
+@pytest.mark.slow
 def test_session_gravity_stiffness_and_flip_sliders_reach_the_solver():
     """Without a window: the gravity, stiffness and FLIP-blend setters change the running simulation (no restart),
     the chart's total stays level across a gravity change (its potential reference moves with the jump), and a
@@ -240,3 +241,59 @@ def test_session_gravity_stiffness_and_flip_sliders_reach_the_solver():
     assert s.switch("transfer", "flip")
     assert s.sim.flip_blend == pytest.approx(0.3) and s.sim.stiffness_scale() == 4.0
     assert np.all(s.sim.gravity == 0.0)
+
+
+def mapped_scene():
+    """tests/test_mapped.py's stretch scene (its kernels): an elastic ring in the full annulus, here spinning."""
+    from test_mapped import ring_cfg
+
+    cfg = ring_cfg(walls="free", model="neo_hookean")
+    cfg["bodies"][0]["angular_velocity"] = 1.0
+    cfg["solver"]["end_time"] = 1.0
+    cfg["output"] = {"every": 0.02, "render": {"size": [300, 300], "color_by": "speed"}}
+    return cfg
+
+
+def test_session_on_a_mapped_grid_draws_its_cells_and_runs():
+    """A mapped scene in the windowless session: the cell edges of the annulus (render.grid_lines: 25 spokes and
+    5 circles) as window segments, which map back to the circles r = 0.5 .. 1.0 (1e-12: the view is affine);
+    frames advance, a drag pushes, and a basis switch the map refuses leaves the scene running with a message."""
+    import taichi as ti
+
+    sim = tm.Simulation(mapped_scene())
+    s = Session(sim, (300, 300))
+    begin, end = s.grid_segments
+    assert len(begin) == len(end) == 25 * 4 * 12 + 5 * 24 * 12   # 12 segments per cell edge
+    assert np.all((begin >= 0) & (begin <= 1)) and np.all((end >= 0) & (end <= 1))
+    centre, _ = s.view.project(np.zeros((1, 2)))
+    radii = np.linalg.norm([s.view.to_world_delta(p - centre[0]) for p in end], axis=1)
+    for r in 0.5 + 0.125 * np.arange(5):            # every radial knot's circle is drawn
+        assert np.abs(radii - r).min() < 1e-12
+    s.advance()
+    assert sim.time == pytest.approx(0.02)
+    pos, colours, status = s.picture()
+    assert pos.shape == (sim.n, 2) and np.all((pos > 0) & (pos < 1))
+    xs, _ = s.view.project(sim.particles()["x"])
+    assert s.drag(xs[0], xs[0] + [0.02, 0.0]) > 0
+    assert s.press("b") and s.sim is sim                          # quadratic -> cubic: refused for a map
+    assert "not possible" in s.message and "quadratic" in s.message
+    assert s.press(ti.GUI.SPACE) and s.paused
+    assert s.advance() is False and sim.time == pytest.approx(0.02)     # paused: the same scene, not moving
+    assert Session(tm.Simulation(make_cfg(2, dx=0.1)), (300, 300)).grid_segments is None   # no map: no cells
+
+
+@pytest.mark.slow   # a window of its own (Xvfb); the default run keeps the 2D slider/switch window
+def test_gui_draws_a_mapped_grid_under_xvfb(tmp_path, xvfb):
+    """The window on a mapped scene: two frames and a screenshot holding the grid's light grey (0xCCCCCC) lines."""
+    import imageio.v2 as imageio
+
+    shot = tmp_path / "shot.png"
+    env = dict(os.environ, DISPLAY=xvfb)
+    res = subprocess.run([sys.executable, "-c", GUI_SCRIPT, json.dumps(mapped_scene()), str(shot), "{}"], env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    state = json.loads(res.stdout.split("STATE")[-1])
+    assert state["time"] == pytest.approx(4 * 0.02, rel=1e-6)
+    img = imageio.imread(shot)[..., :3]
+    grey = (img == [0xCC, 0xCC, 0xCC]).all(axis=-1)
+    assert grey.sum() > 300

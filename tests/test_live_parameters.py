@@ -57,6 +57,7 @@ def test_gravity_changed_mid_run_follows_the_piecewise_free_fall():
     assert abs(sim.energy_balance()["ratio"]) < 1e-9
 
 
+@pytest.mark.slow
 def test_gravity_switched_on_in_a_scene_without_it():
     """The gravity term is compiled whatever the config says, so a scene without gravity can be given some: the
     velocity is then g t exactly (the grid update adds g dt to every node; 1e-12 is round-off)."""
@@ -84,6 +85,7 @@ def _half_period(sim, end):
     return crossings[1] - crossings[0]
 
 
+@pytest.mark.slow
 def test_stiffness_scale_shortens_the_vibrating_bar_period_by_its_square_root():
     """Bardenhagen's fixed-fixed bar (period 2 L / c = 5 s at scale 1). Scale 4 must halve the period: measured
     ratio 0.4999983; 1e-3 allows for the discrete bar's dispersion changing a little with dt / period (the CFL step
@@ -138,6 +140,7 @@ def _steps(sim, n=25):
     return sim.particles()["v"]
 
 
+@pytest.mark.slow
 def test_flip_blend_zero_and_one_equal_the_pic_and_flip_runs():
     """A pure FLIP run (flip_blend 1) rewound and set to blend 0 gives the PIC run's velocities (v = 0 (v + dv) +
     1 v_grid is PIC's update), and set back to 1 the FLIP run again: equal to round-off (rtol 1e-12 in f64), after 25

@@ -132,6 +132,7 @@ def test_duplicate_names_and_empty_regions_are_errors(tmp_path, capsys):
     assert "output.probes.0.region" in err and "selects no particle" in err and "c.yaml:" in err
 
 
+@pytest.mark.slow
 def test_plot_writes_pngs(resting_block, tmp_path, capsys):
     out, _, _ = resting_block
     assert main(["plot", str(out)]) == 0
