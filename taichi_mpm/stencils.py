@@ -390,7 +390,12 @@ def make_corner_check(ctx: KernelContext):
     cpdi = ctx.basis.kind == "cpdi"
     half_width = _domain_half_width(ctx)
     lower, upper = ctx.lower, ctx.upper
-    tol = 1e-6 * dx
+    # A corner a little past a wall is harmless: its cell is clamped to the wall cell, whose linear functions
+    # extrapolate with partition of unity and linear reproduction intact (weights down to -tol / dx). A body
+    # pressed against a sticky wall has such corners: x_p - F_p r0 misses the material point on the wall by the
+    # displacement's curvature, u'' r0^2 / 2 (G = 0.05 manufactured solution: 5e-5 dx at 16 cells, ~dx^2).
+    # A hundredth of a cell admits that and still stops a domain that has truly crossed.
+    tol = 0.01 * dx
 
     @ti.func
     def outside(p, xp, Fp):

@@ -221,7 +221,7 @@ def test_cpdi2_is_a_config_error():
     cfg["solver"]["cpdi"] = {"variant": "cpdi2"}
     with pytest.raises(ConfigError) as e:
         tm.load_config(cfg)
-    assert e.value.key == "solver.cpdi.variant"
+    assert e.value.key == "solver.cpdi.variant" and "not implemented" in str(e.value)
 
 
 # ---------------------------------------------------------------- manufactured solutions (slow)
@@ -246,6 +246,9 @@ def test_mms_1d_large_amplitude_converges():
 
 @pytest.mark.slow
 def test_mms_2d_large_amplitude_converges():
+    """Measured 6.79e-3 1.15e-3 4.67e-5 (rate 3.59) at the one-period instant where the exact displacement is
+    zero: partly a cancellation. At 3/4 period the same runs converge at 1.21 (quadratic 1.14), mostly a
+    first-order time-step error shared by every basis (docs/accuracy.md); this bound checks the study's metric."""
     cells = [8, 16, 32]
     errs = mms_errors(2, 0.05, cells)
     print("cpdi 2D G=0.05", errs, lsq_rate(cells, errs))
@@ -291,3 +294,50 @@ def test_apic_angular_momentum_spinning_disk_cpdi():
     L0, L1 = tcons.spinning_disk("cpdi", "usl", steps=200)
     print("cpdi spinning disk dL/L", (L1 - L0) / L0)
     assert abs(L1 - L0) < 1e-10 * abs(L0)
+
+
+# ---------------------------------------------------------------- large deformation: the stretched block
+def stretched_block(basis, t=0.2):
+    """configs/stretched_block.yaml (the demo of docs/bases.md) to time t. Returns, over the particles that start
+    in the middle half between the grips: the spread of sigma_xx (std / |mean|), its mean, and the stretch of
+    that section from the particle positions, lambda = current x-span / initial x-span."""
+    from pathlib import Path
+    cfg = tm.load_config(Path(__file__).resolve().parents[1] / "configs/stretched_block.yaml",
+                         {"solver.basis": basis})
+    sim = tm.Simulation(cfg)
+    X0 = sim.particles()["x"]
+    mid = (X0[:, 0] > 0.7) & (X0[:, 0] < 0.9)
+    sim.advance_to(t)
+    p = sim.particles()
+    s = p["stress"][mid, 0, 0]
+    lam = np.ptp(p["x"][mid, 0]) / np.ptp(X0[mid, 0])
+    return s.std() / abs(s.mean()), s.mean(), lam
+
+
+def uniaxial_neo_hookean_sxx(lam, E=1.0e5, nu=0.3):
+    """Cauchy sigma_xx of the solver's 2D neo-Hookean (tau = mu (F F^T - I) + lambda ln J I) stretched by lam
+    along x with sigma_yy = 0 (free sides): solve for the lateral stretch, then sigma_xx = tau_xx / J."""
+    from scipy.optimize import brentq
+    mu, la = E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+    l2 = brentq(lambda l2: mu * (l2 * l2 - 1) + la * math.log(lam * l2), 0.1, 1.0)
+    J = lam * l2
+    return (mu * (lam * lam - 1) + la * math.log(J)) / J
+
+
+@pytest.mark.slow   # two bases' step kernels (cold compile ~10 s each) and ~250 steps each
+def test_stretched_block_stress_is_smooth_with_cpdi_only():
+    """The block pulled to 1.4 x by its grips (Mach 0.03, quasi-static): its middle is in uniaxial tension, a
+    uniform sigma_xx. Measured (t = 0.2 s): std / mean of sigma_xx 0.036 for cpdi against 0.326 for linear (and
+    0.144 for gimp, docs/bases.md); cpdi's mean 4.10e4 Pa is the uniaxial neo-Hookean stress of the stretch read
+    from the particle positions (1.418: 4.12e4 Pa) to 0.5 %, linear's 2.43e4 Pa is 33 % short of its own (1.364:
+    3.62e4 Pa; its particles crossing cells lose tension). The 5 % bound on cpdi leaves room for the grips' lateral
+    constraint and the pull's waves; the noise bounds (cpdi < 0.06, linear > 4 x cpdi) fail for cell-crossing
+    noise of linear's size."""
+    cv_c, mean_c, lam_c = stretched_block("cpdi")
+    cv_l, mean_l, lam_l = stretched_block("linear")
+    print(f"cpdi cv {cv_c:.3g} mean {mean_c:.4g} stretch {lam_c:.3f}; linear cv {cv_l:.3g} mean {mean_l:.4g} "
+          f"stretch {lam_l:.3f}")
+    assert lam_c > 1.3 and lam_l > 1.3                      # the section really is stretched by 30 % or more
+    assert cv_c < 0.06 and cv_l > 4 * cv_c
+    assert mean_c == pytest.approx(uniaxial_neo_hookean_sxx(lam_c), rel=0.05)
+    assert mean_l < 0.8 * uniaxial_neo_hookean_sxx(lam_l)  # the defect cpdi removes, so this test can fail
