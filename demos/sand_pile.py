@@ -1,11 +1,12 @@
 """Sand (drucker_prager, phi = 30 deg) drains from a hopper through a narrow orifice and builds a pile on a rough
-floor below it, as in an hourglass: the grains arrive slowly, so the pile grows at its angle of repose (2D).
+floor 8 cm below it, as in an hourglass: the grains arrive slowly and land gently, so the pile grows at its angle
+of repose (2D).
 
     python demos/sand_pile.py [--set KEY=VALUE]... [--out DIR] [--plot docs/images/angle_of_repose.png]
 
 Loads configs/sand_pile.yaml and writes the outputs of its output section. At the end it prints the angle of the
-pile's two flanks against the friction angle (a cohesionless slope at rest stands at most at phi: the infinite
-slope's limit, tan(beta) = tan(phi)): measured in docs/materials.md, "Angle of repose".
+pile's two flanks against the friction angle (with `fit: simple_shear` a slope flows above phi and stands below
+it: tan(beta) = tan(phi) on the plane of its shear): measured in docs/materials.md, "Angle of repose".
 """
 import sys
 
