@@ -132,7 +132,7 @@ def test_sand_pile_stands_at_the_angle_of_repose(sand_pile):
     flows above phi and stands below it (test_plasticity: test_drucker_prager_friction_in_steady_simple_shear), so
     the grains that land on the pile roll down to phi; they land with some speed and carry a little further
     (measured: 28.3 / 28.3 deg at phi = 30, 23.2 / 23.2 deg at 25; with the plane-strain fit, whose slopes flow
-    down to atan(sin phi) = 26.6 deg, 24.4 deg; from the first hopper 15 cm up, 22.9 deg: docs/materials.md).
+    down to atan(sin phi) = 26.6 deg, 24.4 deg; from the first hopper 15 cm up, 22.5 deg: docs/materials.md).
     5 deg is the issue's bar; a wrong fit (plane strain: 3.4 deg lower in theory) or the first hopper fail it."""
     r = sand_pile.pile
     phi = sand_pile.cfg.materials["sand"].friction_angle
