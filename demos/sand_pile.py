@@ -1,11 +1,12 @@
 """Sand (drucker_prager, phi = 30 deg) drains from a hopper through a narrow orifice and builds a pile on a rough
-floor below it, as in an hourglass: the grains arrive slowly, so the pile grows at its angle of repose (2D).
+floor 8 cm below it, as in an hourglass: the grains arrive slowly and land gently, so the pile grows at its angle
+of repose (2D).
 
     python demos/sand_pile.py [--set KEY=VALUE]... [--out DIR] [--plot docs/images/angle_of_repose.png]
 
 Loads configs/sand_pile.yaml and writes the outputs of its output section. At the end it prints the angle of the
-pile's two flanks against the friction angle (a cohesionless slope at rest stands at most at phi: the infinite
-slope's limit, tan(beta) = tan(phi)): measured in docs/materials.md, "Angle of repose".
+pile's two flanks against the friction angle (with `fit: simple_shear` a slope flows above phi and stands below
+it: tan(beta) = tan(phi) on the plane of its shear): measured in docs/materials.md, "Angle of repose".
 """
 import sys
 
@@ -14,14 +15,14 @@ import numpy as np
 import taichi_mpm as tm
 from _common import parse, run
 
-ORIFICE_Y = 0.15      # the hopper's outlet height in configs/sand_pile.yaml
+AT_REST = 0.05        # m/s: slower than this a grain belongs to the pile (grains still falling are ~1 m/s)
 
 
-def flank_angles(x, dx, axis_x):
+def flank_angles(x, dx, axis_x, orifice_y):
     """Angles (degrees) of the left and right flanks of the pile below the hopper: lines fitted to the top of each
     column dx wide where the surface lies between 20 % and 80 % of the pile's height (without the rounded apex and
-    the thin toe), on each side of the axis x = axis_x."""
-    x = x[x[:, 1] < ORIFICE_Y - 2 * dx]                      # the pile, not the sand still in the hopper
+    the thin toe), on each side of the axis x = axis_x. x: the grains at rest."""
+    x = x[x[:, 1] < orifice_y - 2 * dx]                      # the pile, not the sand still in the hopper
     if len(x) == 0:
         return [float("nan"), float("nan")]
     bins = np.floor(x[:, 0] / dx).astype(int)
@@ -40,11 +41,14 @@ def pile(sim):
     """The pile's flank angles, height and the fraction of the sand that has left the hopper."""
     p = sim.particles()
     sand = p["body"] == 2
-    x = p["x"][sand]
+    orifice_y = float(p["x"][~sand, 1].min())               # the hopper walls' lowest point
+    x, speed = p["x"][sand], np.linalg.norm(p["v"][sand], axis=1)
     dx = sim.cfg.domain.dx
-    left, right = flank_angles(x, dx, 0.2)
-    below = x[:, 1] < ORIFICE_Y - 2 * dx
-    return dict(left=left, right=right, height=float(x[below, 1].max()) if below.any() else 0.0,
+    rest = x[speed < AT_REST]
+    left, right = flank_angles(rest, dx, 0.2, orifice_y)
+    below = x[:, 1] < orifice_y - 2 * dx
+    pile_top = rest[rest[:, 1] < orifice_y - 2 * dx, 1]
+    return dict(left=left, right=right, height=float(pile_top.max()) if len(pile_top) else 0.0,
                 drained=float(below.mean()))
 
 
@@ -62,7 +66,7 @@ def plot(x, body, r, phi, path):
     for sign in (-1, 1):
         ax.plot(0.2 + sign * s, top - s * np.tan(np.radians(phi)), "k--", lw=1,
                 label=f"friction angle {phi:g} deg" if sign < 0 else None)
-    ax.set(xlim=(0, 0.4), ylim=(0, 0.3), aspect=1, xlabel="x [m]", ylabel="y [m]",
+    ax.set(xlim=(0, 0.4), ylim=(0, 0.24), aspect=1, xlabel="x [m]", ylabel="y [m]",
            title=f"flanks {r['left']:.1f} and {r['right']:.1f} deg")
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()

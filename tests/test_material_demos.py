@@ -54,7 +54,7 @@ def test_sand_pile_quick_hopper_holds_and_drains(tmp_path):
     sand = ~walls
     drop = float((sim.scene.x[sand, 1] - p["x"][sand, 1]).mean())
     assert 0.002 < drop < 0.5 * 0.5 * 9.81 * 0.15**2
-    assert p["x"][sand, 1].min() < 0.15 - 0.01                 # the first grains are through the orifice
+    assert p["x"][sand, 1].min() < 0.08 - 0.01                 # the first grains are through the orifice (y = 0.08)
 
 
 # ---------------------------------------------------------------- 3D granular collapse
@@ -107,32 +107,40 @@ def test_necking_peak_load_matches_considere_and_the_neck_localises(tmp_path):
 
 
 
-@pytest.fixture(scope="module")
-def sand_pile(tmp_path_factory):
-    """The full hopper demo (dx 4 mm, 1.5 s), run once for the tests below."""
+@pytest.fixture(scope="module", params=[30.0, 25.0], ids=["phi30", "phi25"])
+def sand_pile(request, tmp_path_factory):
+    """The full hopper demo (dx 4 mm, 1.5 s; friction angle 30 deg, its config, and 25 deg), run once per angle for
+    the tests below."""
     out = tmp_path_factory.mktemp("sand_pile") / "run"
-    return load_demo("sand_pile").main(["--set", "arch=cpu", "--set", "output.formats=[]", "--out", str(out)])
+    return load_demo("sand_pile").main(["--set", "arch=cpu", "--set", "output.formats=[]", "--out", str(out),
+                                        "--set", f"materials.sand.friction_angle={request.param}"])
 
 
 @pytest.mark.slow
 def test_sand_pile_drains_into_a_symmetric_pile_at_rest(sand_pile):
-    """The hopper empties (measured 98 % of the sand below it at 1.5 s) into one pile at rest, whose two flanks
-    stand at the same angle (the scene is mirror-symmetric; measured 19.7 and 19.7 deg): 2 deg allows the
-    asymmetry of the unordered atomics grown in the flow, a lopsided pile differs by much more."""
+    """The hopper empties (measured 94 % of the sand below it at 1.5 s at phi = 30 deg, 98 % at 25; the rest clings
+    to the gripped plates) into one pile at rest, whose two flanks stand at the same angle (the scene is
+    mirror-symmetric; measured 28.3 and 28.3 deg, 23.2 and 23.2 deg): 2 deg allows the asymmetry of the unordered atomics grown in the flow, a lopsided pile differs by
+    much more."""
     r = sand_pile.pile
     assert r["drained"] > 0.9, r
     assert abs(r["left"] - r["right"]) < 2.0, r
-    assert sand_pile.energy()["kinetic"] < 1e-4 * 30.6          # at rest: against the 30.6 J/m of gravity at t = 0
+    p, x0 = sand_pile.particles(), sand_pile.scene.x
+    released = float(np.sum(p["mass"] * 9.81 * (x0[:, 1] - p["x"][:, 1])))   # the sand's loss of height (J/m)
+    assert sand_pile.energy()["kinetic"] < 1e-3 * released, released           # at rest
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="measured 19.7 deg against phi = 30 deg (docs/materials.md, Angle of repose): the poured "
-                          "sand lands dilated (J_p > 1, no volume correction) and spreads", strict=False)
 def test_sand_pile_stands_at_the_angle_of_repose(sand_pile):
-    """Issue 11: a pile built at rest stands within 5 deg of the friction angle (a cohesionless slope at rest is at
-    most at phi; poured slowly, it forms at phi)."""
+    """Issue 11: a pile poured slowly stands within 5 deg of the friction angle. With the simple_shear fit a slope
+    flows above phi and stands below it (test_plasticity: test_drucker_prager_friction_in_steady_simple_shear), so
+    the grains that land on the pile roll down to phi; they land with some speed and carry a little further
+    (measured: 28.3 / 28.3 deg at phi = 30, 23.2 / 23.2 deg at 25; with the plane-strain fit, whose slopes flow
+    down to atan(sin phi) = 26.6 deg, 24.4 deg; from the first hopper 15 cm up, 22.5 deg: docs/materials.md).
+    5 deg is the issue's bar; a wrong fit (plane strain: 3.4 deg lower in theory) or the first hopper fail it."""
     r = sand_pile.pile
-    assert abs(r["left"] - 30) < 5 and abs(r["right"] - 30) < 5, r
+    phi = sand_pile.cfg.materials["sand"].friction_angle
+    assert abs(r["left"] - phi) < 5 and abs(r["right"] - phi) < 5, r
 
 
 @pytest.fixture(scope="module")
@@ -157,8 +165,8 @@ def test_granular_collapse_3d_comes_to_rest_round(collapse_3d):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="measured 0.64 against 1.24 (-48 %) at dx = R0 / 6 (docs/materials.md): finer 3D grids "
-                          "are beyond 2 cores; the 2D run-out of a = 0.5 grew by 60 % from L0/10 to L0/40", strict=False)
+@pytest.mark.xfail(reason="measured 0.64 against 1.24 (-48 %) at dx = R0 / 6, 0.66 at R0 / 9; 0.79 with the "
+                          "plane-strain cone (docs/materials.md): the cause is not found", strict=False)
 def test_granular_collapse_3d_run_out_against_lube_2004(collapse_3d):
     """Lube et al. 2004 (axisymmetric columns): (R_inf - R0) / R0 = 1.24 a for a < 1.7, within 25 %."""
     d = collapse_3d.deposit

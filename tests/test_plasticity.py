@@ -171,6 +171,70 @@ def test_return_mapping_in_f32(model):
         assert (f_new <= 1e-5 * np.maximum(np.abs(t_tr).max((1, 2)), k) + 5e-6 * E).all()
 
 
+# ---------------------------------------------------------------- drucker_prager: friction in steady simple shear
+def simple_shear_stress(fit, phi, steps=2000, rate=1e-4):
+    """A plane-strain drucker_prager point (c = 0, psi = 0), pre-compressed, then sheared at fixed volume
+    (F <- (I + rate e_x e_y) F, return mapping each step) to a total shear of steps x rate: the final Kirchhoff
+    stress (3x3)."""
+    _init()
+    m = material("drucker_prager", friction_angle=phi, cohesion=0.0, dilatancy=0.0, fit=fit)
+    funcs = MODELS["drucker_prager"].build(m, 2, len(MODELS["drucker_prager"].state(2)))
+    out = ti.Matrix.field(3, 3, float, ())
+
+    @ti.kernel
+    def go():
+        F = ti.Matrix([[ti.exp(-0.002), 0.0], [0.0, ti.exp(-0.004)]])
+        q = ti.Vector([0.0, 1.0, 1.0])          # plastic strain, J_p, held stretch
+        for _ in range(1):                      # serial
+            for s in range(steps):
+                F = (ti.Matrix.identity(float, 2) + ti.Matrix([[0.0, rate], [0.0, 0.0]])) @ F
+                F, q, d = funcs.project(F, q)
+        out[None] = funcs.kirchhoff3(F, ti.Matrix.zero(float, 2, 2), q)
+
+    go()
+    return out.to_numpy()
+
+
+@pytest.mark.parametrize("fit, mu", [("plane_strain", math.sin), ("simple_shear", math.tan)])
+def test_drucker_prager_friction_in_steady_simple_shear(fit, mu):
+    """Isochoric flow (psi = 0) in steady simple shear makes dev(tau) pure shear, so on the shear plane
+    tau_xy / -sigma_yy = 3 a / sqrt(2): sin(phi) for the plane-strain fit (Mohr-Coulomb's limit loads; a slope of it
+    flows down to atan(sin phi) = 26.6 deg at phi = 30 deg) and tan(phi) for the simple_shear fit (its slopes stand
+    at phi). Driven to a shear of 0.2 (about 60 yield strains): measured 0.4984 against sin 30 = 0.5 and the same
+    0.3 % below tan 30; the 1 % tolerance leaves room for the finite rotation of the elastic strain in simple shear,
+    while the two fits differ by 15 % at 30 deg (and the compression cone by 38 %)."""
+    t = simple_shear_stress(fit, 30.0)
+    assert t[0, 1] / -t[1, 1] == pytest.approx(mu(math.radians(30.0)), rel=0.01)
+    assert t[0, 0] == pytest.approx(t[1, 1], rel=0.02) and t[2, 2] == pytest.approx(t[1, 1], rel=0.02)  # pure shear
+
+
+def test_drucker_prager_volume_correction():
+    """volume_correction: sand loosened by the tension cut-off (J_p > 1) compacts at no stress until it is back at its packed volume
+    (Tampubolon et al. 2017), then bears load as packed sand does; det F_e J_p (the particle's volume) is kept.
+    Rotated plane-strain trials, c = 0, psi = 0 (the correction's domain); f64, so 1e-12."""
+    c, s_ = math.cos(0.3), math.sin(0.3)
+    R = np.array([[c, -s_], [s_, c]])
+    Fs = np.array([R * 0.95, R * 0.95, R * 0.95])        # trial: 9.75 % less area than the step before
+    q0 = np.array([[0.0, 1.3, 1.0],                        # loose by 30 %: still loose after the step
+                   [0.0, 1.05, 1.0],                       # loose by 5 %: packed, then compressed by 5.2 %
+                   [0.0, 1.0, 1.0]])                       # packed: compressed elastically (inside the cone)
+    Fn, qn, diss, t_tr, t_new = run_projection("drucker_prager", 2, Fs, q0, cohesion=0.0, dilatancy=0.0,
+                                               volume_correction=True)
+    J = np.linalg.det(Fs) * q0[:, 2] * q0[:, 1]                                     # plane strain: held F_zz
+    assert np.allclose(np.linalg.det(Fn) * qn[:, 2] * qn[:, 1], J, rtol=1e-12)      # volume kept
+    assert np.allclose(Fn[0], R, atol=1e-12) and np.abs(t_new[0]).max() < 1e-9 * E  # compacting: stress-free
+    assert qn[0, 1] == pytest.approx(1.3 * 0.95**2, rel=1e-12)
+    assert qn[1, 1] == pytest.approx(1.0, abs=1e-12)                                # packed again
+    third = 1.05 ** (1 / 3)                                                         # the loose volume, per axis
+    assert np.allclose(Fn[1], R * 0.95 * third, rtol=1e-12) and qn[1, 2] == pytest.approx(third, rel=1e-12)
+    assert (Fn[2] == Fs[2]).all() and (qn[2] == q0[2]).all()                        # packed: unchanged
+    assert (diss >= 0).all()
+    # switched off (the default), or with dilatancy (whose added volume must stay), the loose sand bears load at once
+    for over in (dict(dilatancy=0.0), dict(dilatancy=5.0, volume_correction=True)):
+        Fo, qo, _, _, to = run_projection("drucker_prager", 2, Fs[:1], q0[:1], cohesion=0.0, **over)
+        assert qo[0, 1] == pytest.approx(1.3, rel=1e-12) and np.trace(to[0]) < -0.05 * E
+
+
 # ---------------------------------------------------------------- J2: uniaxial stress against the closed form
 def uniaxial_stress_curve(strains, **over):
     """A von_mises material point driven in 3D: axial Hencky strain increments dx, the lateral stretch found by the

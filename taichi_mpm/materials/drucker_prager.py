@@ -18,6 +18,13 @@ mapping in principal Hencky strains, after the update (K = lam + 2 mu / 3):
     apex (tension cut-off: the cone return would pass the apex, e.g. any tr(eps_tr) > 0 without cohesion):
            eps = k / (9 K a) (1, 1, 1)  (c = 0: eps = 0, F_e = the rotation of F_e^trial: Klar's case II)
 
+`fit: simple_shear` takes the cone whose steady isochoric simple shear has shear stress = c + tan(phi) x normal
+stress on the shear plane (a = sqrt(2) tan(phi) / 3, k = sqrt(2) c): phi is then the angle at which a slope stops
+flowing, the angle of repose (the plane-strain fit's slopes stop at atan(sin phi)). `volume_correction: true`
+(Tampubolon et al. 2017; psi = 0 only, where J_p - 1 is all loosening by the tension cut-off): the return starts
+from eps_tr + ln(J_p) / 3 (1, 1, 1), the trial strain measured from the packed state, so loosened sand compacts at
+no stress (apex, J_p falls) and bears load only past its packed volume (J_p = 1).
+
 Klar's hardening of the friction angle is not modelled (phi is fixed). The equivalent plastic strain
 (`plastic_strain`) accumulates sqrt(2/3) |d eps_p| and the plastic volume ratio J_p (`Jp`) the volume the
 return mapping adds (apex projections, dilatancy): the particle's volume is V0 det(F_e) J_p. The plastic dissipation
@@ -65,10 +72,17 @@ class DruckerPrager(Model):
         dilatancy: Angle = param(0.0, "deg", "dilatancy angle psi <= friction_angle of the plastic "
                                              "flow (0: volume-preserving flow)", ge=0, lt=90)
 
-        fit: Literal["compression", "plane_strain"] = param(
+        fit: Literal["compression", "plane_strain", "simple_shear"] = param(
             "compression", "", "how the cone matches Mohr-Coulomb of friction_angle and cohesion: compression (its "
-                               "compression meridian, as Klar et al.) or plane_strain (the same limit loads in plane "
-                               "strain; a weaker cone, for 2D geomechanics)")
+                               "compression meridian, as Klar et al.), plane_strain (the same limit loads in plane "
+                               "strain; a weaker cone, for 2D geomechanics) or simple_shear (shear stress = cohesion + "
+                               "tan(friction_angle) x normal stress on the plane of a steady simple shear: a slope "
+                               "flows above and stands below friction_angle, the angle of repose; mu(I)'s mu_s)")
+
+        volume_correction: bool = param(
+            False, "", "true: sand loosened by the tension cut-off (J_p > 1) compacts back to its packed volume at "
+                       "no stress before it bears load again (Tampubolon et al. 2017; with dilatancy 0 only); "
+                       "false: Klar et al.'s return, where the loosened volume stays")
 
         @model_validator(mode="after")
         def _dilatancy_below_friction(self):
@@ -84,6 +98,11 @@ class DruckerPrager(Model):
             if self.fit == "compression":
                 return cone(self.friction_angle), r * 6.0 * self.cohesion * math.cos(phi) / (3.0 - math.sin(phi)), \
                     cone(self.dilatancy)
+            if self.fit == "simple_shear":
+                # isochoric steady simple shear (psi = 0) has dev tau pure shear: |dev tau| = sqrt(2) tau_xy and
+                # tr(tau) = -3 p = 3 sigma_n, so f = 0 is tau_xy = c + tan(phi) sigma_n on the shear plane
+                r2 = math.sqrt(2.0)
+                return r2 * math.tan(phi) / 3.0, r2 * self.cohesion, r2 * math.tan(psi) / 3.0
             # plane strain (e.g. the Abaqus manual, "Matching Mohr-Coulomb in plane strain"): in p-q form
             # tan(beta) = sqrt(3) sin(phi) / sqrt(1 + sin(psi)^2 / 3), d = sqrt(3) c cos(phi) / sqrt(...), and
             # tan(psi_dp) = sqrt(3) sin(psi) / sqrt(...); |dev tau| = sqrt(2/3) q, tr(tau) = -3 p
@@ -107,30 +126,39 @@ class DruckerPrager(Model):
         a, k, b = m.cone
         eps_apex = k / (9.0 * K * a)
         r23 = math.sqrt(2.0 / 3.0)
-        flow_norm = math.sqrt(1.0 + 3.0 * b * b)
         P, JPS, Z = 0, 1, 2  # state slots: plastic strain, J_p, held stretch
 
         full, kirchhoff3, kirchhoff, energy = hencky_elasticity(mu, lam, dim, Z)
+        # with dilatancy, J_p > 1 is also the volume shear dilation added under load, which must stay: the volume
+        # correction would undo it, so it applies to volume-preserving flow only (all of J_p - 1 is then loosening)
+        correct = bool(m.volume_correction) and b == 0.0
 
         @ti.func
         def project(F, q):
             F3 = full(F, q)
             eps, Q = hencky(F3)
-            tr = eps.sum()
-            e = eps - tr / 3.0
+            loose = 0.0
+            if ti.static(correct):
+                loose = ti.max(ti.log(q[JPS]), 0.0)   # volume the tension cut-off added: it closes before load
+            eps_s = eps + loose / 3.0                 # the trial strain measured from the packed state
+            tr = eps_s.sum()
+            e = eps - eps.sum() / 3.0
             en = e.norm()
             f = 2.0 * mu * en + a * 3.0 * K * tr - k
             Fn, qn, diss = F, q, 0.0
-            if f > 0:
+            if f > 0 or loose > 0:
                 dg = f / (2.0 * mu + 9.0 * K * a * b)
                 eps_n = ti.Vector([eps_apex, eps_apex, eps_apex])   # apex (tension cut-off)
                 dep = r23 * (eps - eps_n).norm()
-                if 2.0 * mu * (en - dg) > 0:                        # the cone return stays on the cone
-                    eps_n = eps - dg * (e / en + b)
-                    dep = r23 * dg * flow_norm
+                if f <= 0:                                          # loose sand compacted into load: elastic
+                    eps_n = eps_s
+                    dep = r23 * (eps - eps_n).norm()
+                elif 2.0 * mu * (en - dg) > 0:                      # the cone return stays on the cone
+                    eps_n = eps_s - dg * (e / en + b)
+                    dep = r23 * (eps - eps_n).norm()
                 F3n = rescale_principal(F3, Q, eps, eps_n)
                 qn[P] = q[P] + dep
-                qn[JPS] = q[JPS] * ti.exp(tr - eps_n.sum())
+                qn[JPS] = q[JPS] * ti.exp(eps.sum() - eps_n.sum())   # det F_e J_p is kept
                 if ti.static(dim < 3):
                     qn[Z] = F3n[2, 2]
                 Fn = top_left(F3n, dim)
