@@ -70,6 +70,47 @@ def _knot(k, p: ti.template(), n: ti.template()):
     return ti.min(ti.max(k - p, 0), n)
 
 
+def cox_de_boor(p: int, knot: Callable):
+    """The Cox-de Boor recursion (The NURBS Book A2.2) for values and first derivatives of the p + 1 B-splines
+    that are nonzero on knot span c, [knot(c), knot(c + 1)), with 0/0 = 0 where repeated knots make a
+    denominator vanish. `knot(k, n)` (a @ti.func) is the k-th knot; n the cell count, for clamped knots."""
+
+    @ti.func
+    def evaluate(uu, c, n: ti.template()):
+        N = ti.Vector.zero(float, p + 1)   # degree-p values of the functions c-p..c of the span
+        M = ti.Vector.zero(float, p + 1)   # degree p-1 values, for the derivatives
+        N[0] = 1.0
+        for j in ti.static(range(1, p + 1)):
+            if ti.static(j == p):
+                M = N
+            saved = 0.0
+            for r in ti.static(range(j)):
+                right = knot(c + r + 1, n) - uu
+                left = uu - knot(c + 1 - j + r, n)
+                temp = 0.0
+                if right + left > 0:       # 0/0 = 0
+                    temp = N[r] / (right + left)
+                N[r] = saved + right * temp
+                saved = left * temp
+            N[j] = saved
+        dN = ti.Vector.zero(float, p + 1)
+        for r in ti.static(range(p + 1)):
+            # N'_{k,p} = p [N_{k,p-1} / (T_{k+p} - T_k) - N_{k+1,p-1} / (T_{k+p+1} - T_{k+1})], k = c - p + r
+            d = 0.0
+            if ti.static(r >= 1):
+                den = knot(c + r, n) - knot(c - p + r, n)
+                if den > 0:
+                    d += M[r - 1] / den
+            if ti.static(r < p):
+                den = knot(c + r + 1, n) - knot(c - p + r + 1, n)
+                if den > 0:
+                    d -= M[r] / den
+            dN[r] = p * d
+        return N, dN
+
+    return evaluate
+
+
 def make_bspline(p: int, name: str) -> Basis:
     def knot_py(k, n):
         return float(min(max(k - p, 0), n))
@@ -85,36 +126,16 @@ def make_bspline(p: int, name: str) -> Basis:
         return s / p
 
     @ti.func
+    def clamped_knot(k, n: ti.template()):
+        """Knot k of the open uniform vector, indexed so that span c is cell c: {0 (p+1 times), 1, .., n (p+1)}."""
+        return ti.cast(ti.min(ti.max(k, 0), n), float)
+
+    recursion = cox_de_boor(p, clamped_knot)
+
+    @ti.func
     def weights_1d(u, n: ti.template(), lp):
         c = ti.min(ti.max(int(ti.floor(u)), 0), n - 1)  # knot span (cell) holding u
-        N = ti.Vector.zero(float, p + 1)   # degree-p values of nodes c..c+p
-        M = ti.Vector.zero(float, p + 1)   # degree p-1 values, for the derivatives
-        N[0] = 1.0
-        uu = ti.cast(u, float)
-        for j in ti.static(range(1, p + 1)):
-            if ti.static(j == p):
-                M = N
-            saved = 0.0
-            for r in ti.static(range(j)):
-                right = ti.cast(ti.min(ti.max(c + r + 1, 0), n), float) - uu
-                left = uu - ti.cast(ti.min(ti.max(c + 1 - j + r, 0), n), float)
-                temp = N[r] / (right + left)
-                N[r] = saved + right * temp
-                saved = left * temp
-            N[j] = saved
-        dN = ti.Vector.zero(float, p + 1)
-        for r in ti.static(range(p + 1)):
-            # N'_{k,p} = p [N_{k,p-1} / (U_{k+p} - U_k) - N_{k+1,p-1} / (U_{k+p+1} - U_{k+1})], k = c + r
-            d = 0.0
-            if ti.static(r >= 1):
-                den = ti.cast(ti.min(ti.max(c + r, 0), n) - ti.min(ti.max(c + r - p, 0), n), float)
-                if den > 0:
-                    d += M[r - 1] / den
-            if ti.static(r < p):
-                den = ti.cast(ti.min(ti.max(c + r + 1, 0), n) - ti.min(ti.max(c + r + 1 - p, 0), n), float)
-                if den > 0:
-                    d -= M[r] / den
-            dN[r] = p * d
+        N, dN = recursion(ti.cast(u, float), c, n)       # values and derivatives of nodes c..c+p
         return c, N, dN
 
     return Basis(name, p + 1, 0, p == 1, lambda n: n + p, coord, coord_py, weights_1d)
@@ -251,39 +272,16 @@ def make_knot_bspline(p: int, name: str, t: np.ndarray) -> Basis:
         return lo
 
     @ti.func
+    def knot(k, n: ti.template()):
+        return data.field[k]
+
+    recursion = cox_de_boor(p, knot)
+
+    @ti.func
     def weights_1d(u, n: ti.template(), lp):
-        T = ti.static(data.field)
         uu = ti.cast(u, float)
         c = span(uu)
-        N = ti.Vector.zero(float, p + 1)   # degree-p values of control points c-p..c
-        M = ti.Vector.zero(float, p + 1)   # degree p-1 values, for the derivatives
-        N[0] = 1.0
-        for j in ti.static(range(1, p + 1)):
-            if ti.static(j == p):
-                M = N
-            saved = 0.0
-            for r in ti.static(range(j)):
-                right = T[c + r + 1] - uu
-                left = uu - T[c + 1 - j + r]
-                temp = 0.0
-                if right + left > 0:       # 0/0 = 0
-                    temp = N[r] / (right + left)
-                N[r] = saved + right * temp
-                saved = left * temp
-            N[j] = saved
-        dN = ti.Vector.zero(float, p + 1)
-        for r in ti.static(range(p + 1)):
-            # N'_{k,p} = p [N_{k,p-1} / (T_{k+p} - T_k) - N_{k+1,p-1} / (T_{k+p+1} - T_{k+1})], k = c - p + r
-            d = 0.0
-            if ti.static(r >= 1):
-                den = T[c + r] - T[c - p + r]
-                if den > 0:
-                    d += M[r - 1] / den
-            if ti.static(r < p):
-                den = T[c + r + 1] - T[c - p + r + 1]
-                if den > 0:
-                    d -= M[r] / den
-            dN[r] = p * d
+        N, dN = recursion(uu, c, n)   # values and derivatives of control points c-p..c
         return c - p, N, dN
 
     g = data.g
