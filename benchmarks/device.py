@@ -226,9 +226,10 @@ def run_worker(section, name, a, extra=(), timeout=None):
 
 def add_ratios(rows):
     """Ratios to the peers measured on this device in this run (> 1: this project is faster)."""
-    mpm3d = next((r for r in rows if r.get("case", "").startswith("mpm3d reference")), None)
-    peer = next((r for r in rows if r.get("case") == "taichi_elements (peer)"), None)
-    for r in rows:
+    measured = [r for r in rows if "particle_steps_per_s" in r]   # a case that failed has an error instead
+    mpm3d = next((r for r in measured if r.get("case", "").startswith("mpm3d reference")), None)
+    peer = next((r for r in measured if r.get("case") == "taichi_elements (peer)"), None)
+    for r in measured:
         if r.get("section") == "elements" and peer and r is not peer:
             r["vs_taichi_elements"] = r["particle_steps_per_s"] / peer["particle_steps_per_s"]
         if r.get("section") == "mpm3d" and mpm3d:

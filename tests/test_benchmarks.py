@@ -67,6 +67,17 @@ def test_device_capacity_per_feature_set():
     assert all(r["particles"] < 2**31 for r in rows)  # Taichi's i32 index
 
 
+def test_device_ratios_skip_cases_that_failed():
+    """A peer that could not run (its engine absent) leaves an error row: no ratio to it, the others still get
+    theirs."""
+    rows = load("device").add_ratios([
+        dict(section="mpm3d", case="mpm3d reference (dense)", particle_steps_per_s=2.0),
+        dict(section="mpm3d", case="quadratic APIC fluid", particle_steps_per_s=3.0),
+        dict(section="elements", case="taichi_elements (peer)", error="exit 1: no engine"),
+        dict(section="elements", case="ours, elastic", particle_steps_per_s=5.0)])
+    assert rows[1]["vs_mpm3d"] == 1.5 and "vs_taichi_elements" not in rows[3]
+
+
 def test_device_refuses_an_absent_arch():
     from taichi_mpm.solver import available_archs
 
