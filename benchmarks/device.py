@@ -134,8 +134,8 @@ def case_crack(a):
 
 def case_long(a):
     """A 3D dam break: particle-steps/s over the last `window` steps of a long run against the first `window`."""
-    n_grid, total, window = (16, 60, 20) if a.quick else (64, 2000, 100)
-    cfg = block_config(3, n_grid, model="fluid", arch=a.arch, body=(0.05, 0.5), E=2e3)
+    n_grid, total, window = (16, 60, 20) if a.quick else (a.long_grid, 2000, 100)
+    cfg = block_config(3, n_grid, model="fluid", arch=a.arch, body=(0.05, 0.5), E=1e6)  # K >= 100 rho g H
     cfg["bodies"][0]["shape"]["upper"] = [0.4, 0.6, 0.95]  # a column against the x = 0 wall that collapses along x
     cfg["bodies"][0]["shape"]["lower"] = [0.02, 0.02, 0.05]
     cfg["solver"].pop("dt")  # the CFL rule's step, as a user gets it
@@ -204,7 +204,8 @@ CASES = {"mpm3d": [case_mpm3d], "elements": [case_elements_ours, case_elements_p
 # ---------------------------------------------------------------- the parent: run the workers, print one table
 
 def run_worker(section, name, a, extra=(), timeout=None):
-    cmd = [sys.executable, __file__, "--worker", name, "--arch", a.arch, "--bases", *a.bases, *extra]
+    cmd = [sys.executable, __file__, "--worker", name, "--arch", a.arch, "--bases", *a.bases,
+           "--long-grid", str(a.long_grid), *extra]
     cmd += ["--quick"] if a.quick else []
     cmd += ["--te-path", str(a.te_path)] if a.te_path else []
     env = dict(os.environ)
@@ -244,6 +245,7 @@ def main(argv=None):
     p.add_argument("--sections", nargs="+", choices=SECTIONS, default=None,
                    help=f"default: {' '.join(DEFAULT_SECTIONS)}, plus fill/capacity when their sizes are given")
     p.add_argument("--bases", nargs="+", choices=BASES, default=list(BASES))
+    p.add_argument("--long-grid", type=int, default=64, help="cells per axis of the long dam-break run (a CPU: 32)")
     p.add_argument("--te-path", type=Path, default=None, help="directory holding taichi_elements' engine/ package")
     p.add_argument("--fill-memory", type=float, default=None, metavar="GB",
                    help="scaling run: double the particle count until the estimate exceeds GB of device memory")
