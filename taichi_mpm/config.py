@@ -673,7 +673,6 @@ class Config(Strict):
                                "points and weights must equal the first")
         _need_len("domain.map.refine", m.refine, 2)
         knots, P, w = mapgeom.refine([m.knots.x, m.knots.y], P, w, m.refine)    # the grid the solver will use
-        knots = [mapgeom.cell_knots(t) for t in knots]
         det, where = mapgeom.fold(knots, [2, 2], P, w)
         if det <= 1e-9:
             raise _Located("domain.map.control_points", f"the map folds or pinches: det J = {det:.3g} (relative) at "

@@ -78,8 +78,9 @@ def cartesian(Pw: np.ndarray):
 
 
 def refine(knots, P, w, per_span):
-    """h-refinement: every nonzero knot span of axis a split into per_span[a] equal spans by knot insertion
-    (degree 2 per axis). The map is exactly the same; only the grid is finer."""
+    """The patch the solver's grid uses: every nonzero knot span of axis a split into per_span[a] equal spans by
+    knot insertion (degree 2 per axis), the knots then scaled to cells (cell_knots). The map is exactly the same;
+    only the grid is finer."""
     Pw = homogeneous(np.asarray(P, float), np.asarray(w, float))
     knots = [np.asarray(t, float) for t in knots]
     for axis, k in enumerate(per_span):
@@ -88,7 +89,7 @@ def refine(knots, P, w, per_span):
             for j in range(1, k):
                 knots[axis], Pw = insert_knot(knots[axis], 2, Pw, lo + (hi - lo) * j / k, axis)
     P, w = cartesian(Pw)
-    return knots, P, w
+    return [cell_knots(t) for t in knots], P, w
 
 
 def cell_knots(t) -> np.ndarray:

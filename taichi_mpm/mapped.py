@@ -41,7 +41,7 @@ def build_map(m):
         return annulus(m.inner_radius, m.outer_radius, angle, n_angle, n_radial, tuple(m.center)), m.angle >= 360.0
     w = np.ones(np.shape(m.control_points)[:2]) if m.weights is None else np.asarray(m.weights, float)
     knots, P, w = mapgeom.refine([m.knots.x, m.knots.y], m.control_points, w, m.refine)
-    return Map([mapgeom.cell_knots(t) for t in knots], [2, 2], P, w), m.periodic
+    return Map(knots, [2, 2], P, w), m.periodic
 
 
 class MappedGrid:

@@ -174,10 +174,7 @@ class Map:
         return surface(self.knots, self.degrees, self.P, self.w, xi)
 
     def evaluate(self, xi: np.ndarray) -> np.ndarray:
-        """x(xi) for parameter points (M, 2), by de Boor-free brute force: all B-splines of each axis from the
-        Cox-de Boor recursion in numpy (independent of the kernel's code path; for tests and drawing)."""
-        N = [bspline_values(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(self.knots, self.degrees))]
-        Nw = np.einsum("mi,mj,ij->mij", N[0], N[1], self.w)
-        W = Nw.sum(axis=(1, 2))
-        return np.einsum("mij,ijc->mc", Nw, self.P) / W[:, None]
+        """x(xi) for parameter points (M, 2): all B-splines of each axis from the Cox-de Boor recursion in numpy
+        (independent of the kernel's code path; for tests and drawing)."""
+        return np.einsum("mij,ijc->mc", self.rational_host(xi), self.P)
 

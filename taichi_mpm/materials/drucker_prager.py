@@ -149,15 +149,12 @@ class DruckerPrager(Model):
             if f > 0 or loose > 0:
                 dg = f / (2.0 * mu + 9.0 * K * a * b)
                 eps_n = ti.Vector([eps_apex, eps_apex, eps_apex])   # apex (tension cut-off)
-                dep = r23 * (eps - eps_n).norm()
                 if f <= 0:                                          # loose sand compacted into load: elastic
                     eps_n = eps_s
-                    dep = r23 * (eps - eps_n).norm()
                 elif 2.0 * mu * (en - dg) > 0:                      # the cone return stays on the cone
                     eps_n = eps_s - dg * (e / en + b)
-                    dep = r23 * (eps - eps_n).norm()
                 F3n = rescale_principal(F3, Q, eps, eps_n)
-                qn[P] = q[P] + dep
+                qn[P] = q[P] + r23 * (eps - eps_n).norm()           # the equivalent plastic strain of the return
                 qn[JPS] = q[JPS] * ti.exp(eps.sum() - eps_n.sum())   # det F_e J_p is kept
                 if ti.static(dim < 3):
                     qn[Z] = F3n[2, 2]
