@@ -46,7 +46,7 @@ class CrackHooks:
     modified: Callable          # (p) -> the particle uses modified functions
     degrade: Callable           # (p, tau) -> damaged stress
     degrade_energy: Callable    # (p, F, psi, tau) -> damaged strain energy density
-    p2g: Callable               # (p, st, mp, stress, vp, Ap, force_density, dt)
+    p2g: Callable               # (p, st, mp, stress, vp, Ap, force_density, kick)
     p2g_momentum: Callable      # (p, st, mp, vp, Ap): MUSL's remap
     g2p: Callable               # (p, st, deform) -> (v_pic, FLIP increment, APIC B, velocity gradient)
     kernels: dict               # grid_update, grid_remap
@@ -152,7 +152,7 @@ class CrackFinder:
         dim = self.dim
         sten = ctx.stencil
         span = sten.span
-        kirchhoff, wall, gravity = ctx.kirchhoff, ctx.wall, ctx.gravity   # gravity: the solver's runtime field
+        kirchhoff, wall, gravity_kick = ctx.kirchhoff, ctx.wall, ctx.gravity_kick  # runtime gravity (solver)
         vgrad, basis, mat = ctx.vgrad, ctx.basis, ctx.mat
         grid = sim.grid
         gm, gv = grid.m, grid.vec["v"]
@@ -533,7 +533,7 @@ class CrackFinder:
             return mom_t, mom_n
 
         @ti.func
-        def p2g(p, st, mp, stress, vp, Ap, force_density, dt):
+        def p2g(p, st, mp, stress, vp, Ap, force_density, kick):
             """P2G of a particle near a discontinuity: mass, momentum (APIC about the kept nodes'
             centroid, so sum_i W_ip mom_i = v_p exactly), stress force and body force."""
             Pt, Pn, n = frame(p)
@@ -548,7 +548,7 @@ class CrackFinder:
                 if contact_state:
                     for a in ti.static(range(dim)):
                         Arows[a][I] += mp * (wn - wt) * n[a] * n
-                gv[I] += mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n)) + dt * (
+                gv[I] += mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n)) + kick * (
                     Pt @ (stress @ gt + wt * force_density) + Pn @ (stress @ gn + wn * force_density))
                 if ti.static(flip):
                     gv_old[I] += mp * (wt * (Pt @ vp) + wn * (Pn @ vp))
@@ -616,11 +616,11 @@ class CrackFinder:
             return res
 
         @ti.kernel
-        def grid_update(dt: float):
+        def grid_update(kick_before: float, kick_after: float):
             for I in ti.grouped(gm):
                 m, A = node_mass(I)
                 if m > 0 or A.norm_sqr() > 0:
-                    vel = solve(m, A, gv[I]) + dt * gravity[None]
+                    vel = solve(m, A, gv[I]) + gravity_kick(kick_before, kick_after)
                     gv[I] = wall(I, vel)
                     if ti.static(flip):
                         gv_old[I] = solve(m, A, gv_old[I])

@@ -229,7 +229,7 @@ def load_checkpoint(path) -> tuple[dict, dict]:
             meta = json.loads(str(z["__meta__"])) if "__meta__" in z.files else None
         if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
             raise ValueError("no metadata (output counter and config) in it")
-        for k in ("time", "dt", "vmax"):
+        for k in ("time", "dt", "vmax", "half_dt"):
             if k in state:
                 state[k] = float(state[k])
         if "n_steps" in state:

@@ -2,8 +2,10 @@
 (bodies[].prescribed_velocity) and velocity walls, evaluated once per step and handed to the solver's fields.
 
 The particles and forces come from the scene (scene.Load, scene.Grip); here only their values in time:
-- a traction's particle forces are its force at ramp 1 times ramp(t), taken at the step's midpoint t + dt/2;
-- a grip's or a velocity wall's velocity is taken at t + dt, the time the grid update's new velocity belongs to.
+- a traction's particle forces are its force at ramp 1 times ramp(t), taken at the middle of the step's leapfrog
+  kick, t + dt/4 - dt_prev/4 (t itself at constant steps);
+- a grip's or a velocity wall's velocity is taken at t + dt/2, the time the grid update's new (half-step) velocity
+  belongs to: the one that moves the positions from t to t + dt.
 
 Physics only: no I/O.
 """

@@ -143,8 +143,10 @@ class Simulation:
         self._flip_blend = float(c.solver.flip_blend)
         self.wave_speed = self._wave_speed()
         self.time, self.n_steps, self.dt = 0.0, 0, 0.0
+        self._half_dt = 0.0  # half the last step: the leapfrog velocities' lag behind the clock (0: in step)
         self.dt_limit = None  # which rate limited the last CFL-rule dt (one of DT_LIMITS)
         self._balance = None  # energy balance reference (see _check_energy_balance)
+        self._potentials = {}  # step -> strain + gravity potential of that state (energy_balance's pairing)
         self._body_acc_time, self._body_acc_max = None, 0.0
         self.loads = Loads(c, self.scene)  # tractions, grips, velocity walls (their time functions)
         self._allocate()
@@ -174,11 +176,6 @@ class Simulation:
             initial_stress=s.stress is not None,  # bodies[].stress, a stored stress added to the model's
             moving_walls=bool(self.loads.walls),  # domain.boundaries faces of type velocity
             plastic=any(MODELS[m.model].plastic for m in self._materials),  # a return mapping after the F update
-            # positions by the trapezoid of the start and end velocities of the step (exact for a uniform
-            # acceleration) wherever an acceleration acts on free bodies; not in crack scenes (their own transfer).
-            # Decided by the config's gravity: gravity switched on live (set_gravity) moves positions by the new
-            # grid velocity. (The gravity term itself is always compiled: gravity is a runtime value.)
-            trapezoid=(any(g != 0 for g in c.gravity) or self.body_force is not None) and c.crack is None,
         )
 
     def _allocate(self):
@@ -191,9 +188,6 @@ class Simulation:
         self.C = ti.Matrix.field(d, d, float, n) if f["store_grad_v"] else None
         self.mat = ti.field(ti.u8, n) if f["multi_material"] else None
         self.body_acc = ti.Vector.field(d, float, n) if f["body_force"] else None
-        # MUSL's copy of the start-of-step velocity for the trapezoidal positions (FLIP uses its grid v_old)
-        keep_v = f["trapezoid"] and f["musl"] and not f["flip"]
-        self.v_prev = ti.Vector.field(d, float, n) if keep_v else None
         self.half_width = ti.field(float, n) if f["domain_per_particle"] else None
         self.load = ti.Vector.field(d, float, n) if f["tractions"] else None
         n_loaded = sum(len(l.particles) for l in self.scene.loads)
@@ -226,6 +220,9 @@ class Simulation:
         # runtime parameters (set_gravity, set_stiffness_scale, set_flip_blend): read by the kernels, no recompile
         self.gravity_field = ti.Vector.field(d, float, ())
         self.gravity_field[None] = self._gravity.tolist()
+        self.gravity_before_field = ti.Vector.field(d, float, ())  # the last step's gravity (see gravity_kick)
+        self.gravity_before_field[None] = self._gravity.tolist()
+        self._gravity_before = self._gravity.copy()
         self.stiffness_field = ti.field(float, len(self._materials))
         self.stiffness_field.from_numpy(self._stiffness)
         self.flip_blend_field = ti.field(float, ())
@@ -258,7 +255,6 @@ class Simulation:
         floats = 2 * d + d * d + 1
         floats += d * d if self.C is not None else 0
         floats += d if self.body_acc is not None else 0
-        floats += d if self.v_prev is not None else 0
         floats += 1 if self.half_width is not None else 0
         floats += d if self.load is not None else 0
         floats += d * d if self.stress0 is not None else 0
@@ -326,6 +322,7 @@ class Simulation:
         lower = ti.Vector(self.lower.tolist())
         upper = ti.Vector(self.upper.tolist())
         gravity, stiff = self.gravity_field, self.stiffness_field  # runtime values (set_gravity, ...)
+        gravity_before = self.gravity_before_field
         # each material's Taichi funcs, its parameters compile-time constants (materials/: the model registry)
         nq = max(1, self.n_state)
         mats = [MODELS[m.model].build(m, dim, nq) for m in self._materials]
@@ -347,7 +344,6 @@ class Simulation:
         gm, gv = grid.m, grid.vec["v"]
         gv_old = grid.vec.get("v_old")
         gv2 = grid.vec.get("v2")
-        trapezoid = f["trapezoid"]
         fail, vmax2 = self.fail, self.vmax2
         work, body_id, moments = self.work, self.body_id, self.moments
         has_body_id = body_id is not None
@@ -364,12 +360,19 @@ class Simulation:
         # with off = o + inner[k]. Unrolled, the outer range is a single point and `inner` lists every node, so
         # the weights stay in registers (3D quadratic: P2G 37 against 43 ms, G2P 7.5 against 11 ms CPU time for
         # 65k particles) but compiling takes 29 s instead of 3 s cold; otherwise the loop runs at run time.
+        @ti.func
+        def gravity_kick(kick_before, kick_after):
+            """The velocity gravity adds over a kick: the gravity of the last step over its half, the current one
+            over this step's half, so a set_gravity between steps acts from that instant (exact for a piecewise
+            constant g)."""
+            return kick_before * gravity_before[None] + kick_after * gravity[None]
+
         ctx = self.ctx = KernelContext(
             dim=dim, dx=dx, lower=lower, upper=upper, n_cells=n_cells, basis=basis, feat=f,
             precision=self.cfg.precision, x=x, v=v, F=F, C=C, vol0=vol0, mat=mat, half_width=self.half_width,
             domain_lp0=0.5 * float(self.scene.spacing[0]) / dx if self.n else 0.5,
             gimp_deforming=self.cfg.solver.gimp_domain == "deforming", unroll=self._unroll(), grid=self.grid,
-            wall=wall, gravity=gravity, extra=dict(mapped=self.mapped))
+            wall=wall, gravity_kick=gravity_kick, extra=dict(mapped=self.mapped))
         sten = ctx.stencil = make_stencil(ctx)
         if self.mapped is not None:
             self._locate, self._locate_from = make_locate(ctx, self.mapped, self.fail, _CODES, 6)
@@ -559,7 +562,9 @@ class Simulation:
         crk = self.crack.build(ctx) if crack else None  # its hooks (crack.CrackHooks)
 
         @ti.kernel
-        def p2g(dt: float):
+        def p2g(kick: float):
+            """Particles to grid: mass, momentum, and the impulse of the forces over `kick` (the leapfrog kick: the
+            mean of the previous and this step's dt, half the step on the first one; see Simulation.step)."""
             for p in x:
                 st = sten.at(p)
                 Fp = F[p]
@@ -574,30 +579,28 @@ class Simulation:
                     force_density = mp * body_acc[p]
                 if ti.static(has_load):
                     force_density += load[p]  # tractions (loads.py): traction x face area x ramp
-                if ti.static(has_body_acc or has_load):
-                    work[0] += 0.5 * dt * force_density.dot(vp)  # trapezoid: the other half in G2P
                 if ti.static(f["viscosity"]):
-                    work[1] += dt * vol0[p] * viscous_power(p, Fp)
+                    work[1] += kick * vol0[p] * viscous_power(p, Fp)
                 if ti.static(crack):
                     if crk.modified(p):
-                        crk.p2g(p, st, mp, stress, vp, Ap, force_density, dt)
+                        crk.p2g(p, st, mp, stress, vp, Ap, force_density, kick)
                         continue
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
                     I, w, gw, r = sten.node(st, o + inner[k])
                     gm[I] += w * mp
                     mom = node_momentum(vp, Ap, r)
-                    gv[I] += w * mp * mom + dt * (stress @ gw + w * force_density)
+                    gv[I] += w * mp * mom + kick * (stress @ gw + w * force_density)
                     if ti.static(f["flip"]):
                         gv_old[I] += w * mp * vp
 
         @ti.kernel
-        def grid_update(dt: float):
+        def grid_update(kick_before: float, kick_after: float):
             for I in ti.grouped(gm):
                 m = gm[I]
                 if m > 0:
                     # always compiled, so that set_gravity can switch gravity on (adding 0 changes nothing)
-                    vel = gv[I] / m + dt * gravity[None]
+                    vel = gv[I] / m + gravity_kick(kick_before, kick_after)
                     vel = wall.measured(I, vel, m)  # adds m dv per face to wall_reaction (wall probes only)
                     gv[I] = grip_condition(I, vel, m, True)
                     if ti.static(f["flip"]):
@@ -685,44 +688,26 @@ class Simulation:
                     gv2[I] = grip_condition(I, wall(I, gv2[I] / m), m, False)
 
         vgrad = gv2 if f["musl"] else gv  # MUSL takes grad v from the remapped velocities
-        v_prev = self.v_prev
 
         @ti.func
-        def start_velocity(p, deform: ti.template()):
-            """The particle's velocity at the start of the step (trapezoidal positions; PIC and APIC: their v_p is
-            the grid velocity interpolated at the end of the last step). MUSL's velocity pass has overwritten v[p]
-            before its deform pass, so there it keeps a copy (v_prev)."""
-            v0 = ti.Vector.zero(float, dim)
-            if ti.static(trapezoid and not f["flip"]):
-                if ti.static(f["musl"]):
-                    if ti.static(deform):
-                        v0 = v_prev[p]
-                    else:
-                        v_prev[p] = v[p]
-                else:
-                    v0 = v[p]
-            return v0
-
-        @ti.func
-        def node_start_velocity(I, vp0):
-            """Velocity at node I at the start of the step, under the walls and grips of the new one (a node that
-            a wall stops carries no particle into the wall; gripped nodes move with the grip): FLIP's grid v_old
-            (its momentum / mass before any force), else the particle's start velocity."""
-            v0 = vp0
-            if ti.static(f["flip"]):
-                v0 = gv_old[I]
-            return grip_condition(I, wall(I, v0), 0.0, False)
+        def external_force(p):
+            """Body force and traction on the particle (N); gravity is a potential (see energy_balance)."""
+            force = ti.Vector.zero(float, dim)
+            if ti.static(has_body_acc):
+                force += density(p) * vol0[p] * body_acc[p]
+            if ti.static(has_load):
+                force += load[p]
+            return force
 
         @ti.kernel
-        def g2p(dt: float, velocity: ti.template(), deform: ti.template()):
-            """Grid to particles. velocity: new v (PIC, FLIP or APIC) and APIC's C.
-            deform: positions (with this step's grid velocity), F = (I + dt grad v) F, and checks.
+        def g2p(dt: float, kick: float, velocity: ti.template(), deform: ti.template()):
+            """Grid to particles. velocity: new v (PIC, FLIP or APIC) and APIC's C, and the work of body forces
+            and tractions over the kick, by the trapezoid of the old and new velocities (exact for a uniform force:
+            the kinetic energy's change). deform: positions x += dt v_grid, F = (I + dt grad v) F, and checks.
             USL does both in one pass; MUSL does them in two passes around the momentum remap."""
             for p in x:
                 st = sten.at(p)
                 v_pic = ti.Vector.zero(float, dim)
-                v_move = ti.Vector.zero(float, dim)  # the velocity that moves the particle (trapezoid)
-                v_start = start_velocity(p, deform)
                 dv = ti.Vector.zero(float, dim)
                 B = ti.Matrix.zero(float, dim, dim)
                 G = ti.Matrix.zero(float, dim, dim)
@@ -731,8 +716,6 @@ class Simulation:
                     I, w, gw, r = sten.node(st, o + inner[k])
                     vi = gv[I]
                     v_pic += w * vi
-                    if ti.static(deform and trapezoid):
-                        v_move += w * 0.5 * (vi + node_start_velocity(I, v_start))
                     if ti.static(velocity and f["flip"]):
                         dv += w * (vi - gv_old[I])
                     if ti.static(velocity and f["apic"] and not basis.apic_gradient):
@@ -745,24 +728,21 @@ class Simulation:
                     if crk.modified(p):
                         v_pic, dv, B, G = crk.g2p(p, st, deform)
                 if ti.static(velocity):
+                    v_old = v[p]
                     if ti.static(f["flip"]):
                         a = alpha[None]
-                        v[p] = a * (v[p] + dv) + (1.0 - a) * v_pic
+                        v[p] = a * (v_old + dv) + (1.0 - a) * v_pic
                     else:
                         v[p] = v_pic
-                    if ti.static(has_body_acc):
-                        work[0] += 0.5 * dt * density(p) * vol0[p] * body_acc[p].dot(v[p])
-                    if ti.static(has_load):
-                        work[0] += 0.5 * dt * load[p].dot(v[p])
+                    if ti.static(has_body_acc or has_load):
+                        work[0] += 0.5 * kick * external_force(p).dot(v_old + v[p])
                     if ti.static(f["apic"]):
                         if ti.static(basis.apic_gradient):
                             C[p] = G
                         else:
                             C[p] = B  # store_B
                 if ti.static(deform):
-                    if ti.static(not trapezoid):
-                        v_move = v_pic  # symplectic Euler: the new grid velocity
-                    xp = x[p] + dt * v_move
+                    xp = x[p] + dt * v_pic
                     Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
                     J = Fp.determinant()
                     if is_fluid(p):
@@ -933,10 +913,12 @@ class Simulation:
         return self._body_acc_max
 
     def _prescribe(self, dt: float):
-        """Upload this step's tractions (ramps at t + dt/2) and grip and wall velocities (at t + dt)."""
+        """Upload this step's tractions (ramps at the middle of the kick, t + (dt - dt_prev) / 4: the exact impulse
+        of a linear ramp) and grip and wall velocities (at t + dt/2: the velocity that moves the positions over the
+        step, exact displacement for a linear motion)."""
         L = self.loads
         if self.load is not None:
-            ramps = L.ramps(self.time + 0.5 * dt)
+            ramps = L.ramps(self.time + 0.25 * dt - 0.5 * self._half_dt)
             if ramps != self._ramps:
                 self._k["apply_loads"](ti.Vector(list(ramps)))
                 self._ramps = ramps
@@ -944,7 +926,7 @@ class Simulation:
             return
         if self._motion_time is not None and L.motion_constant:
             return
-        t = self.time + dt
+        t = self.time + 0.5 * dt
         rows = np.concatenate([L.grip_velocities(t), L.wall_velocities(t)])  # the layout set_motion reads
         self._k["set_motion"](ti.Matrix(rows.tolist()))
         self._motion_time = t
@@ -961,26 +943,34 @@ class Simulation:
         watch = self.cfg.solver.energy_growth_limit is not None
         if self._balance is None:  # the balance is kept (energy_balance()) even with the check off
             self._balance = self._energy_balance_reference()
+        if watch and self._balance["due"] <= self.n_steps + 1 and self.n_steps not in self._potentials:
+            self._energy_parts()  # the potential of the state this step leaves: the check after it averages both
         self._body_acc_now()
+        # Leapfrog: velocities live at half steps. The forces at the positions of time t kick the velocity of
+        # t - dt_prev/2 to t + dt/2, over (dt_prev + dt)/2; the positions then drift by dt with it. The first step
+        # (and the first after set_particles gave velocities) kicks over dt/2. Second order in dt, exact for a
+        # uniform acceleration at any sequence of steps (docs/accuracy.md, "Time integration").
+        kick_before, kick_after = self._half_dt, 0.5 * dt
+        kick = kick_before + kick_after
         self._prescribe(dt)
         self.grid.clear()
         if self.ctx.stencil.prepare is not None:
             self.ctx.stencil.prepare()   # stencils that read grid state (ddmp's nodal volumes)
         if self.crack is not None:
             self.crack.update()
-        k["p2g"](dt)
+        k["p2g"](kick)
         if self.feat["grips"]:
             k["flag_grip_nodes"]()
-        k["grid_update"](dt)
+        k["grid_update"](kick_before, kick_after)
         self.fail[None] = _NO_FAIL
         self.vmax2[None] = 0.0
         if self.feat["musl"]:
-            k["g2p"](dt, True, False)
+            k["g2p"](dt, kick, True, False)
             k["p2g_momentum"]()
             k["grid_remap"]()
-            k["g2p"](dt, False, True)
+            k["g2p"](dt, kick, False, True)
         else:
-            k["g2p"](dt, True, True)
+            k["g2p"](dt, kick, True, True)
         if self.mapped is not None:
             self._locate()   # the new positions' parametric coordinates
         if self.fbar is not None:
@@ -988,7 +978,10 @@ class Simulation:
             if self.feat["plastic"]:
                 k["project_all"]()  # return mappings after the average, and F-bar's J^n from the projected F
                 self.fbar.sync()
-        self.dt = dt
+        self.dt, self._half_dt = dt, 0.5 * dt
+        if not np.array_equal(self._gravity_before, self._gravity):  # the gravity of this step, for the next kick
+            self._gravity_before = self._gravity.copy()
+            self.gravity_before_field[None] = self._gravity.tolist()
         self.n_steps += 1
         self.time += dt
         code = self.fail[None]
@@ -1043,13 +1036,18 @@ class Simulation:
         # pre-stressed body relaxes, so the balance's scale (slot 5) counts its size, not its sign
         e[5] = e[0] + e[1] + abs(e[4])
         e[1] += e[4]
+        # the potential (strain + gravity) of the last two states measured, for the leapfrog pairing in
+        # energy_balance
+        self._potentials = {k: v for k, v in self._potentials.items() if k == self.n_steps - 1}
+        self._potentials[self.n_steps] = float(e[1] + e[2])
         return e, w
 
     def _energy_balance_reference(self) -> dict:
         e, w = self._energy_parts()
         floor = self._energy_floor(e[3])
         return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1] + w[2], scale=max(e[5], floor),
-                    floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time)
+                    floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time,
+                    steps_from=self.n_steps)
 
     def _energy_floor(self, potential_scale: float) -> float:
         """Round-off scale of the balance: below it a 'growth' is precision noise, not physics."""
@@ -1063,15 +1061,21 @@ class Simulation:
 
     def energy_balance(self) -> dict:
         """The energy balance since its reference time (first step, or the last set_particles/set_state):
-        growth = E(t) + dissipated - E(ref) - work, with E = kinetic + strain + gravity potential, work the
+        growth = E(t) + dissipated - E(ref) - work, with E = kinetic + potential (strain + gravity), work the
         external work (body forces, tractions, grips and velocity walls), dissipated the viscous and plastic
-        dissipation (the plastic work of the return mappings);
-        scale = largest kinetic + strain energy seen.
-        Walls and PIC/APIC/FLIP transfers only remove energy, so growth > 0 is numerical."""
+        dissipation (the plastic work of the return mappings); scale = largest kinetic + strain energy seen.
+        Leapfrog's velocities lag the positions by half a step, so the kinetic energy (of time t - dt/2) is
+        paired with the mean potential of the last two states, t - dt and t, where the solver measured both
+        (every checked step, the last step of advance_to): paired with the potential of t alone, a body rising
+        under gravity would read m |g| |v| dt / 2 of growth. Free fall then balances to -m |g|^2 dt^2 / 8 (dt: the
+        last step). Walls and PIC/APIC/FLIP transfers only remove energy, so growth > 0 is numerical."""
         self._check_live()
         ref = self._balance or self._energy_balance_reference()
         e, w = self._energy_parts()
-        total = e[0] + e[1] + e[2]
+        potential = e[1] + e[2]
+        if self.n_steps > ref["steps_from"] and self.n_steps - 1 in self._potentials:
+            potential = 0.5 * (potential + self._potentials[self.n_steps - 1])
+        total = e[0] + potential
         work, dissipated = w[0] - ref["work"], w[1] + w[2] - ref["dissipated"]
         scale = max(ref["scale"], e[5])
         growth = total + dissipated - ref["total"] - work
@@ -1201,7 +1205,10 @@ class Simulation:
         while self.time < target - 1e-12 * max(1.0, abs(target)):
             if self.at_step_limit:
                 break
-            self.step(min(self.stable_dt(), target - self.time))
+            dt = min(self.stable_dt(), target - self.time)
+            if dt == target - self.time and self._balance is not None:  # the last step: measure the state before
+                self._balance["due"] = min(self._balance["due"], self.n_steps + 1)  # it for the check after it
+            self.step(dt)
             steps += 1
             if on_step is not None:
                 on_step(self)
@@ -1303,12 +1310,14 @@ class Simulation:
             value = self._to_solver(value)
             fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
         self._balance = self._shape_ref = None  # a new state: the balance and body shapes are measured afresh
+        self._potentials = {}
         if "x" in checked:
             self._place_on_map()
         if self.fbar is not None and "F" in checked:
             self.fbar.sync()  # F-bar's start-of-step J follows the new F
         if "v" in checked:
             self._vmax = _max_speed(checked["v"])
+            self._half_dt = 0.0  # velocities given at the clock's time: the next step kicks over half a step
 
     def _place_on_map(self):
         """domain.map: every particle's parametric coordinates, by Newton from the nearest sample of the map; a
@@ -1343,7 +1352,7 @@ class Simulation:
         """Everything needed to continue bit for bit: particle fields (creation order), clock, CFL speed estimate."""
         self._check_live()
         state = {name: self._read(name) for name in self._state_fields()}
-        state.update(time=self.time, n_steps=self.n_steps, dt=self.dt, vmax=self._vmax,
+        state.update(time=self.time, n_steps=self.n_steps, dt=self.dt, vmax=self._vmax, half_dt=self._half_dt,
                      work=self.work.to_numpy().astype(np.float64))
         if self.state is not None:
             state["material_state"] = self._material_state()  # plastic strain, J_p, ... (materials/: State)
@@ -1362,8 +1371,14 @@ class Simulation:
                          vmax=float(state["vmax"]))
         except (TypeError, ValueError) as e:
             raise ValueError(f"state clock values must be numbers: {e}") from None
-        if not all(math.isfinite(clock[k]) for k in ("time", "dt", "vmax")) or clock["n_steps"] < 0 \
-                or clock["time"] < 0 or clock["dt"] < 0 or clock["vmax"] < 0:
+        # the velocities' half-step lag; a state saved before leapfrog lacks it: its velocities belong to its dt
+        clock["half_dt"] = state.get("half_dt", 0.5 * clock["dt"] if clock["n_steps"] > 0 else 0.0)
+        try:
+            clock["half_dt"] = float(clock["half_dt"])
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"state clock values must be numbers: {e}") from None
+        if not all(math.isfinite(clock[k]) for k in ("time", "dt", "vmax", "half_dt")) or clock["n_steps"] < 0 \
+                or clock["time"] < 0 or clock["dt"] < 0 or clock["vmax"] < 0 or clock["half_dt"] < 0:
             raise ValueError(f"state clock must be finite and non-negative, got {clock}")
         particles = self._validated_particles({k: state[k] for k in self._state_fields() if k in state})
         if self.crack is not None:
@@ -1389,6 +1404,7 @@ class Simulation:
             self.work.from_numpy(work)
         self.set_particles(**particles)
         self.time, self.n_steps, self.dt, self._vmax = clock["time"], clock["n_steps"], clock["dt"], clock["vmax"]
+        self._half_dt = clock["half_dt"]
         if self.crack is not None:
             self.crack.set_state(state)
 
@@ -1437,6 +1453,12 @@ class Simulation:
     def max_speed(self) -> float:
         return _max_speed(self._read("v"))
 
+    @property
+    def velocity_time(self) -> float:
+        """The time the particle velocities belong to: leapfrog keeps them half a step behind the positions
+        (time - dt/2 after a step; `time` itself before the first step or after set_particles gave them)."""
+        return self.time - self._half_dt
+
     # ------------------------------------------------------------------ runtime parameters (no recompile)
     @property
     def gravity(self) -> np.ndarray:
@@ -1447,7 +1469,8 @@ class Simulation:
         """Change gravity from the next step on (dim numbers, m/s^2), without recompiling. The time step
         (dt_limits), the gravity potential of energy() and the energy balance use the new value from then on; the
         balance's reference moves with the potential's jump (a change of g does no work at that instant), so the
-        energy check stays right across the change."""
+        energy check stays right across the change. The kick after the change takes the old g over its first half
+        and the new one over its second (exact for a piecewise constant g)."""
         try:
             value = np.asarray(g, dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
@@ -1524,10 +1547,14 @@ class Simulation:
             apply()
             return
         before, _ = self._energy_parts()
+        previous = self._potentials.get(self.n_steps - 1)
         apply()
         after, _ = self._energy_parts()
         ref = self._balance
-        ref["total"] += float(np.sum(after[:3]) - np.sum(before[:3]))
+        jump = float(after[1] + after[2] - before[1] - before[2])
+        ref["total"] += jump
+        if previous is not None:  # the pairing's earlier state jumps alike (its positions are not kept)
+            self._potentials[self.n_steps - 1] = previous + jump
         ref["floor"] = max(ref["floor"], self._energy_floor(after[3]))
         ref["scale"] = max(ref["scale"], after[5])
 

@@ -68,7 +68,7 @@ class KernelContext:
     density: Optional[Callable] = None
     kirchhoff: Optional[Callable] = None       # (p, F) -> Kirchhoff stress
     wall: Optional[Callable] = None            # (I, v) -> v with wall conditions
-    gravity: Any = None         # the solver's gravity: a 0-d vector field, a runtime value (Simulation.set_gravity)
+    gravity_kick: Any = None    # ti.func (kick_before, kick_after) -> the velocity gravity adds over a leapfrog kick
     extra: dict = field(default_factory=dict)
 
     @property

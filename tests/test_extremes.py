@@ -29,18 +29,23 @@ def free_fall(dim, dx, E, chunks, T):
 @pytest.mark.parametrize("chunks", [1, 13])
 def test_soft_free_fall_any_advance_duration(chunks):
     """E = 1 Pa: the elastic step alone would be 0.55 s (one step for advance(1.0): fall 2x too far); the
-    gravity and speed terms sub-step it. Positions move with the trapezoid of the grid velocity over each step,
-    exact for a uniform acceleration whatever the steps, so the fall is g t^2 / 2 to round-off (measured 1e-12
-    relative, f64) from any advance() duration, 0.01 s (one step) to 1 s (247 steps), in one call or in 13.
-    The issue's bound is 1 %; symplectic Euler (x += dt v_new) was off by ~dt / t: +3.5 % over 0.4 s, +100 %
-    for a single step. 1e-9 leaves round-off room only. The energy balance is then exact too (the potential
-    lost equals the kinetic energy gained to round-off, where symplectic Euler loses m g^2 dt^2 / 2 a step)."""
+    gravity and speed terms sub-step it. Leapfrog with the kick (dt_prev + dt) / 2 (half a step on the first) is
+    exact for a uniform acceleration whatever the steps, so the fall is g t^2 / 2 to round-off (measured 2e-12
+    relative, f64) from any advance() duration, 0.01 s (one step) to 1 s (246 steps), in one call or in 13
+    (advance's last sub-step is shortened: the kick's mean keeps it exact). The issue's bound is 1 %; symplectic
+    Euler (a full first kick) was off by ~dt / t: +3.5 % over 0.4 s, +100 % for a single step. 1e-9 leaves
+    round-off room only. The velocities belong to sim.velocity_time (half a step behind) and are exact there.
+    The energy balance pairs that kinetic energy with the mean potential of the last two states, which leaves
+    exactly -M |g|^2 dt^2 / 8 for the last dt in free fall (measured to 3e-8 relative; paired with the last
+    state's potential alone it would be -M |g| |v| dt / 2, growing with the speed)."""
     for T in (0.01, 0.1, 0.4, 1.0):
         sim, ratio = free_fall(2, 0.05, 1.0, chunks, T)
         assert abs(ratio - 1) < 1e-9, (T, ratio)
         assert sim.dt_limit in ("speed", "gravity")
-        assert np.allclose(sim.particles()["v"][:, -1], -G * T, rtol=1e-9)
-        assert abs(sim.energy_balance()["ratio"]) < 1e-9
+        assert sim.velocity_time == pytest.approx(T - sim.dt / 2, rel=1e-12)
+        assert np.allclose(sim.particles()["v"][:, -1], -G * sim.velocity_time, rtol=1e-9)
+        M = sim.scene.mass.sum()
+        assert sim.energy_balance()["growth"] == pytest.approx(-M * G**2 * sim.dt**2 / 8, rel=1e-6)
 
 
 def test_first_step_is_limited_by_gravity():
@@ -95,16 +100,17 @@ def test_energy_balance_with_body_force_work():
     Without the work term the balance would read +270 %."""
     sim = pushed_block(0.4, constant_push)
     e0 = sim.energy()
-    m = sim.scene.mass
-    xc0 = m @ sim.particles()["x"] / m.sum()
+    M = sim.scene.mass.sum()
+    P0 = sim.momentum()["linear"]
     sim.advance(0.8)
     b = sim.energy_balance()
     assert b["work"] > 2 * (e0["kinetic"] + e0["strain"])
-    # independent value of the work of a uniform force on a free body: M b . (centre of mass displacement).
-    # The kernels' trapezoid sum m b . (v_n + v_n+1) / 2 dt equals it to round-off since positions move by the
-    # same trapezoid (measured 1e-15 relative; symplectic Euler's positions had put it 1-2 % off)
-    xc1 = m @ sim.particles()["x"] / m.sum()
-    assert b["work"] == pytest.approx(m.sum() * constant_push(xc0[None], 0)[0] @ (xc1 - xc0), rel=1e-9)
+    # Independent value of the work of a uniform force on a free body: the kinetic energy of its centre of mass
+    # gained, (|P|^2 - |P0|^2) / 2M, from the total momentum (internal forces and the transfers conserve momentum,
+    # so each kick adds M b kick to it). The kernels' sum m b . (v_old + v_new) / 2 kick equals it to round-off;
+    # a work taken over dt instead of the leapfrog kick would be off by M |b|^2 dt^2 / 8 (first kick) at least.
+    P = sim.momentum()["linear"]
+    assert b["work"] == pytest.approx((P @ P - P0 @ P0) / (2 * M), rel=1e-9)
     assert -0.05 < b["ratio"] <= 0.0
 
 
