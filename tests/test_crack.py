@@ -113,15 +113,16 @@ def test_scene_without_crack_is_unchanged(dim):
     # order of P2G's atomic adds across threads change the last bits (seen: 5.6e-17). Equal up to rounding means
     # within 1e-12 of the field's scale: f64 rounding (1e-16) grown over 20 steps stays far below that, while any
     # change of the numerics (a weight, a force term, a transfer) moves positions by >= dt^2 |a| ~ 1e-5.
-    # Under gravity a scene without a crack section moves its particles by the trapezoid of their start and end
-    # velocities (docs/accuracy.md, "Time step"); a crack scene keeps symplectic Euler. The `_trapezoid` arrays were
-    # added when that change was made (they differ from the symplectic ones by ~dt^2 g / 2 a step: 1.3e-4 here).
+    # Regenerated when the time integration became leapfrog (a half kick on the first step). Against the
+    # symplectic-Euler arrays it replaced, it differs by exactly what that predicts: symplectic Euler's extra half
+    # kick put the mean height N dt (dt/2) |g| = 9.81e-5 lower and the velocity (dt/2) |g| = 4.905e-3 lower
+    # (checked to 1e-16 in 2D and 3D when stored).
     for name in ("x", "v"):
-        want = ref[f"{name}{dim}_trapezoid"]
+        want = ref[f"{name}{dim}"]
         assert np.abs(p[name] - want).max() <= 1e-12 * np.abs(want).max(), name
     plain_bytes = sim.bytes_per_particle
-    # with a crack section but nothing damaged, every particle keeps its standard functions (and symplectic
-    # Euler positions): the stored symplectic result up to rounding (the crack branch changes how LLVM contracts multiply-adds; seen: 6e-17 in 3D)
+    # with a crack section but nothing damaged, every particle keeps its standard functions: the stored result up
+    # to rounding (the crack branch changes how LLVM contracts multiply-adds; seen: 6e-17 in 3D)
     sim = _reference_run(dim, crack=True)
     assert sim.bytes_per_particle > plain_bytes
     assert np.abs(sim.particles()["x"] - ref[f"x{dim}"]).max() <= 1e-12 * np.abs(ref[f"x{dim}"]).max()

@@ -120,8 +120,8 @@ def test_momentum_every_transfer(transfer, update):
 @pytest.mark.slow
 def test_mms_1d_large_amplitude_converges():
     """G = 0.05 (linear MPM diverges under refinement: its error grows 4x from 16 to 128 cells), 4 particles per
-    cell: measured rms errors at 16/32/64/128 cells 1.72e-3 3.93e-4 8.47e-5 1.36e-5, rate 2.32 (trapezoidal
-    positions; 2.08 before them; docs/bases.md).
+    cell: measured rms errors at 16/32/64/128 cells 1.83e-3 4.42e-4 1.07e-4 2.34e-5, rate 2.09 (leapfrog; the
+    trapezoidal positions of an earlier version gave 2.32 at the one-period instant; docs/bases.md).
     Asserted >= 1.8: a first-order method (or linear MPM, negative) fails it."""
     cells = [16, 32, 64, 128]
     errs = tcp.mms_errors(1, 0.05, cells, basis="ddmp", particles_per_cell=4)
@@ -132,10 +132,10 @@ def test_mms_1d_large_amplitude_converges():
 @pytest.mark.slow
 def test_mms_1d_large_amplitude_two_particles_per_cell_stalls_at_particle_quadrature():
     """The same problem with 2 particles per cell: second order to 64 cells, then the particles' integration of
-    the blended gradient dominates (measured 1.76e-3 4.08e-4 1.05e-4 1.34e-4, rate 1.31 over 16-128, with the
-    trapezoidal positions; before them 1.87e-3 4.64e-4 1.27e-4 1.01e-4, 1.45; with 4 particles per cell 2.32, so
-    the stall is particle quadrature, not dt or the blend: docs/bases.md). Asserted: second order up to 64 cells
-    (2.04 measured) and an error at 128 cells 10x below linear's at 16 (2.2e-3)."""
+    the blended gradient dominates (measured with leapfrog 1.88e-3 4.65e-4 1.27e-4 1.02e-4, rate 1.45 over
+    16-128; with 4 particles per cell 2.09, so the stall is particle quadrature, not dt or the blend:
+    docs/bases.md). Asserted: second order up to 64 cells (1.94 measured) and an error at 128 cells 10x below
+    linear's at 16 (2.2e-3)."""
     cells = [16, 32, 64, 128]
     errs = tcp.mms_errors(1, 0.05, cells, basis="ddmp")
     print("ddmp 1D G=0.05 2 ppc", errs, tcp.lsq_rate(cells, errs))

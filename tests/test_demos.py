@@ -141,8 +141,8 @@ def test_jelly_drop_quick_free_fall(tmp_path):
     y0 = sim0.particles()["x"][:, 1].mean()
     sim = load_demo("jelly_drop").main(quick(tmp_path, 0.125, 0.1))
     y = sim.particles()["x"][:, 1].mean()
-    # no contact yet: free fall, exact under the trapezoidal positions (g t^2 / 2; symplectic Euler gave
-    # g dt^2 n (n + 1) / 2, 1 / n more); 1 %: f32 positions and the jelly's elastic sag
+    # no contact yet: free fall, exact under leapfrog (g t^2 / 2; symplectic Euler gave g dt^2 n (n + 1) / 2,
+    # 1 / n more); 1 %: f32 positions and the jelly's elastic sag
     assert y0 - y == pytest.approx(0.5 * 9.81 * 0.1**2, rel=0.01)
 
 
