@@ -25,6 +25,15 @@ def test_reference_benchmark_runs_both_kernels():
 
 
 @pytest.mark.slow
+def test_roofline_reports_ceilings_and_kernels():
+    out = load("roofline").main(["--tiny"])
+    assert all(out["ceilings"][k] > 0 for k in ("bandwidth", "flops", "atomics"))
+    rows = {r["kernel"]: r for r in out["rows"]}
+    assert {"p2g", "g2p", "grid_update", "step (all)"} <= set(rows)
+    assert rows["p2g"]["bound_ms"] > 0 and rows["g2p"]["x_of_bound"] > 0
+
+
+@pytest.mark.slow
 def test_throughput_benchmark_reports_each_case():
     # one case (a cold kernel set costs ~20 s of compile); the case loop is the product of the option lists
     rows = load("throughput").main(["--tiny", "--dims", "2", "--bases", "quadratic",
