@@ -217,8 +217,8 @@ the axes that exist (`sxy` in 2D; `sxy`, `sxz`, `syz` in 3D). In 2D forces and e
 | `point` | `x.. [m]`, `ux.. [m]`, `vx.. [m/s]`, stress `[Pa]` | the particle nearest `point` at t = 0 (the lowest index on a tie): position, displacement from t = 0, velocity, stress |
 | `body`, `region` | `ux.. [m]`, `vx.. [m/s]`, stress `[Pa]`, `kinetic [J]` | over the body's particles, or those inside `region` at t = 0: mass-weighted mean displacement and velocity (the centre of mass), volume-weighted mean stress over the current volumes, kinetic energy sum m v^2 / 2 (without APIC's affine part) |
 | `grip` | `fx.. [N]` | the force a `bodies[].prescribed_velocity` entry (`grip`: its number over all bodies, from 0) exerts on the material, measured like a wall's: the momentum its prescribed velocity adds at the nodes it holds, per interval; nan in the t = 0 row |
-| `wall` | `fx.. [N]` | the force the face exerts on the material: the momentum its wall condition adds at the face's grid nodes, summed over the steps since the previous sample and divided by that time (a mean, not one step); nan in the t = 0 row. A corner node gives each face the change of that face's own condition. Not available with a crack section |
-| `contact` | `fx.. [N]` | the force the other bodies exert on `body` (contact through the shared grid): the change of the body's momentum since the previous sample divided by that time, minus its weight (mass x `solver.gravity`); nan in the t = 0 row. It is the contact force only while the body touches no wall and has no `body_force` (those would be included) |
+| `wall` | `fx.. [N]` | the force the face exerts on the material: the momentum its wall condition adds at the face's grid nodes, summed over the steps since the previous sample and divided by the time they cover, from the previous sample's `velocity_time` to this one's (leapfrog velocities lag the clock by half a step; a mean, not one step); nan in the t = 0 row. A corner node gives each face the change of that face's own condition. Not available with a crack section |
+| `contact` | `fx.. [N]` | the force the other bodies exert on `body` (contact through the shared grid): the change of the body's momentum since the previous sample divided by the time between the samples' `velocity_time`, minus its weight (mass x `solver.gravity`); nan in the t = 0 row. It is the contact force only while the body touches no wall and has no `body_force` (those would be included) |
 
 The particles a probe follows are chosen from the positions at t = 0, so a resumed run follows the same ones;
 `--resume` keeps the rows up to the checkpoint's time. Rows are flushed as they are written, so after a stop or a
@@ -229,7 +229,7 @@ DIAGNOSTICS: dict[str, tuple[str, str]] = {
     "time": ("s", "simulated time of the row"),
     "step": ("", "steps taken so far"),
     "dt": ("s", "time step in force at this time (CFL rule or fixed dt), not the last shortened step"),
-    "kinetic": ("J", "kinetic energy sum 1/2 m v^2"),
+    "kinetic": ("J", "kinetic energy sum 1/2 m v^2 (velocities at `velocity_time`, half a step before the row time)"),
     "strain": ("J", "strain energy sum V0 psi(F)"),
     "gravity": ("J", "gravitational potential energy -sum m g . x (zero at the origin)"),
     "total": ("J", "kinetic + strain + gravity"),

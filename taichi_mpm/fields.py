@@ -70,7 +70,8 @@ def _field(name, unit, meaning, compute, kind="scalar", needs=()):
 
 
 REGISTRY: dict[str, Field] = {}
-_field("velocity", "m/s", "particle velocity", lambda p: np.asarray(p["v"], float), "vector", ["v"])
+_field("velocity", "m/s", "particle velocity, at the time `velocity_time` (leapfrog: half the last step before the "
+       "output time)", lambda p: np.asarray(p["v"], float), "vector", ["v"])
 _field("stress", "Pa", "full 3x3 Cauchy stress, tension positive (sigma_zz of plane strain in 2D, the lateral "
        "stress sigma_yy = sigma_zz of uniaxial strain in 1D)", stress3, "tensor", ["stress"])
 _field("von_mises", "Pa", "von Mises stress sqrt(3/2 s:s) of the full 3x3 stress", lambda p: von_mises(stress3(p)),

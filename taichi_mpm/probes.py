@@ -12,6 +12,10 @@ Types (selection made once, from the particles' positions at t = 0, so a resumed
           (Simulation.wall_impulse), summed since the last sample and divided by that time, so a sample is the
           mean force over the interval, not one noisy step. The t = 0 row has no interval yet: nan.
 - grip:   the same for a bodies[].prescribed_velocity entry (Simulation.prescribed_impulse): a grip's force.
+Elapsed time for contact, wall and grip: between the samples' Simulation.velocity_time. The velocities, and so
+momenta, belong to that time (leapfrog: half a step behind the clock), and the impulses of the steps in between
+cover exactly that span (each step's kick runs from t - dt_prev/2 to t + dt/2), so force x elapsed time equals
+the momentum change to round-off.
 
 Sampling (`output.probe_every`): null samples at every output, a number every that many seconds (at the first
 step on or after each multiple), `step` after every step; t = 0 is always sampled. Each row is flushed, so the
@@ -175,7 +179,7 @@ class Probes:
         self._particles = any(p.needs_particles for _, p in self.probes)
         self._walls = any(type(p) is WallProbe for _, p in self.probes)
         self._grips = any(isinstance(p, GripProbe) for _, p in self.probes)
-        self._since = sim.time                 # start of the interval the wall impulses cover
+        self._since = sim.velocity_time        # start of the interval the impulses cover (see the docstring)
         self._last_step = sim.n_steps if resume else None
         self._next = self._next_time(sim.time)
 
@@ -216,13 +220,13 @@ class Probes:
         p = sim.particles() if self._particles else None
         impulse = sim.wall_impulse() if self._walls else None
         grip_impulse = sim.prescribed_impulse() if self._grips else None
-        elapsed = sim.time - self._since
+        elapsed = sim.velocity_time - self._since
         for name, probe in self.probes:
             values = probe.row(p, sim, grip_impulse if isinstance(probe, GripProbe) else impulse, elapsed)
             f = self._files[name]
             csv.writer(f).writerow([repr(float(sim.time)), sim.n_steps] + [repr(float(v)) for v in values])
             f.flush()
-        self._since, self._last_step = sim.time, sim.n_steps
+        self._since, self._last_step = sim.velocity_time, sim.n_steps
         self._next = self._next_time(sim.time)
 
     def close(self):
