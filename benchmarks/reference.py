@@ -15,12 +15,16 @@ sys.path.insert(0, str(Path(__file__).parent))
 from common import block_config, mpm3d_reference, parser, peak_rss_mb, positions_scene, report, time_steps  # noqa: E402
 
 
+UNROLL_LABEL = {True: " unrolled", False: " run-time loop", "auto": ""}   # "": the default
+
+
 def main(argv=None):
     p = parser(__doc__)
     p.add_argument("--grid", type=int, default=64)
     p.add_argument("--sparse", choices=["true", "false", "both"], default="both")
-    p.add_argument("--unroll", choices=["true", "false", "both"], default=None,
-                   help="stencil unrolling (solver.unroll); default both, --tiny: false (unrolled 3D compiles ~30 s)")
+    p.add_argument("--unroll", choices=["auto", "true", "false", "both"], default=None,
+                   help="stencil unrolling (solver.unroll); default both (auto and true), --tiny: false "
+                        "(unrolled 3D compiles ~30 s)")
     a = p.parse_args(argv)
     n_grid = 16 if a.tiny else a.grid
     steps = a.steps or (3 if a.tiny else 50)
@@ -36,7 +40,8 @@ def main(argv=None):
 
     sparse_opts = {"both": [True, False], "true": [True], "false": [False]}[a.sparse]
     for model in ("fluid", "fixed_corotated"):
-        for unroll in {"both": [True, False], "true": [True], "false": [False]}[a.unroll or ("false" if a.tiny else "both")]:
+        for unroll in {"both": [True, "auto"], "auto": ["auto"], "true": [True], "false": [False]}[
+                a.unroll or ("false" if a.tiny else "both")]:
             for sparse in sparse_opts:
                 cfg = block_config(3, n_grid, model=model, sparse=sparse, arch=a.arch)
                 cfg["solver"].update(dt=dt, unroll=unroll)
@@ -47,7 +52,7 @@ def main(argv=None):
                 compile_s = time.perf_counter() - t0
                 t, c = time_steps(sim.step, steps, repeats, cpu=True)
                 rows.append(dict(case=f"quadratic APIC {model} {'sparse' if sparse else 'dense'}"
-                                      f"{' unrolled' if unroll else ''}",
+                                      f"{UNROLL_LABEL[unroll]}",
                                  particles=sim.n, ms_per_step=t * 1e3, cpu_ms_per_step=c * 1e3,
                                  particle_steps_per_s=sim.n / t, ratio=t_ref / t, cpu_ratio=c_ref / c,
                                  first_step_s=compile_s))

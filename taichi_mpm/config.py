@@ -275,8 +275,9 @@ class Solver(Strict):
     end_time: PositiveFloat
     gravity: Optional[Vec] = None
     max_steps: Optional[Annotated[int, Field(gt=0)]] = None
-    # unroll the stencil loop: faster steps, slower first compile (3D quadratic: ~20 % faster, 29 s against 3 s
-    # cold); auto unrolls stencils of at most 16 nodes (all 1D and 2D bases)
+    # unroll the stencil loop: faster steps, slower first compile (docs/performance.md); auto unrolls stencils of at
+    # most 16 nodes whole (all 1D and 2D bases) and the last axis of larger tensor stencils (3D quadratic: 3 nodes
+    # per run-time iteration of 9); cpdi in 3D runs at run time
     unroll: Union[Literal["auto"], bool] = "auto"
     # energy balance: stop when total energy exceeds its initial value + body-force work - viscous dissipation by
     # more than this fraction of the largest kinetic + strain energy (checked every few steps and after every

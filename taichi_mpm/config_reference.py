@@ -92,7 +92,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.end_time": ("s", "simulated time to run to"),
     "solver.gravity": ("m/s^2", "gravitational acceleration, one number per axis; null: none"),
     "solver.max_steps": ("", "stop after this many steps; null: no limit"),
-    "solver.unroll": ("", "unroll the stencil loop (true / false); auto unrolls stencils of at most 16 nodes"),
+    "solver.unroll": ("", "unroll the stencil loop (true / false); auto unrolls stencils of at most 16 nodes "
+                          "whole and the last axis of larger tensor-product ones (3D gimp, quadratic, cubic, ddmp)"),
     "solver.energy_growth_limit": ("1", "stop with an instability when total energy exceeds its initial value + "
                                         "body-force work - viscous dissipation by more than this fraction of the "
                                         "largest kinetic + strain energy (checked every few steps and after every "

@@ -244,11 +244,6 @@ class Simulation:
         if self.mapped is not None:   # the parametric coordinates xi_p
             self.bytes_per_particle += MappedGrid.PARTICLE_FLOATS * (8 if self.cfg.precision == "f64" else 4)
 
-    def _unroll(self) -> bool:
-        """Unroll the stencil loop: always for `solver.unroll: true`, for auto when it has at most 16 nodes."""
-        u = self.cfg.solver.unroll
-        return u is True or (u == "auto" and self.basis.contributions(self.dim) <= 16)
-
     def _bytes_per_particle(self) -> int:
         size = 8 if self.cfg.precision == "f64" else 4
         d = self.dim
@@ -357,9 +352,7 @@ class Simulation:
         # a mapped grid's walls act on its parameter faces, along their normals
         wall = make_wall_condition(dim, n_cells, faces, basis, friction, self.wall_reaction, moving, self.mapped)
         # The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))`
-        # with off = o + inner[k]. Unrolled, the outer range is a single point and `inner` lists every node, so
-        # the weights stay in registers (3D quadratic: P2G 37 against 43 ms, G2P 7.5 against 11 ms CPU time for
-        # 65k particles) but compiling takes 29 s instead of 3 s cold; otherwise the loop runs at run time.
+        # with off = o + inner[k]; solver.unroll chooses the split (stencils._loops; costs in docs/performance.md).
         @ti.func
         def gravity_kick(kick_before, kick_after):
             """The velocity gravity adds over a kick: the gravity of the last step over its half, the current one
@@ -371,7 +364,7 @@ class Simulation:
             dim=dim, dx=dx, lower=lower, upper=upper, n_cells=n_cells, basis=basis, feat=f,
             precision=self.cfg.precision, x=x, v=v, F=F, C=C, vol0=vol0, mat=mat, half_width=self.half_width,
             domain_lp0=0.5 * float(self.scene.spacing[0]) / dx if self.n else 0.5,
-            gimp_deforming=self.cfg.solver.gimp_domain == "deforming", unroll=self._unroll(), grid=self.grid,
+            gimp_deforming=self.cfg.solver.gimp_domain == "deforming", unroll=self.cfg.solver.unroll, grid=self.grid,
             wall=wall, gravity_kick=gravity_kick, extra=dict(mapped=self.mapped))
         sten = ctx.stencil = make_stencil(ctx)
         if self.mapped is not None:
@@ -1116,6 +1109,8 @@ class Simulation:
         stretched until its particles no longer share grid nodes breaks into clumps while each clump's F stays
         near its old value). Compares the spread tr(M2) of each body with the spread its mean F predicts from
         the reference state, M2_pred = A M2_ref A^T with A = mean F (mean F at the reference)^-1."""
+        if all(MODELS[m.model].fluid or MODELS[m.model].plastic for m in self._materials):
+            return  # no solid body to check: skip the moments pass (65k particles: 8 ms, its f64 atomic adds)
         shapes = self._body_shapes()
         if self._shape_ref is None:
             self._shape_ref = shapes
