@@ -114,6 +114,7 @@ class CrackFinder:
         size = 8 if self.sim.cfg.precision == "f64" else 4
         d = self.dim
         floats = 2 + d + 2 + 2 * d + (2 * d if self.apic else 0) + (1 if self.has_law else 0)
+        floats += d + 2   # xs, vs: positions and SPH weights in cell order
         return floats * size + 4 + 4 + (8 if self.n_nodes > 32 else 4) + 4 + 4  # iface, state, mask, pcell, ids
 
     def upload(self):
