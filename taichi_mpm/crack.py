@@ -102,6 +102,7 @@ class CrackFinder:
         self.cell_lo = ti.field(float, nc)              # min / max of D in the cell
         self.cell_hi = ti.field(float, nc)
         self.cell_varies = ti.field(ti.i32, nc)         # D varies within the cell's 5^d block (prepare)
+        self.d_range = ti.field(float, 2)               # min / max of D over all particles
         self.pcell = ti.field(ti.i32, n)
         self.ids = ti.field(ti.i32, n)
         self.xs = ti.Vector.field(d, float, n)          # x[ids[j]]: positions in cell order, so searches stream
@@ -170,7 +171,7 @@ class CrackFinder:
         mask_t = self.mask_t
         cell_count, cell_fill, cell_start = self.cell_count, self.cell_fill, self.cell_start
         cell_lo, cell_hi, pcell, ids, xs = self.cell_lo, self.cell_hi, self.pcell, self.ids, self.xs
-        cell_varies, vs = self.cell_varies, self.vs
+        cell_varies, vs, d_range = self.cell_varies, self.vs, self.d_range
         node_mark, node_n = self.nodes.m, self.nodes.vec["n"]
         lower = ti.Vector(sim.lower.tolist())
         dx = sim.dx
@@ -358,8 +359,14 @@ class CrackFinder:
                 ti.atomic_add(cell_count[c], 1)
                 ti.atomic_min(cell_lo[c], Dp)
                 ti.atomic_max(cell_hi[c], Dp)
-            for c in cell_count:  # per occupied cell, not per particle: the cells' min / max D over its 5^d block
+            d_range[0], d_range[1] = 1.0, 0.0
+            for c in cell_count:
                 if cell_count[c] > 0:
+                    ti.atomic_min(d_range[0], cell_lo[c])
+                    ti.atomic_max(d_range[1], cell_hi[c])
+            for c in cell_count:  # per occupied cell, not per particle: the cells' min / max D over its 5^d block
+                cell_varies[c] = 0
+                if cell_count[c] > 0 and d_range[1] > d_range[0]:   # nothing to scan where D is one value
                     lo, hi = 1.0, 0.0
                     cc = unflat(c)
                     for off in ti.grouped(ti.ndrange(*nbr)):
