@@ -307,12 +307,13 @@ class CrackFinder:
                     d2 = (x[p] - xs[j]).norm_sqr()
                     if d2 < radius2_cut:
                         q = ids[j]
-                        dist = ti.sqrt(d2)
-                        if dist < radius and n.dot(normal[q]) < -contact_thr:
-                            s = dist * inv_r
-                            wk, _ = sph_kernel(s)
-                            sw += wk
-                            sv += wk * (v[q] - v[p]).dot(n)
+                        if n.dot(normal[q]) < -contact_thr:   # few neighbours face p: test before the sqrt
+                            dist = ti.sqrt(d2)
+                            if dist < radius:
+                                s = dist * inv_r
+                                wk, _ = sph_kernel(s)
+                                sw += wk
+                                sv += wk * (v[q] - v[p]).dot(n)
             res = 0.0
             if sw > 0:
                 res = sv / sw
