@@ -121,7 +121,7 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
         has_law = any(getattr(m, "tensile_strength", None) is not None and material_models.MODELS[m.model].damage
                       for m in mats)
         stencil_nodes = make_basis(cfg.solver.basis).contributions(d)
-        floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0)
+        floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0) + d + 2   # + xs, vs
         n += floats * size + 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4
     return n
 

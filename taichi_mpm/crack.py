@@ -37,6 +37,7 @@ STANDARD, MODIFIED, CONTACT = 0, 1, 2   # particle states: unmodified, cut (tens
 S_FLOOR = 1e-3                          # a family whose kept weights sum below this keeps standard functions
 MAX_CELLS = 1 << 26
 CELL_SPLIT = 2                          # cell list cells of r/2: a query scans 5^d cells, (2.5 r)^d, not (3 r)^d
+ROW_MARGIN = 1e-2                       # cell units: a cell is cut from a search only beyond r + this (rounding)
 
 
 @dataclass(frozen=True)
@@ -100,8 +101,12 @@ class CrackFinder:
         self.cell_start = ti.field(ti.i32, nc)
         self.cell_lo = ti.field(float, nc)              # min / max of D in the cell
         self.cell_hi = ti.field(float, nc)
+        self.cell_varies = ti.field(ti.i32, nc)         # D varies within the cell's 5^d block (prepare)
+        self.d_range = ti.field(float, 2)               # min / max of D over all particles
         self.pcell = ti.field(ti.i32, n)
         self.ids = ti.field(ti.i32, n)
+        self.xs = ti.Vector.field(d, float, n)          # x[ids[j]]: positions in cell order, so searches stream
+        self.vs = ti.Vector.field(2, float, n)          # (V, V D) of particle ids[j]: the SPH sums' weights
         # node normals on their own sparse grid (same node indexing as the solver's grid);
         # m marks the node: 1 in a near particle's stencil, 2 on the discontinuity
         self.nodes = Grid(d, sim.grid.shape, True, ["n"])
@@ -110,6 +115,7 @@ class CrackFinder:
         size = 8 if self.sim.cfg.precision == "f64" else 4
         d = self.dim
         floats = 2 + d + 2 + 2 * d + (2 * d if self.apic else 0) + (1 if self.has_law else 0)
+        floats += d + 2   # xs, vs: positions and SPH weights in cell order
         return floats * size + 4 + 4 + (8 if self.n_nodes > 32 else 4) + 4 + 4  # iface, state, mask, pcell, ids
 
     def upload(self):
@@ -164,7 +170,8 @@ class CrackFinder:
         normal, state, mask, sums, gsum, cent = self.normal, self.state, self.mask, self.sums, self.gsum, self.cent
         mask_t = self.mask_t
         cell_count, cell_fill, cell_start = self.cell_count, self.cell_fill, self.cell_start
-        cell_lo, cell_hi, pcell, ids = self.cell_lo, self.cell_hi, self.pcell, self.ids
+        cell_lo, cell_hi, pcell, ids, xs = self.cell_lo, self.cell_hi, self.pcell, self.ids, self.xs
+        cell_varies, vs, d_range = self.cell_varies, self.vs, self.d_range
         node_mark, node_n = self.nodes.m, self.nodes.vec["n"]
         lower = ti.Vector(sim.lower.tolist())
         dx = sim.dx
@@ -175,6 +182,7 @@ class CrackFinder:
         radius = self.radius
         inv_r = 1.0 / radius
         radius2 = radius * radius
+        radius2_cut = radius2 * (1 + 1e-4)   # a cheap d2 test before sqrt(d2) < r: never drops a neighbour
         thr, dthr, gthr = float(cc.threshold), float(cc.damage_threshold), float(cc.gradient_threshold)
         contact_thr = max(thr, 0.0)   # particles facing each other for contact: never merely non-aligned ones
         contact = bool(cc.contact_in_compression)
@@ -186,6 +194,7 @@ class CrackFinder:
         imped = [float(np.sqrt(m.density * (m.lam + 2 * m.mu))) for m in sim._materials]  # rho c
         tol = 1e-12 if sim.cfg.precision == "f64" else 1e-6   # pseudo-inverse cut-off, relative
         nbr = [(-CELL_SPLIT, CELL_SPLIT + 1)] * dim
+        rows = nbr[:-1]   # a neighbour search walks rows of cells along the last axis
         inv_cell = CELL_SPLIT / radius
 
         # ---- SPH on a cell list ------------------------------------------------
@@ -204,32 +213,72 @@ class CrackFinder:
             return k
 
         @ti.func
+        def unflat(k):
+            c = ti.Vector.zero(int, dim)
+            for a in ti.static(range(dim)):
+                c[dim - 1 - a] = k % cells[dim - 1 - a]
+                k //= cells[dim - 1 - a]
+            return c
+
+        @ti.func
+        def row(c, u, o):
+            """The candidates of one row (along the last axis) of the 5^d cells around cell c: a slice [j0, j1) of
+            `ids`, since the row's cells are consecutive in the sorted order. o: the row's offsets on the other
+            axes; u: the query point in cell units. Cells that cannot hold a particle within r of u are cut
+            (their particles would fail the d2 < r^2 test anyway), so sums keep their terms and their order."""
+            rem = float(CELL_SPLIT * CELL_SPLIT)   # r^2 in cell units, less the row's squared gap
+            base, inside = 0, True
+            for a in ti.static(range(dim - 1)):
+                k = c[a] + o[a]
+                if k < 0 or k >= cells[a]:
+                    inside = False
+                gap = 0.0   # edge cells hold the particles beyond the domain too: no gap outwards there
+                if u[a] < k and k > 0:
+                    gap = k - u[a]
+                elif u[a] > k + 1 and k < cells[a] - 1:
+                    gap = u[a] - (k + 1)
+                rem -= ti.max(gap - ROW_MARGIN, 0.0) ** 2
+                base = base * cells[a] + k
+            j0, j1 = 0, 0
+            if inside and rem > 0:
+                z = ti.static(dim - 1)
+                reach = ti.sqrt(rem) + ROW_MARGIN
+                lo = ti.max(ti.min(int(ti.floor(u[z] - reach)), cells[z] - 1), 0, c[z] - CELL_SPLIT)
+                hi = ti.min(ti.max(int(ti.floor(u[z] + reach)), 0), cells[z] - 1, c[z] + CELL_SPLIT)
+                if lo <= hi:
+                    first, last = base * cells[z] + lo, base * cells[z] + hi
+                    j0, j1 = cell_start[first], cell_start[last] + cell_count[last]
+            return j0, j1
+
+        @ti.func
+        def cell_units(xq):
+            return (xq - lower) * inv_cell
+
+        @ti.func
         def damage_field(xq):
             """Shepard-normalised SPH value and gradient of D at xq (cubic spline kernel of support r)."""
             c = cell_of(xq)
+            u = cell_units(xq)
             Sw, SD = 0.0, 0.0
             gS = ti.Vector.zero(float, dim)
             gSD = ti.Vector.zero(float, dim)
-            for off in ti.grouped(ti.ndrange(*nbr)):
-                cn = c + off
-                if (cn >= 0).all() and (cn < cells_v).all():
-                    cid = flat(cn)
-                    for j in range(cell_start[cid], cell_start[cid] + cell_count[cid]):
-                        q = ids[j]
-                        rv = xq - x[q]
-                        d2 = rv.norm_sqr()
-                        if d2 < radius2:   # most candidates of the 5^d cells fall outside: no sqrt for them
-                            dist = ti.sqrt(d2)
-                            s = dist * inv_r
-                            wk, dk = sph_kernel(s)
-                            gw = ti.Vector.zero(float, dim)
-                            if dist > 0:
-                                gw = (dk * inv_r / dist) * rv
-                            Vq, Dq = vol0[q], D[q]
-                            Sw += Vq * wk
-                            SD += Vq * Dq * wk
-                            gS += Vq * gw
-                            gSD += Vq * Dq * gw
+            for o in ti.grouped(ti.ndrange(*rows)):
+                j0, j1 = row(c, u, o)
+                for j in range(j0, j1):
+                    rv = xq - xs[j]
+                    d2 = rv.norm_sqr()
+                    if d2 < radius2:   # most candidates fall outside: no sqrt for them
+                        dist = ti.sqrt(d2)
+                        s = dist * inv_r
+                        wk, dk = sph_kernel(s)
+                        gw = ti.Vector.zero(float, dim)
+                        if dist > 0:
+                            gw = (dk * inv_r / dist) * rv
+                        Vq, VDq = vs[j][0], vs[j][1]
+                        Sw += Vq * wk
+                        SD += VDq * wk
+                        gS += Vq * gw
+                        gSD += VDq * gw
             val = 0.0
             grad = ti.Vector.zero(float, dim)
             if Sw > 0:
@@ -250,19 +299,21 @@ class CrackFinder:
             """Kernel-weighted mean of (v_q - v_p) . n_p over neighbours q across the discontinuity
             (n_p . n_q < -threshold): negative when the other side approaches p; and whether any q is in reach."""
             c = cell_of(x[p])
+            u = cell_units(x[p])
             sw, sv = 0.0, 0.0
-            for off in ti.grouped(ti.ndrange(*nbr)):
-                cn = c + off
-                if (cn >= 0).all() and (cn < cells_v).all():
-                    cid = flat(cn)
-                    for j in range(cell_start[cid], cell_start[cid] + cell_count[cid]):
+            for o in ti.grouped(ti.ndrange(*rows)):
+                j0, j1 = row(c, u, o)
+                for j in range(j0, j1):
+                    d2 = (x[p] - xs[j]).norm_sqr()
+                    if d2 < radius2_cut:
                         q = ids[j]
-                        dist = (x[p] - x[q]).norm()
-                        if dist < radius and n.dot(normal[q]) < -contact_thr:
-                            s = dist * inv_r
-                            wk, _ = sph_kernel(s)
-                            sw += wk
-                            sv += wk * (v[q] - v[p]).dot(n)
+                        if n.dot(normal[q]) < -contact_thr:   # few neighbours face p: test before the sqrt
+                            dist = ti.sqrt(d2)
+                            if dist < radius:
+                                s = dist * inv_r
+                                wk, _ = sph_kernel(s)
+                                sw += wk
+                                sv += wk * (v[q] - v[p]).dot(n)
             res = 0.0
             if sw > 0:
                 res = sv / sw
@@ -309,6 +360,23 @@ class CrackFinder:
                 ti.atomic_add(cell_count[c], 1)
                 ti.atomic_min(cell_lo[c], Dp)
                 ti.atomic_max(cell_hi[c], Dp)
+            d_range[0], d_range[1] = 1.0, 0.0
+            for c in cell_count:
+                if cell_count[c] > 0:
+                    ti.atomic_min(d_range[0], cell_lo[c])
+                    ti.atomic_max(d_range[1], cell_hi[c])
+            for c in cell_count:  # per occupied cell, not per particle: the cells' min / max D over its 5^d block
+                cell_varies[c] = 0
+                if cell_count[c] > 0 and d_range[1] > d_range[0]:   # nothing to scan where D is one value
+                    lo, hi = 1.0, 0.0
+                    cc = unflat(c)
+                    for off in ti.grouped(ti.ndrange(*nbr)):
+                        cn = cc + off
+                        if (cn >= 0).all() and (cn < cells_v).all():
+                            cid = flat(cn)
+                            lo = ti.min(lo, cell_lo[cid])
+                            hi = ti.max(hi, cell_hi[cid])
+                    cell_varies[c] = ti.cast(hi > lo, ti.i32)
             ti.loop_config(serialize=True)
             for c in range(1, n_cell_total):
                 cell_start[c] = cell_start[c - 1] + cell_count[c - 1]
@@ -327,6 +395,10 @@ class CrackFinder:
                         else:
                             break
                     ids[s0 + j + 1] = key
+            for j in ids:
+                q = ids[j]
+                xs[j] = x[q]
+                vs[j] = ti.Vector([vol0[q], vol0[q] * D[q]])
 
         @ti.func
         def mark_stencil(p):
@@ -340,15 +412,7 @@ class CrackFinder:
             for p in x:
                 st = STANDARD
                 nrm = ti.Vector.zero(float, dim)
-                c = cell_of(x[p])
-                lo, hi = 1.0, 0.0
-                for off in ti.grouped(ti.ndrange(*nbr)):
-                    cn = c + off
-                    if (cn >= 0).all() and (cn < cells_v).all():
-                        cid = flat(cn)
-                        lo = ti.min(lo, cell_lo[cid])
-                        hi = ti.max(hi, cell_hi[cid])
-                if hi > lo:  # D varies within reach: p may sit near a discontinuity
+                if cell_varies[pcell[p]]:  # D varies within reach: p may sit near a discontinuity
                     _, g = damage_field(x[p])
                     gn = g.norm() * radius
                     if (D[p] >= dthr or gn >= gthr) and gn > 1e-6:
@@ -368,14 +432,15 @@ class CrackFinder:
                 if state[p] == STANDARD and D[p] >= dthr:
                     T = ti.Matrix.zero(float, dim, dim)
                     c = cell_of(x[p])
-                    for off in ti.grouped(ti.ndrange(*nbr)):
-                        cn = c + off
-                        if (cn >= 0).all() and (cn < cells_v).all():
-                            cid = flat(cn)
-                            for j in range(cell_start[cid], cell_start[cid] + cell_count[cid]):
-                                q = ids[j]
-                                dist = (x[p] - x[q]).norm()
-                                if dist < radius and D[q] < dthr and state[q] == MODIFIED:
+                    u = cell_units(x[p])
+                    for o in ti.grouped(ti.ndrange(*rows)):
+                        j0, j1 = row(c, u, o)
+                        for j in range(j0, j1):
+                            q = ids[j]
+                            d2 = (x[p] - x[q]).norm_sqr()
+                            if d2 < radius2_cut and D[q] < dthr and state[q] == MODIFIED:
+                                dist = ti.sqrt(d2)
+                                if dist < radius:
                                     s = dist * inv_r
                                     wk, _ = sph_kernel(s)
                                     T += wk * normal[q].outer_product(normal[q])
@@ -441,8 +506,9 @@ class CrackFinder:
                         st = MODIFIED
                         if ti.static(contact):  # material across within reach, and trial normal traction < 0
                             vc, touching = normal_closing_speed(p, n)
-                            if touching and n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
-                                st = CONTACT
+                            if touching:   # nested: Taichi's `and` evaluates both sides, and the stress costs
+                                if n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
+                                    st = CONTACT
                     Sn, Gn, cn = St, Gt, ct
                     if st == CONTACT:   # the normal family keeps the nodes across
                         Sn, Gn, cn = St + Sx, Gt + Gx, ct + cx

@@ -105,3 +105,10 @@ def test_device_script_runs_every_section_on_cpu(tmp_path):
     assert {"mpm3d", "elements", "bases", "crack", "long", "fill"} <= sections
     assert all(r["particle_steps_per_s"] > 0 for r in rows if "particle_steps_per_s" in r)
     assert next(r for r in rows if r["case"].startswith("quadratic APIC fluid"))["vs_mpm3d"] > 0
+
+
+@pytest.mark.slow  # two 3D kernel sets (with and without the crack finder) compile cold in worker processes
+def test_crack_cost_benchmark_reports_ratio_and_kernels():
+    rows = load("crack_cost").main(["--tiny", "--scenes", "blocks"])
+    assert len(rows) == 1 and rows[0]["ratio"] > 0 and rows[0]["near_fraction"] > 0
+    assert rows[0]["particle_normals_cpu_ms"] > 0
