@@ -49,7 +49,7 @@ def case_mpm3d(a):
     import reference
 
     n_grid = 16 if a.quick else 64
-    rows = reference.main(["--grid", str(n_grid), "--sparse", "true", "--unroll", "false", "--arch", a.arch,
+    rows = reference.main(["--grid", str(n_grid), "--sparse", "true", "--unroll", "auto", "--arch", a.arch,
                            "--steps", str(3 if a.quick else 50), "--repeats", str(1 if a.quick else 3)])
     return [dict(section="mpm3d", case=r["case"], particles=r["particles"], ms_per_step=r["ms_per_step"],
                  particle_steps_per_s=r["particle_steps_per_s"], vs_mpm3d=r["ratio"], first_step_s=r["first_step_s"])
