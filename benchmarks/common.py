@@ -43,6 +43,19 @@ def time_steps(step, steps: int, repeats: int, sync=ti.sync, cpu: bool = False):
     return (statistics.median(wall), statistics.median(proc)) if cpu else statistics.median(wall)
 
 
+def kernel_timer(spent: dict, clock=time.perf_counter):
+    """timed(name, fn): fn wrapped to add its duration, between two ti.sync(), to spent[name] (per-kernel times)."""
+    def timed(name, fn):
+        def call(*args):
+            ti.sync()
+            t = clock()
+            fn(*args)
+            ti.sync()
+            spent[name] = spent.get(name, 0.0) + clock() - t
+        return call
+    return timed
+
+
 def report(rows: list[dict], path: Path | None):
     if not rows:
         return

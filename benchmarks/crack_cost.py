@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import block_config, parser, report  # noqa: E402
+from common import block_config, kernel_timer, parser, report  # noqa: E402
 
 SCENES = ("blocks", "notch", "intact")
 
@@ -84,18 +84,8 @@ def run_case(scene, n_grid, crack, steps, arch, kernel_steps):
 def kernel_times(sim, steps):
     """Mean CPU ms (all threads) per step of each crack-finder kernel (and the node grid's clear), each between two
     ti.sync(): CPU time, not wall time, since other jobs on a shared machine move wall time far more."""
-    import taichi as ti
-
     crack, spent = sim.crack, {}
-
-    def timed(name, fn):
-        def call(*args):
-            ti.sync()
-            t = time.process_time()
-            fn(*args)
-            ti.sync()
-            spent[name] = spent.get(name, 0.0) + time.process_time() - t
-        return call
+    timed = kernel_timer(spent, time.process_time)
 
     saved_k, saved_clear = dict(crack._k), crack.nodes.clear
     for name in ("prepare", "particle_normals", "band_normals", "node_normals", "particle_masks"):

@@ -30,7 +30,7 @@ import numpy as np
 import taichi as ti
 
 sys.path.insert(0, str(Path(__file__).parent))
-from common import block_config, mpm3d_reference, parser, positions_scene, report  # noqa: E402
+from common import block_config, kernel_timer, mpm3d_reference, parser, positions_scene, report  # noqa: E402
 
 COUNTS = {  # per particle-step, see the module docstring
     "p2g": dict(flops=1670, bytes=100),
@@ -97,16 +97,7 @@ def ceilings(n: int, repeats: int) -> dict:
 def kernel_times(sim, steps: int) -> dict:
     """Seconds per step of each solver kernel (each call synchronised: the sum exceeds the plain step a little)."""
     spent = {}
-
-    def timed(name, fn):
-        def call(*args):
-            ti.sync()
-            t = time.perf_counter()
-            fn(*args)
-            ti.sync()
-            spent[name] = spent.get(name, 0.0) + time.perf_counter() - t
-        return call
-
+    timed = kernel_timer(spent)
     sim._k = {name: timed(name, fn) for name, fn in sim._k.items()}
     grid_clear = sim.grid.clear
     sim.grid.clear = timed("grid clear", grid_clear)
