@@ -246,9 +246,9 @@ def test_mms_1d_large_amplitude_converges():
 
 @pytest.mark.slow
 def test_mms_2d_large_amplitude_converges():
-    """Measured 6.79e-3 1.15e-3 4.67e-5 (rate 3.59) at the one-period instant where the exact displacement is
-    zero: partly a cancellation. At 3/4 period the same runs converge at 1.21 (quadratic 1.14), mostly a
-    first-order time-step error shared by every basis (docs/accuracy.md); this bound checks the study's metric."""
+    """Measured with leapfrog 9.42e-3 2.47e-3 6.29e-4 (rate 1.95) at the one-period instant; at 3/4 period 2.72
+    (docs/accuracy.md). The trapezoidal positions before it gave 3.59 here, a cancellation, and 1.21 at 3/4
+    period. A first-order method fails the bound."""
     cells = [8, 16, 32]
     errs = mms_errors(2, 0.05, cells)
     print("cpdi 2D G=0.05", errs, lsq_rate(cells, errs))
