@@ -1131,9 +1131,10 @@ class Simulation:
                     detail=(f"body {b} spread {math.sqrt(ratio):.2f} x as far as its particles' deformation "
                             f"gradients account for (mean F {np.array2string(Fm, precision=3)}): its particles "
                             f"separated by more than a grid cell (stretched material that no longer shares grid "
-                            f"nodes stops feeling its own tension). Fix: a finer grid (smaller domain.dx) or more "
-                            f"particles_per_cell, basis cpdi (particle domains that follow F), or a crack section "
-                            f"if the body is meant to break"))
+                            f"nodes stops feeling its own tension), or F no longer follows the particles' positions "
+                            f"(a body one particle thick: its F shrinks while the particles keep their spacing). "
+                            f"Fix: a finer grid (smaller domain.dx) or more particles_per_cell, basis cpdi "
+                            f"(particle domains that follow F), or a crack section if the body is meant to break"))
 
     def _body_shapes(self) -> dict:
         """body -> (mass, second moment of position about the centre, mass-mean F, solid?)."""
