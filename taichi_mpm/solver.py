@@ -554,6 +554,16 @@ class Simulation:
         crack = self.crack is not None  # crack finder (crack.py): modified shape functions near discontinuities
         crk = self.crack.build(ctx) if crack else None  # its hooks (crack.CrackHooks)
 
+        @ti.func
+        def external_force(p):
+            """Body force and traction on the particle (N); gravity is a potential (see energy_balance)."""
+            force = ti.Vector.zero(float, dim)
+            if ti.static(has_body_acc):
+                force += density(p) * vol0[p] * body_acc[p]
+            if ti.static(has_load):
+                force += load[p]
+            return force
+
         @ti.kernel
         def p2g(kick: float):
             """Particles to grid: mass, momentum, and the impulse of the forces over `kick` (the leapfrog kick: the
@@ -567,11 +577,7 @@ class Simulation:
                     stress = -crk.degrade(p, -stress)
                 vp = v[p]
                 Ap = affine(p, st)
-                force_density = ti.Vector.zero(float, dim)  # the external force on the particle (N)
-                if ti.static(has_body_acc):
-                    force_density = mp * body_acc[p]
-                if ti.static(has_load):
-                    force_density += load[p]  # tractions (loads.py): traction x face area x ramp
+                force_density = external_force(p)  # body force + tractions (loads.py: traction x area x ramp)
                 if ti.static(f["viscosity"]):
                     work[1] += kick * vol0[p] * viscous_power(p, Fp)
                 if ti.static(crack):
@@ -681,16 +687,6 @@ class Simulation:
                     gv2[I] = grip_condition(I, wall(I, gv2[I] / m), m, False)
 
         vgrad = gv2 if f["musl"] else gv  # MUSL takes grad v from the remapped velocities
-
-        @ti.func
-        def external_force(p):
-            """Body force and traction on the particle (N); gravity is a potential (see energy_balance)."""
-            force = ti.Vector.zero(float, dim)
-            if ti.static(has_body_acc):
-                force += density(p) * vol0[p] * body_acc[p]
-            if ti.static(has_load):
-                force += load[p]
-            return force
 
         @ti.kernel
         def g2p(dt: float, kick: float, velocity: ti.template(), deform: ti.template()):
@@ -1039,8 +1035,7 @@ class Simulation:
         e, w = self._energy_parts()
         floor = self._energy_floor(e[3])
         return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1] + w[2], scale=max(e[5], floor),
-                    floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time,
-                    steps_from=self.n_steps)
+                    floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time)
 
     def _energy_floor(self, potential_scale: float) -> float:
         """Round-off scale of the balance: below it a 'growth' is precision noise, not physics."""
@@ -1066,7 +1061,7 @@ class Simulation:
         ref = self._balance or self._energy_balance_reference()
         e, w = self._energy_parts()
         potential = e[1] + e[2]
-        if self.n_steps > ref["steps_from"] and self.n_steps - 1 in self._potentials:
+        if self.n_steps - 1 in self._potentials:   # (cleared with the balance: never from before its reference)
             potential = 0.5 * (potential + self._potentials[self.n_steps - 1])
         total = e[0] + potential
         work, dissipated = w[0] - ref["work"], w[1] + w[2] - ref["dissipated"]
@@ -1365,12 +1360,8 @@ class Simulation:
         try:
             clock = dict(time=float(state["time"]), n_steps=int(state["n_steps"]), dt=float(state["dt"]),
                          vmax=float(state["vmax"]))
-        except (TypeError, ValueError) as e:
-            raise ValueError(f"state clock values must be numbers: {e}") from None
-        # the velocities' half-step lag; a state saved before leapfrog lacks it: its velocities belong to its dt
-        clock["half_dt"] = state.get("half_dt", 0.5 * clock["dt"] if clock["n_steps"] > 0 else 0.0)
-        try:
-            clock["half_dt"] = float(clock["half_dt"])
+            # the velocities' half-step lag; a state saved before leapfrog lacks it: its velocities belong to its dt
+            clock["half_dt"] = float(state.get("half_dt", 0.5 * clock["dt"] if clock["n_steps"] > 0 else 0.0))
         except (TypeError, ValueError) as e:
             raise ValueError(f"state clock values must be numbers: {e}") from None
         if not all(math.isfinite(clock[k]) for k in ("time", "dt", "vmax", "half_dt")) or clock["n_steps"] < 0 \
