@@ -79,7 +79,7 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     tuple of dim bools (the prescribed components; the others stay free), values a dim-vector field of 2 dim
     entries holding the current wall velocities (set by the solver each step), work a f64 field whose slot 0 gets
     the work the wall does on the grid in the measured pass: the impulse m (v_after - v_before) times the wall
-    velocity v_after. The face itself does not move: a normal component pushes or pulls material through a fixed
+    velocity v_after (sums.Slots: work[0][None]). The face itself does not move: a normal component pushes or pulls material through a fixed
     plane.
     """
 
@@ -136,7 +136,7 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
         if ti.static(measure and measuring):
             reaction[slot] += m * (v - before)
         if ti.static(measure and code == 4):
-            work[0] += m * (v - before).dot(v)
+            work[0][None] += m * (v - before).dot(v)
         return v
 
     @ti.func

@@ -27,6 +27,7 @@ from .basis import make_basis
 from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid, make_locate
 from .stencils import KernelContext, make_corner_check, make_stencil
+from .sums import ChunkSums, Slots
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
 from . import fbar
@@ -227,13 +228,13 @@ class Simulation:
         self.stiffness_field.from_numpy(self._stiffness)
         self.flip_blend_field = ti.field(float, ())
         self.flip_blend_field[None] = self._flip_blend
-        self.diag = ti.field(ti.f64, 8)  # reduction slots for energies and momenta
+        self.diag = ChunkSums(n, 8)  # reduction slots for energies and momenta
         # accumulated per step: external work (body forces, tractions, prescribed velocities), viscous and plastic
         # dissipation (the plastic work of the return mappings, docs/materials.md)
-        self.work = ti.field(ti.f64, 3)
+        self.work = Slots(3)
         self.body_id = ti.field(ti.i32, n) if self.scene.body.max(initial=0) > 0 else None
         self.n_bodies = int(self.scene.body.max(initial=0)) + 1
-        self.moments = ti.field(ti.f64, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
+        self.moments = ChunkSums(n, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
         # wall impulses per face (x_min, x_max, y_min, ...), summed by the grid update; only for wall probes
         wall_probes = any(p.type == "wall" for p in self.cfg.output.probes)
         self.wall_reaction = ti.Vector.field(d, ti.f64, 2 * d) if wall_probes else None
@@ -502,7 +503,7 @@ class Simulation:
                         diss *= stiff[k]
             if ti.static(has_state):
                 state[p] = q
-            work[2] += vol0[p] * diss
+            work[2][None] += vol0[p] * diss
             return Fp
 
         @ti.func
@@ -579,7 +580,7 @@ class Simulation:
                 Ap = affine(p, st)
                 force_density = external_force(p)  # body force + tractions (loads.py: traction x area x ramp)
                 if ti.static(f["viscosity"]):
-                    work[1] += kick * vol0[p] * viscous_power(p, Fp)
+                    work[1][None] += kick * vol0[p] * viscous_power(p, Fp)
                 if ti.static(crack):
                     if crk.modified(p):
                         crk.p2g(p, st, mp, stress, vp, Ap, force_density, kick)
@@ -621,7 +622,7 @@ class Simulation:
                             if ti.static(measure):
                                 grip_impulse[k] += m * (vel - before)
                     if ti.static(measure):
-                        work[0] += m * (vel - before).dot(vel)
+                        work[0][None] += m * (vel - before).dot(vel)
             return vel
 
         n_loads, n_grip_rows = len(self.scene.loads), len(grip_given)
@@ -724,7 +725,7 @@ class Simulation:
                     else:
                         v[p] = v_pic
                     if ti.static(has_body_acc or has_load):
-                        work[0] += 0.5 * kick * external_force(p).dot(v_old + v[p])
+                        work[0][None] += 0.5 * kick * external_force(p).dot(v_old + v[p])
                     if ti.static(f["apic"]):
                         if ti.static(basis.apic_gradient):
                             C[p] = G
@@ -760,63 +761,71 @@ class Simulation:
                         ti.atomic_min(fail[None], p * n_codes + code)
 
         # diagnostics ----------------------------------------------------
-        acc = self.diag
+        # sums.ChunkSums: each chunk of particles summed in order into its own row, no atomics (see sums.py)
+        acc, n_moments = self.diag, self.moments.shape[1]
 
         @ti.kernel
         def energies():
             """Kinetic, strain (degraded where damaged), gravity potential; slot 3: sum m |g| |x| (the
-            potential's round-off scale)."""
-            for p in x:
-                mp = density(p) * vol0[p]
-                acc[0] += 0.5 * mp * v[p].norm_sqr()
-                psi = strain_energy(p, F[p])
-                if ti.static(has_stress0):
-                    acc[4] += vol0[p] * initial_energy(p, F[p])  # apart: it can be negative (see _energy_parts)
-                if ti.static(crack):
-                    psi = crk.degrade_energy(p, F[p], psi, kirchhoff(p, F[p]))
-                acc[1] += vol0[p] * psi
-                acc[2] -= mp * gravity[None].dot(x[p])
-                acc[3] += mp * gravity[None].norm() * x[p].norm()
+            potential's round-off scale); slot 4: the initial stress's energy."""
+            for c in range(acc.chunks):
+                acc.clear(c)
+                for p in range(acc.begin(c), acc.end(c)):
+                    mp = density(p) * vol0[p]
+                    psi = strain_energy(p, F[p])
+                    if ti.static(has_stress0):
+                        acc.add(c, 4, vol0[p] * initial_energy(p, F[p]))  # apart: it can be negative
+                    if ti.static(crack):
+                        psi = crk.degrade_energy(p, F[p], psi, kirchhoff(p, F[p]))
+                    acc.add(c, 0, 0.5 * mp * v[p].norm_sqr())
+                    acc.add(c, 1, vol0[p] * psi)
+                    acc.add(c, 2, -mp * gravity[None].dot(x[p]))
+                    acc.add(c, 3, mp * gravity[None].norm() * x[p].norm())
 
         @ti.kernel
         def body_moments():
             """Per body: mass, first and second moments of position, mass-weighted F (the fracture check)."""
-            for p in x:
-                b = 0
-                if ti.static(has_body_id):
-                    b = body_id[p]
-                mp = density(p) * vol0[p]
-                moments[b, 0] += mp
-                for a in ti.static(range(dim)):
-                    moments[b, 1 + a] += mp * x[p][a]
-                    for c in ti.static(range(dim)):
-                        moments[b, 1 + dim + a * dim + c] += mp * x[p][a] * x[p][c]
-                        moments[b, 1 + dim + dim * dim + a * dim + c] += mp * F[p][a, c]
+            for c in range(moments.chunks):
+                moments.clear(c)
+                for p in range(moments.begin(c), moments.end(c)):
+                    b = 0
+                    if ti.static(has_body_id):
+                        b = body_id[p]
+                    row = b * n_moments
+                    mp = density(p) * vol0[p]
+                    moments.add(c, row, mp)
+                    for a in ti.static(range(dim)):
+                        moments.add(c, row + 1 + a, mp * x[p][a])
+                        for e in ti.static(range(dim)):
+                            moments.add(c, row + 1 + dim + a * dim + e, mp * x[p][a] * x[p][e])
+                            moments.add(c, row + 1 + dim + dim * dim + a * dim + e, mp * F[p][a, e])
 
         @ti.kernel
         def momenta():
             """Linear momentum (dim) and angular momentum about the origin (3), APIC's affine part included."""
-            for p in x:
-                mp = density(p) * vol0[p]
-                for a in ti.static(range(dim)):
-                    acc[a] += mp * v[p][a]
-                if ti.static(dim > 1):
-                    x3 = ti.Vector.zero(float, 3)
-                    v3 = ti.Vector.zero(float, 3)
+            for c in range(acc.chunks):
+                acc.clear(c)
+                for p in range(acc.begin(c), acc.end(c)):
+                    mp = density(p) * vol0[p]
                     for a in ti.static(range(dim)):
-                        x3[a] = x[p][a]
-                        v3[a] = v[p][a]
-                    Lp = mp * x3.cross(v3)
-                    if ti.static(f["apic"]):
-                        B = C[p]  # store_B: the affine part's angular momentum is eps : B
-                        if ti.static(not store_B):
-                            B = C[p] @ sten.inertia(sten.at(p))  # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
-                        B3 = ti.Matrix.zero(float, 3, 3)
-                        for a, b in ti.static(ti.ndrange(dim, dim)):
-                            B3[a, b] = B[a, b]
-                        Lp += mp * ti.Vector([B3[2, 1] - B3[1, 2], B3[0, 2] - B3[2, 0], B3[1, 0] - B3[0, 1]])
-                    for a in ti.static(range(3)):
-                        acc[dim + a] += Lp[a]
+                        acc.add(c, a, mp * v[p][a])
+                    if ti.static(dim > 1):
+                        x3 = ti.Vector.zero(float, 3)
+                        v3 = ti.Vector.zero(float, 3)
+                        for a in ti.static(range(dim)):
+                            x3[a] = x[p][a]
+                            v3[a] = v[p][a]
+                        Lp = mp * x3.cross(v3)
+                        if ti.static(f["apic"]):
+                            B = C[p]  # store_B: the affine part's angular momentum is eps : B
+                            if ti.static(not store_B):
+                                B = C[p] @ sten.inertia(sten.at(p))  # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
+                            B3 = ti.Matrix.zero(float, 3, 3)
+                            for a, b in ti.static(ti.ndrange(dim, dim)):
+                                B3[a, b] = B[a, b]
+                            Lp += mp * ti.Vector([B3[2, 1] - B3[1, 2], B3[0, 2] - B3[2, 0], B3[1, 0] - B3[0, 1]])
+                        for a in ti.static(range(3)):
+                            acc.add(c, dim + a, Lp[a])
 
         @ti.kernel
         def cauchy_stress(out: ti.types.ndarray()):
@@ -1017,9 +1026,8 @@ class Simulation:
         raise InstabilityError(cause, self.n_steps, self.time, particle=p, detail=detail)
 
     def _energy_parts(self):
-        self.diag.fill(0)
         self._k["energies"]()
-        e = self.diag.to_numpy()
+        e = self.diag.total()
         w = self.work.to_numpy()
         # slot 4: the stored initial stress's energy S0 : E, part of the strain energy; it falls below zero as a
         # pre-stressed body relaxes, so the balance's scale (slot 5) counts its size, not its sign
@@ -1133,9 +1141,8 @@ class Simulation:
 
     def _body_shapes(self) -> dict:
         """body -> (mass, second moment of position about the centre, mass-mean F, solid?)."""
-        self.moments.fill(0)
         self._k["body_moments"]()
-        m = self.moments.to_numpy()
+        m = self.moments.total()
         d = self.dim
         # fluids and plastic models: F (the elastic part) does not predict the shape, so no fracture check
         fluid = np.array([MODELS[mm.model].fluid or MODELS[mm.model].plastic for mm in self._materials])
@@ -1407,9 +1414,8 @@ class Simulation:
     def momentum(self) -> dict:
         """Total linear momentum (dim) and angular momentum about the origin (3 components)."""
         self._check_live()
-        self.diag.fill(0)
         self._k["momenta"]()
-        m = self.diag.to_numpy()
+        m = self.diag.total()
         return {"linear": m[: self.dim], "angular": m[self.dim: self.dim + 3]}
 
     def wall_impulse(self, reset: bool = True) -> np.ndarray:
