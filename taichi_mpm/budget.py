@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import scatter
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid
@@ -123,7 +124,18 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
         stencil_nodes = make_basis(cfg.solver.basis).contributions(d)
         floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0) + d + 2   # + xs, vs
         n += floats * size + 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4
+    if _coloured_scatter(cfg):
+        n += 4   # scatter.BlockBins.order
     return n
+
+
+def _coloured_scatter(cfg: Config) -> bool:
+    """Whether the solver bins particles for P2G's coloured scatter (scatter.applies, on the arch a run gets)."""
+    from .solver import resolve_arch   # the solver imports this module
+
+    basis = make_basis(cfg.solver.basis, grid_knots(cfg))
+    kind = "mapped" if cfg.domain.map is not None else basis.kind
+    return scatter.applies(resolve_arch(cfg.arch) != "cpu", kind, basis.stencil, cfg.dim, cfg.solver.scatter)
 
 
 def _mapped(cfg: Config) -> MappedGrid | None:

@@ -279,6 +279,9 @@ class Solver(Strict):
     # most 16 nodes whole (all 1D and 2D bases) and the last axis of larger tensor stencils (3D quadratic: 3 nodes
     # per run-time iteration of 9); cpdi in 3D runs at run time
     unroll: Union[Literal["auto"], bool] = "auto"
+    # how P2G adds to the grid: auto (coloured on a CPU with a tensor-product basis, atomic otherwise), coloured (particles
+    # binned by grid block each step, blocks of one colour in parallel with plain adds; docs/performance.md) or atomic
+    scatter: Literal["auto", "coloured", "atomic"] = "auto"
     # energy balance: stop when total energy exceeds its initial value + body-force work - viscous dissipation by
     # more than this fraction of the largest kinetic + strain energy (checked every few steps and after every
     # advance, see docs/accuracy.md); null turns the check off
@@ -533,6 +536,10 @@ class Config(Strict):
                                             f"choose e.g. dx={(u - l) / max(1, round(n)):.6g}")
         self._check_knots()
         self._check_map()
+        if self.solver.scatter == "coloured" and (self.solver.basis == "cpdi" or self.domain.map is not None):
+            raise _Located("solver.scatter", "coloured needs a tensor-product basis on a box grid (linear, gimp, "
+                                             "quadratic, cubic, ddmp): cpdi's particle domains and a mapped grid's "
+                                             "stencil can reach any node, so they add atomically (scatter: auto)")
         if self.solver.gravity is not None:
             _need_len("solver.gravity", self.solver.gravity, d)
         for i, b in enumerate(self.bodies):

@@ -94,6 +94,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.max_steps": ("", "stop after this many steps; null: no limit"),
     "solver.unroll": ("", "unroll the stencil loop (true / false); auto unrolls stencils of at most 16 nodes "
                           "whole and the last axis of larger tensor-product ones (3D gimp, quadratic, cubic, ddmp)"),
+    "solver.scatter": ("", "how P2G adds particle values to the grid: coloured bins the particles by grid block each "
+                           "step and lets the blocks of one of 2^d colours add in parallel without atomics (same "
+                           "result, 2-3x faster P2G on CPUs; tensor-product bases only); atomic adds atomically; "
+                           "auto: coloured on a CPU where the basis allows, atomic on GPUs, cpdi and domain.map"),
     "solver.energy_growth_limit": ("1", "stop with an instability when total energy exceeds its initial value + "
                                         "body-force work - viscous dissipation by more than this fraction of the "
                                         "largest kinetic + strain energy (checked every few steps and after every "

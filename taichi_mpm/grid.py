@@ -22,10 +22,11 @@ class Grid:
         axes = ti.axes(*range(dim))
         places = [self.m, *self.vec.values()]
         self.levels = []
+        self.leaf = leaf = LEAF[dim]
+        self.blocks = [math.ceil(s / leaf) for s in self.shape]   # leaf blocks per axis
         if not sparse:
             ti.root.dense(axes, self.shape).place(*places)
             return
-        leaf = LEAF[dim]
         # power-of-two pointer extents: Taichi 1.7 drops writes in some non-power-of-two 3D pointer grids
         blocks = [_pow2(math.ceil(s / leaf)) for s in self.shape]
         if math.prod(blocks) <= MAX_TOP_POINTERS:
@@ -39,6 +40,16 @@ class Grid:
             mid = top.pointer(axes, mid_n)
             self.levels = [top, mid]
             mid.dense(axes, leaf).place(*places)
+
+    def block_field(self, dtype):
+        """A field with one value per leaf block (indexed by block coordinates, node // LEAF): on a sparse grid it
+        lives in the block's pointer cell, so it is allocated with the block and cleared with it."""
+        f = ti.field(dtype)
+        if self.sparse:
+            self.levels[-1].place(f)
+        else:
+            ti.root.dense(ti.axes(*range(self.dim)), self.blocks).place(f)
+        return f
 
     def clear(self):
         if self.sparse:

@@ -28,6 +28,7 @@ from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid, make_locate
 from .stencils import KernelContext, make_corner_check, make_stencil
 from .sums import ChunkSums, Slots
+from . import scatter
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
 from . import fbar
@@ -214,6 +215,10 @@ class Simulation:
             shape = self.mapped.shape    # control points of the map, in parameter space
             self.mapped.allocate_particles(n)
         self.grid = Grid(d, shape, self.cfg.domain.sparse, vec)
+        gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
+        coloured = scatter.applies(gpu, self.basis.kind if self.mapped is None else "mapped", self.basis.stencil,
+                                   d, self.cfg.solver.scatter)
+        self.bins = scatter.BlockBins(d, self.grid, n) if coloured else None  # atomic-free P2G (scatter.py)
         self.crack = crack_finder.CrackFinder(self) if self.cfg.crack is not None else None
         self.fbar = fbar.create(self)  # solver.volumetric: fbar (fbar.py), else None
         self.fail = ti.field(ti.i32, ())
@@ -239,6 +244,7 @@ class Simulation:
         wall_probes = any(p.type == "wall" for p in self.cfg.output.probes)
         self.wall_reaction = ti.Vector.field(d, ti.f64, 2 * d) if wall_probes else None
         self.bytes_per_particle = self._bytes_per_particle()
+        self.bytes_per_particle += self.bins.bytes_per_particle if self.bins is not None else 0
         if self.crack is not None:
             self.bytes_per_particle += self.crack.bytes_per_particle()
         self.bytes_per_particle += self.fbar.bytes_per_particle() if self.fbar is not None else 0
@@ -565,34 +571,61 @@ class Simulation:
                 force += load[p]
             return force
 
-        @ti.kernel
-        def p2g(kick: float):
-            """Particles to grid: mass, momentum, and the impulse of the forces over `kick` (the leapfrog kick: the
-            mean of the previous and this step's dt, half the step on the first one; see Simulation.step)."""
-            for p in x:
-                st = sten.at(p)
-                Fp = F[p]
-                mp = density(p) * vol0[p]
-                stress = -vol0[p] * kirchhoff(p, Fp)
-                if ti.static(crack):
-                    stress = -crk.degrade(p, -stress)
-                vp = v[p]
-                Ap = affine(p, st)
-                force_density = external_force(p)  # body force + tractions (loads.py: traction x area x ramp)
-                if ti.static(f["viscosity"]):
-                    work[1][None] += kick * vol0[p] * viscous_power(p, Fp)
-                if ti.static(crack):
-                    if crk.modified(p):
-                        crk.p2g(p, st, mp, stress, vp, Ap, force_density, kick)
-                        continue
+        bins = self.bins
+        coloured = bins is not None
+        if coloured:
+            bins.build(sten.origin)
+
+        @ti.func
+        def add(g: ti.template(), I, value):
+            """g[I] += value: a plain add when P2G scatters by colours (no other thread touches the node, see
+            scatter.py), else an atomic one."""
+            if ti.static(coloured):
+                g[I] = g[I] + value
+            else:
+                g[I] += value
+
+        @ti.func
+        def p2g_particle(p, kick):
+            st = sten.at(p)
+            Fp = F[p]
+            mp = density(p) * vol0[p]
+            stress = -vol0[p] * kirchhoff(p, Fp)
+            if ti.static(crack):
+                stress = -crk.degrade(p, -stress)
+            vp = v[p]
+            Ap = affine(p, st)
+            force_density = external_force(p)  # body force + tractions (loads.py: traction x area x ramp)
+            if ti.static(f["viscosity"]):
+                work[1][None] += kick * vol0[p] * viscous_power(p, Fp)
+            modified = False
+            if ti.static(crack):
+                modified = crk.modified(p)
+                if modified:
+                    crk.p2g(p, st, mp, stress, vp, Ap, force_density, kick)
+            if not modified:
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
                     I, w, gw, r = sten.node(st, o + inner[k])
-                    gm[I] += w * mp
+                    add(gm, I, w * mp)
                     mom = node_momentum(vp, Ap, r)
-                    gv[I] += w * mp * mom + kick * (stress @ gw + w * force_density)
+                    add(gv, I, w * mp * mom + kick * (stress @ gw + w * force_density))
                     if ti.static(f["flip"]):
-                        gv_old[I] += w * mp * vp
+                        add(gv_old, I, w * mp * vp)
+
+        @ti.kernel
+        def p2g(kick: float, colour: int):
+            """Particles to grid: mass, momentum, and the impulse of the forces over `kick` (the leapfrog kick: the
+            mean of the previous and this step's dt, half the step on the first one; see Simulation.step).
+            Coloured scatter: the blocks of one colour (scatter.BlockBins), one call per colour."""
+            if ti.static(coloured):
+                first, last = bins.runs(colour)
+                for j in range(first, last):
+                    for i in range(bins.lo[j], bins.hi[j]):
+                        p2g_particle(bins.order[i], kick)
+            else:
+                for p in x:
+                    p2g_particle(p, kick)
 
         @ti.kernel
         def grid_update(kick_before: float, kick_after: float):
@@ -662,23 +695,34 @@ class Simulation:
                     if w > 0:
                         ti.atomic_max(grid.vec["grip"][I][0], ti.cast(grip_index[e], float))
 
-        @ti.kernel
-        def p2g_momentum():
-            """MUSL: map the updated particle momentum back to the grid (same weights as the first P2G)."""
-            for p in x:
-                st = sten.at(p)
-                mp = density(p) * vol0[p]
-                vp = v[p]
-                Ap = affine(p, st)
-                if ti.static(crack):
-                    if crk.modified(p):
-                        crk.p2g_momentum(p, st, mp, vp, Ap)
-                        continue
+        @ti.func
+        def p2g_momentum_particle(p):
+            st = sten.at(p)
+            mp = density(p) * vol0[p]
+            vp = v[p]
+            Ap = affine(p, st)
+            modified = False
+            if ti.static(crack):
+                modified = crk.modified(p)
+                if modified:
+                    crk.p2g_momentum(p, st, mp, vp, Ap)
+            if not modified:
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
                     I, w, gw, r = sten.node(st, o + inner[k])
-                    mom = node_momentum(vp, Ap, r)
-                    gv2[I] += w * mp * mom
+                    add(gv2, I, w * mp * node_momentum(vp, Ap, r))
+
+        @ti.kernel
+        def p2g_momentum(colour: int):
+            """MUSL: map the updated particle momentum back to the grid (same weights as the first P2G)."""
+            if ti.static(coloured):
+                first, last = bins.runs(colour)
+                for j in range(first, last):
+                    for i in range(bins.lo[j], bins.hi[j]):
+                        p2g_momentum_particle(bins.order[i])
+            else:
+                for p in x:
+                    p2g_momentum_particle(p)
 
         @ti.kernel
         def grid_remap():
@@ -929,6 +973,16 @@ class Simulation:
         self._k["set_motion"](ti.Matrix(rows.tolist()))
         self._motion_time = t
 
+    def _scatter(self, kernel: str, *args, moved: bool = True):
+        """Run a P2G kernel: once, or once per colour, binning the particles first if they `moved` (scatter.py)."""
+        if self.bins is None:
+            self._k[kernel](*args, 0)
+            return
+        if moved:
+            self.bins.bin()
+        for colour in range(self.bins.colours):
+            self._k[kernel](*args, colour)
+
     def step(self, dt: Optional[float] = None) -> float:
         """Advance one step (dt from the CFL rule unless given); returns dt."""
         self._check_live()
@@ -956,7 +1010,7 @@ class Simulation:
             self.ctx.stencil.prepare()   # stencils that read grid state (ddmp's nodal volumes)
         if self.crack is not None:
             self.crack.update()
-        k["p2g"](kick)
+        self._scatter("p2g", kick)
         if self.feat["grips"]:
             k["flag_grip_nodes"]()
         k["grid_update"](kick_before, kick_after)
@@ -964,7 +1018,7 @@ class Simulation:
         self.vmax2[None] = 0.0
         if self.feat["musl"]:
             k["g2p"](dt, kick, True, False)
-            k["p2g_momentum"]()
+            self._scatter("p2g_momentum", moved=False)  # the first g2p pass left the positions
             k["grid_remap"]()
             k["g2p"](dt, kick, False, True)
         else:

@@ -106,6 +106,9 @@ class Stencil:
     index: Callable             # @ti.func (off) -> flat contribution number 0..count-1
     count: int
     prepare: Optional[Callable] = None   # per step before P2G, for stencils that read grid state (ddmp)
+    kind: str = "tensor"                 # tensor, cpdi or mapped
+    width: int = 0                       # nodes per axis of a tensor stencil (its nodes: origin + [0, width)^d)
+    origin: Optional[Callable] = None    # @ti.func (p) -> the first node of a tensor stencil (scatter.BlockBins)
 
 
 def make_stencil(ctx: KernelContext) -> Stencil:
@@ -272,7 +275,13 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
                 Dinv[a, a] = 1.0 / D[a, a]
         return Dinv
 
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), S ** dim, prepare)
+    @ti.func
+    def origin(p):
+        base, W, DW, R, WS, DS, alpha = at(p)   # the weights are dead code here, removed by the compiler
+        return base
+
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), S ** dim, prepare,
+                   "tensor", S, origin)
 
 
 def _dual_domain_fill(ctx: KernelContext, span: list):
@@ -408,7 +417,8 @@ def _cpdi_stencil(ctx: KernelContext) -> Stencil:
 
     span = [2] * (2 * dim)
     outer, inner = _loops(span, ctx.unroll)
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 4 ** dim)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 4 ** dim,
+                   kind="cpdi")
 
 
 def make_corner_check(ctx: KernelContext):
