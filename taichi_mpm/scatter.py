@@ -21,6 +21,7 @@ import math
 import taichi as ti
 
 from .grid import LEAF, Grid
+from .sums import CPU_TASK, cpu_threads
 
 
 def applies(gpu: bool, stencil_kind: str, width: int, dim: int, setting: str) -> bool:
@@ -45,6 +46,7 @@ class BlockBins:
         self.count = grid.block_field(ti.i32)   # particles per block (back to 0 after each bin())
         self.start = grid.block_field(ti.i32)   # first slot of the block's particles in `order`
         self.order = ti.field(ti.i32, max(n, 1))
+        self.home = ti.Vector.field(dim, ti.i32, max(n, 1))   # each particle's block (origin is computed once)
         self.block = ti.Vector.field(dim, ti.i32, cap)      # occupied blocks, in the order they were found
         self.lo = ti.field(ti.i32, cap)
         self.hi = ti.field(ti.i32, cap)
@@ -52,12 +54,13 @@ class BlockBins:
         self.filled = ti.field(ti.i32, self.colours)
         self.n_blocks = ti.field(ti.i32, ())
         self.used = ti.field(ti.i32, ())
-        self.bytes_per_particle = 4   # order; the block lists are bounded by the occupied blocks
+        self.bytes_per_particle = 4 + 4 * dim   # order, home; the block lists are bounded by the occupied blocks
 
     def build(self, origin):
         """Define `bin()` and the func `runs(c)`; origin: @ti.func (p) -> the first node of p's stencil."""
         dim, n, B = self.dim, self.n, self.leaf
         count, start, order, block, lo, hi = self.count, self.start, self.order, self.block, self.lo, self.hi
+        home = self.home
         offset, filled, n_blocks, used, colours = self.offset, self.filled, self.n_blocks, self.used, self.colours
 
         @ti.func
@@ -78,6 +81,7 @@ class BlockBins:
                     filled[c] = 0
             for p in range(n):   # count each block's particles; list the blocks
                 b = origin(p) // B
+                home[p] = b
                 if ti.atomic_add(count[b], 1) == 0:
                     block[ti.atomic_add(n_blocks[None], 1)] = b
                     ti.atomic_add(offset[colour(b) + 1], 1)
@@ -93,7 +97,7 @@ class BlockBins:
                 lo[j], hi[j] = s, s + count[b]
                 count[b] = 0
             for p in range(n):   # fill the runs (start[b] becomes the block's fill cursor)
-                order[ti.atomic_add(start[origin(p) // B], 1)] = p
+                order[ti.atomic_add(start[home[p]], 1)] = p
             for j in range(n_blocks[None]):   # each run in particle order: nearly sorted already, insertion sort
                 for i in range(lo[j] + 1, hi[j]):
                     q = order[i]
@@ -103,9 +107,26 @@ class BlockBins:
                         k -= 1
                     order[k + 1] = q
 
-        @ti.func
-        def runs(c):
-            """The list entries of colour c: for j in range(*runs(c)), one block each."""
-            return offset[c], offset[c + 1]
+        self.bin = bin
 
-        self.bin, self.runs = bin, runs
+    def colour_loop(self, body):
+        """@ti.func (colour, arg) calling body(p, arg) for every particle of the blocks of `colour`, each block
+        whole by one thread, its particles in order. Call it at a kernel's top level (its loop is the parallel one).
+
+        Taichi runs a CPU range-for as tasks of max(n / threads, 512) iterations, so a loop over a colour's tens or
+        hundreds of blocks would be a single task; this loop has 512 iterations per thread instead, and the first of
+        each 512 takes every threads-th block of the colour (neighbouring blocks, of similar fill, go to different
+        threads)."""
+        threads = max(1, cpu_threads())
+        offset, lo, hi, order = self.offset, self.lo, self.hi, self.order
+
+        @ti.func
+        def loop(colour, arg):
+            for t in range(CPU_TASK * threads):
+                if t % CPU_TASK == 0:
+                    j = offset[colour] + t // CPU_TASK
+                    while j < offset[colour + 1]:
+                        for i in range(lo[j], hi[j]):
+                            body(order[i], arg)
+                        j += threads
+        return loop

@@ -28,7 +28,7 @@ from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid, make_locate
 from .stencils import KernelContext, make_corner_check, make_stencil
 from .sums import ChunkSums, Slots
-from . import scatter
+from . import jit, scatter
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
 from . import fbar
@@ -100,6 +100,7 @@ def init_taichi(arch: str, precision: str, deterministic: bool = False):
     there `deterministic` cannot hold and a warning says so (docs/reliability.md)."""
     fp = ti.f64 if precision == "f64" else ti.f32
     name = resolve_arch(arch)
+    jit.install()   # kernel building without Taichi's repeated source excerpts (jit.py)
     options = {}
     if deterministic:
         if name == "cpu":
@@ -613,16 +614,15 @@ class Simulation:
                     if ti.static(f["flip"]):
                         add(gv_old, I, w * mp * vp)
 
+        p2g_coloured = bins.colour_loop(p2g_particle) if coloured else None
+
         @ti.kernel
         def p2g(kick: float, colour: int):
             """Particles to grid: mass, momentum, and the impulse of the forces over `kick` (the leapfrog kick: the
             mean of the previous and this step's dt, half the step on the first one; see Simulation.step).
             Coloured scatter: the blocks of one colour (scatter.BlockBins), one call per colour."""
             if ti.static(coloured):
-                first, last = bins.runs(colour)
-                for j in range(first, last):
-                    for i in range(bins.lo[j], bins.hi[j]):
-                        p2g_particle(bins.order[i], kick)
+                p2g_coloured(colour, kick)
             else:
                 for p in x:
                     p2g_particle(p, kick)
@@ -696,7 +696,7 @@ class Simulation:
                         ti.atomic_max(grid.vec["grip"][I][0], ti.cast(grip_index[e], float))
 
         @ti.func
-        def p2g_momentum_particle(p):
+        def p2g_momentum_particle(p, unused):
             st = sten.at(p)
             mp = density(p) * vol0[p]
             vp = v[p]
@@ -712,17 +712,16 @@ class Simulation:
                     I, w, gw, r = sten.node(st, o + inner[k])
                     add(gv2, I, w * mp * node_momentum(vp, Ap, r))
 
+        momentum_coloured = bins.colour_loop(p2g_momentum_particle) if coloured else None
+
         @ti.kernel
         def p2g_momentum(colour: int):
             """MUSL: map the updated particle momentum back to the grid (same weights as the first P2G)."""
             if ti.static(coloured):
-                first, last = bins.runs(colour)
-                for j in range(first, last):
-                    for i in range(bins.lo[j], bins.hi[j]):
-                        p2g_momentum_particle(bins.order[i])
+                momentum_coloured(colour, 0.0)
             else:
                 for p in x:
-                    p2g_momentum_particle(p)
+                    p2g_momentum_particle(p, 0.0)
 
         @ti.kernel
         def grid_remap():

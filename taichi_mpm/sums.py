@@ -9,7 +9,8 @@ Two remedies, one per use:
   only).
 - `ChunkSums`: diagnostics over all particles (energies, momenta, per-body moments). The particles are split into
   contiguous chunks; one thread sums a chunk in order into its own row, the host adds the rows. No atomics, any
-  number of slots (a body index picks them at run time), and the same bits for any thread count.
+  number of slots (a body index picks them at run time), and the same bits for any thread count (the chunks
+  depend on the particle count only).
 
 Physics code only: no CLI, rendering or file I/O here.
 """
@@ -19,8 +20,23 @@ import math
 import numpy as np
 import taichi as ti
 
-MAX_CHUNKS = 64            # rows: enough to keep 16+ threads busy, few to add up on the host
 MAX_ROW_VALUES = 1 << 21   # chunks x slots stays below 16 MB (scenes with thousands of bodies get fewer chunks)
+CPU_TASK = 512             # Taichi's CPU loop transform: a range-for runs as max(n / threads, 512)-iteration tasks
+CPU_CHUNKS = 4 * CPU_TASK  # chunk rows on a CPU: tasks for up to 4 threads, whatever the pool (same sums)
+GPU_CHUNKS = 1 << 16
+
+
+def cpu_threads() -> int:
+    """Threads of Taichi's CPU pool (after ti.init); 0 on a GPU."""
+    cfg = ti.lang.impl.current_cfg()
+    return cfg.cpu_max_num_threads if cfg.arch in (ti.x64, ti.arm64) else 0
+
+
+def parallel_loop_size() -> int:
+    """Iterations a range-for needs to give every thread work: on a CPU one 512-iteration task per thread (a loop
+    over 64 chunks or 300 grid blocks is otherwise one task, one thread); on a GPU a few thousand blocks."""
+    threads = cpu_threads()
+    return CPU_TASK * threads if threads else GPU_CHUNKS
 
 
 class Slots:
@@ -64,7 +80,7 @@ class ChunkSums:
     def __init__(self, n: int, shape):
         self.shape = tuple(shape) if isinstance(shape, (tuple, list)) else (int(shape),)
         self.slots = math.prod(self.shape)
-        self.chunks = max(1, min(MAX_CHUNKS, n, MAX_ROW_VALUES // self.slots))
+        self.chunks = max(1, min(CPU_CHUNKS if cpu_threads() else GPU_CHUNKS, n, MAX_ROW_VALUES // self.slots))
         self.size = -(-max(n, 1) // self.chunks)   # particles per chunk
         self.n = n
         self.part = ti.field(ti.f64, (self.chunks, self.slots))
