@@ -38,7 +38,9 @@ def install():
         return original is not None
     cache = {}
 
-    def get_pos_info(self, node):
+    def get_pos_info(self, node, *args, **kwargs):
+        if args or kwargs:           # a Taichi whose signature differs: no caching
+            return original(self, node, *args, **kwargs)
         try:
             key = _key(self, node)
         except AttributeError:       # a context or node shaped differently: no caching
@@ -67,7 +69,9 @@ def _cache_source_lines():
         return
     lines, files = weakref.WeakKeyDictionary(), weakref.WeakKeyDictionary()   # funcs of dropped simulations go
 
-    def getsourcelines(obj):
+    def getsourcelines(obj, *args, **kwargs):
+        if args or kwargs:
+            return read_lines(obj, *args, **kwargs)
         try:
             found = lines.get(obj)
         except TypeError:            # not weak-referenceable: read as Taichi does
@@ -77,7 +81,9 @@ def _cache_source_lines():
             found = lines[obj] = (tuple(src), start)
         return list(found[0]), found[1]
 
-    def getsourcefile(obj):
+    def getsourcefile(obj, *args, **kwargs):
+        if args or kwargs:
+            return read_file(obj, *args, **kwargs)
         try:
             found = files.get(obj)
         except TypeError:
