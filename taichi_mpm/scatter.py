@@ -57,7 +57,7 @@ class BlockBins:
         self.bytes_per_particle = 4 + 4 * dim   # order, home; the block lists are bounded by the occupied blocks
 
     def build(self, origin):
-        """Define `bin()` and the func `runs(c)`; origin: @ti.func (p) -> the first node of p's stencil."""
+        """Define `bin()`; origin: @ti.func (p) -> the first node of p's stencil."""
         dim, n, B = self.dim, self.n, self.leaf
         count, start, order, block, lo, hi = self.count, self.start, self.order, self.block, self.lo, self.hi
         home = self.home
@@ -69,6 +69,19 @@ class BlockBins:
             for a in ti.static(range(dim)):
                 c += (b[a] & 1) << a
             return c
+
+        @ti.func
+        def sort_run(j, unused):
+            """Insertion sort of block j's run: nearly sorted already (threads fill it almost in order)."""
+            for i in range(lo[j] + 1, hi[j]):
+                q = order[i]
+                k = i - 1
+                while k >= lo[j] and order[k] > q:
+                    order[k + 1] = order[k]
+                    k -= 1
+                order[k + 1] = q
+
+        sort_runs = across_threads(sort_run)
 
         @ti.kernel
         def bin():
@@ -98,35 +111,42 @@ class BlockBins:
                 count[b] = 0
             for p in range(n):   # fill the runs (start[b] becomes the block's fill cursor)
                 order[ti.atomic_add(start[home[p]], 1)] = p
-            for j in range(n_blocks[None]):   # each run in particle order: nearly sorted already, insertion sort
-                for i in range(lo[j] + 1, hi[j]):
-                    q = order[i]
-                    k = i - 1
-                    while k >= lo[j] and order[k] > q:
-                        order[k + 1] = order[k]
-                        k -= 1
-                    order[k + 1] = q
+            sort_runs(0, n_blocks[None], 0)   # each run in particle order
 
         self.bin = bin
 
     def colour_loop(self, body):
         """@ti.func (colour, arg) calling body(p, arg) for every particle of the blocks of `colour`, each block
-        whole by one thread, its particles in order. Call it at a kernel's top level (its loop is the parallel one).
+        whole by one thread, its particles in order. Call it at a kernel's top level (its loop is the parallel one)."""
+        lo, hi, order, offset = self.lo, self.hi, self.order, self.offset
 
-        Taichi runs a CPU range-for as tasks of max(n / threads, 512) iterations, so a loop over a colour's tens or
-        hundreds of blocks would be a single task; this loop has 512 iterations per thread instead, and the first of
-        each 512 takes every threads-th block of the colour (neighbouring blocks, of similar fill, go to different
-        threads)."""
-        threads = max(1, cpu_threads())
-        offset, lo, hi, order = self.offset, self.lo, self.hi, self.order
+        @ti.func
+        def run(j, arg):
+            for i in range(lo[j], hi[j]):
+                body(order[i], arg)
+
+        runs = across_threads(run)
 
         @ti.func
         def loop(colour, arg):
-            for t in range(CPU_TASK * threads):
-                if t % CPU_TASK == 0:
-                    j = offset[colour] + t // CPU_TASK
-                    while j < offset[colour + 1]:
-                        for i in range(lo[j], hi[j]):
-                            body(order[i], arg)
-                        j += threads
+            runs(offset[colour], offset[colour + 1], arg)
         return loop
+
+
+def across_threads(body):
+    """@ti.func (first, last, arg) calling body(j, arg) for j in first .. last - 1, spread over the CPU threads.
+    Call it at a kernel's top level. Taichi runs a CPU range-for as tasks of max(n / threads, 512) iterations, so a
+    loop over tens or hundreds of blocks would be one task on one thread; this loop has 512 iterations per thread
+    instead, and the first of each 512 takes every threads-th j (neighbouring blocks, of similar fill, go to
+    different threads)."""
+    threads = max(1, cpu_threads())
+
+    @ti.func
+    def spread(first, last, arg):
+        for t in range(CPU_TASK * threads):
+            if t % CPU_TASK == 0:
+                j = first + t // CPU_TASK
+                while j < last:
+                    body(j, arg)
+                    j += threads
+    return spread
