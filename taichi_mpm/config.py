@@ -279,8 +279,9 @@ class Solver(Strict):
     # most 16 nodes whole (all 1D and 2D bases) and the last axis of larger tensor stencils (3D quadratic: 3 nodes
     # per run-time iteration of 9); cpdi in 3D runs at run time
     unroll: Union[Literal["auto"], bool] = "auto"
-    # how P2G adds to the grid: auto (coloured on a CPU with a tensor-product basis, atomic otherwise), coloured (particles
-    # binned by grid block each step, blocks of one colour in parallel with plain adds; docs/performance.md) or atomic
+    # how P2G adds to the grid: auto (coloured on a CPU with a tensor-product basis, atomic otherwise), coloured
+    # (particles binned by grid block each step, blocks of one colour in parallel with plain adds;
+    # docs/performance.md) or atomic
     scatter: Literal["auto", "coloured", "atomic"] = "auto"
     # energy balance: stop when total energy exceeds its initial value + body-force work - viscous dissipation by
     # more than this fraction of the largest kinetic + strain energy (checked every few steps and after every

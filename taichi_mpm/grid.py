@@ -88,10 +88,10 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
 
     velocity (moving wall, driven lid; box faces only): `moving = (given, values, work)`: given[2 axis + side] is a
     tuple of dim bools (the prescribed components; the others stay free), values a dim-vector field of 2 dim
-    entries holding the current wall velocities (set by the solver each step), work a f64 field whose slot 0 gets
-    the work the wall does on the grid in the measured pass: the impulse m (v_after - v_before) times the wall
-    velocity v_after (sums.Slots: work[0][None]). The face itself does not move: a normal component pushes or pulls material through a fixed
-    plane.
+    entries holding the current wall velocities (set by the solver each step), work the solver's accumulators
+    (sums.Slots) whose slot 0 gets the work the wall does on the grid in the measured pass: the impulse
+    m (v_after - v_before) times the wall velocity v_after. The face itself does not move: a normal component
+    pushes or pulls material through a fixed plane.
     """
 
     on_box = mapped is None

@@ -862,7 +862,8 @@ class Simulation:
                         if ti.static(f["apic"]):
                             B = C[p]  # store_B: the affine part's angular momentum is eps : B
                             if ti.static(not store_B):
-                                B = C[p] @ sten.inertia(sten.at(p))  # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
+                                # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
+                                B = C[p] @ sten.inertia(sten.at(p))
                             B3 = ti.Matrix.zero(float, 3, 3)
                             for a, b in ti.static(ti.ndrange(dim, dim)):
                                 B3[a, b] = B[a, b]
