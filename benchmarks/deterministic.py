@@ -1,6 +1,7 @@
-"""Cost of `solver.deterministic: true` (one CPU thread, no fast math) against the default (all threads, fast
-math) on the falling elastic block, 2D and 3D. `ratio` = deterministic step time / default step time (wall);
-`cpu ratio` the same with process CPU time (all threads), which shows what the single thread saves in overhead.
+"""Cost of `solver.deterministic: true` (no fast math; one CPU thread unless the scene sums in one order on any
+threads, as this one does: solver.thread_independent) against the default (all threads, fast math) on the falling
+elastic block, 2D and 3D. `ratio` = deterministic step time / default step time (wall);
+`cpu ratio` the same with process CPU time (all threads), which shows the cost of turning fast math off.
 
     python benchmarks/deterministic.py              # 2D 256^2 and 3D 64^3 grids
 """

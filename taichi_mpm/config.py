@@ -290,7 +290,8 @@ class Solver(Strict):
     # volumetric locking: standard (each particle's own J) or fbar (the step's volume change averaged over the
     # grid, for nearly incompressible solids and fluids; see docs/accuracy.md, "Volumetric locking")
     volumetric: Literal["standard", "fbar"] = "standard"
-    # bit-identical runs regardless of thread count and load (CPU: one thread, no fast math); see docs/reliability.md
+    # bit-identical runs regardless of thread count and load (CPU: no fast math; one thread unless the scene sums in
+    # one order on any threads, solver.thread_independent); see docs/reliability.md
     deterministic: bool = False
 
 

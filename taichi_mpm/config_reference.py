@@ -104,8 +104,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                         "advance); null: off"),
     "solver.volumetric": ("", "standard (each particle's own J) or fbar (the step's volume change averaged over the "
                               "grid, against volumetric locking of nearly incompressible materials)"),
-    "solver.deterministic": ("", "bit-identical runs regardless of thread count and load (CPU: one thread, no fast "
-                                 "math); GPUs: float atomics stay unordered"),
+    "solver.deterministic": ("", "bit-identical runs regardless of thread count and load (CPU: no fast math, and one "
+                                 "thread unless every sum of the scene has one order on any threads: coloured "
+                                 "scatter without ddmp, fbar, crack, loads, grips, velocity walls, wall probes, "
+                                 "viscosity or plasticity); GPUs: float atomics stay unordered"),
     "crack": ("", "crack finder (damage gradients, opposite-side flags); absent or null: off, nothing compiled"),
     "crack.threshold": ("1", "epsilon_thresh: a node is across the crack from a particle when n_p . n_node < -threshold"),
     "crack.kernel_radius": ("1", "SPH support radius, in initial particle spacings"),

@@ -92,19 +92,20 @@ def resolve_arch(arch: str) -> str:
     return arch
 
 
-def init_taichi(arch: str, precision: str, deterministic: bool = False):
+def init_taichi(arch: str, precision: str, deterministic: bool = False, order_free: bool = False):
     """(Re)start Taichi for a new simulation; only the newest Simulation stays live.
 
-    deterministic: one CPU thread (atomic adds in P2G and the reductions then run in one fixed order) and no fast
-    math, so runs are bit-identical whatever the thread count or load. GPU float atomics have no fixed order:
-    there `deterministic` cannot hold and a warning says so (docs/reliability.md)."""
+    deterministic: no fast math and, unless the scene is `order_free` (thread_independent), one CPU thread (atomic
+    adds and reductions then run in one fixed order), so runs are bit-identical whatever the thread count or load.
+    GPU float atomics have no fixed order: there `deterministic` cannot hold and a warning says so
+    (docs/reliability.md)."""
     fp = ti.f64 if precision == "f64" else ti.f32
     name = resolve_arch(arch)
     jit.install()   # kernel building without Taichi's repeated source excerpts (jit.py)
     options = {}
     if deterministic:
         if name == "cpu":
-            options = dict(cpu_max_num_threads=1, fast_math=False)
+            options = dict(fast_math=False) if order_free else dict(cpu_max_num_threads=1, fast_math=False)
         else:
             warnings.warn(f"solver.deterministic: on {name} float atomic adds are not ordered, so runs may differ "
                           "in the last digits; use arch: cpu for bit-identical runs", RuntimeWarning, stacklevel=3)
@@ -113,6 +114,24 @@ def init_taichi(arch: str, precision: str, deterministic: bool = False):
             log_level=ti.ERROR, random_seed=0, **options)
     _live["id"] += 1
     return _live["id"]
+
+
+def thread_independent(cfg: Config, body_force: bool = False) -> bool:
+    """Whether every sum a CPU step and its diagnostics make has one order whatever the threads: P2G by the coloured
+    scatter (scatter.py), energies and momenta by chunks (sums.py), and none of the parts that still add in the
+    threads' order (ddmp's nodal volumes, F-bar's averages, the crack finder's node sums, and the accumulators of
+    external work, dissipation, wall and grip impulses). tests/test_scatter.py checks 1 and 2 threads bit-identical."""
+    s = cfg.solver
+    kind = "mapped" if cfg.domain.map is not None else make_basis(s.basis, grid_knots(cfg)).kind
+    if not scatter.applies(False, kind, make_basis(s.basis, grid_knots(cfg)).stencil, cfg.dim, s.scatter):
+        return False
+    mats = [cfg.materials[b.material] for b in cfg.bodies]
+    walls = cfg.domain.boundaries
+    return not (s.basis == "ddmp" or s.volumetric == "fbar" or cfg.crack is not None or body_force
+                or any(b.tractions or b.prescribed_velocity for b in cfg.bodies)
+                or any(walls.face(a, side) == "velocity" for a in range(cfg.dim) for side in (0, 1))
+                or any(p.type == "wall" for p in cfg.output.probes)
+                or any(getattr(m, "viscosity", 0.0) > 0 or MODELS[m.model].plastic for m in mats))
 
 
 class Simulation:
@@ -129,7 +148,8 @@ class Simulation:
         budget.check(c, body_force=body_force is not None)  # refuse absurd sizes before allocating anything
         self.scene = scene if scene is not None else build_scene(c)
         self.n = self.scene.n
-        self._id = init_taichi(c.arch, c.precision, c.solver.deterministic)
+        self._id = init_taichi(c.arch, c.precision, c.solver.deterministic,
+                               c.solver.deterministic and thread_independent(c, body_force is not None))
         self.basis = make_basis(c.solver.basis, grid_knots(c))   # domain.knots: per-axis knot vectors
         self.basis.materialize()
         self.h_cfl = smallest_span(c)   # dx, or the shortest knot span of domain.knots

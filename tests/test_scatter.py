@@ -103,16 +103,19 @@ def _threads_scene():
     return data
 
 
-def test_coloured_scatter_is_bit_identical_for_any_thread_count(tmp_path):
+@pytest.mark.parametrize("deterministic", [False, True])
+def test_coloured_scatter_is_bit_identical_for_any_thread_count(deterministic, tmp_path):
     """Every node sums its P2G contributions in the same order whatever the threads (a block's particles in particle
     order by one thread, colours one after another), the diagnostics sum by fixed chunks: a 3D f32 block hitting
     sticky walls under gravity (1000 particles, 30 steps) ends bit-identical with 1 and 2 threads, energies
     included. The same scene with `scatter: atomic` differed between 1 and 2 threads (1.2e-7 in x, 1e-6 in v)
-    when this was written (the adds' order is the threads' race)."""
+    when this was written (the adds' order is the threads' race). With `solver.deterministic` (no fast math) such a
+    scene keeps all threads, which this checks too."""
     import subprocess
     import sys
 
     data = _threads_scene()
+    data["solver"]["deterministic"] = deterministic
     script = tmp_path / "run.py"
     script.write_text(_THREADS_RUN.format(data=data))
     out = {}
