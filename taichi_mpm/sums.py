@@ -32,13 +32,6 @@ def cpu_threads() -> int:
     return cfg.cpu_max_num_threads if cfg.arch in (ti.x64, ti.arm64) else 0
 
 
-def parallel_loop_size() -> int:
-    """Iterations a range-for needs to give every thread work: on a CPU one 512-iteration task per thread (a loop
-    over 64 chunks or 300 grid blocks is otherwise one task, one thread); on a GPU a few thousand blocks."""
-    threads = cpu_threads()
-    return CPU_TASK * threads if threads else GPU_CHUNKS
-
-
 class Slots:
     """n f64 accumulators as 0-D fields: in a kernel `slots[k][None] += value` (k a Python int)."""
 
