@@ -130,12 +130,10 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
 
 
 def _coloured_scatter(cfg: Config) -> bool:
-    """Whether the solver bins particles for P2G's coloured scatter (scatter.applies, on the arch a run gets)."""
+    """Whether the solver bins particles for P2G's coloured scatter, on the arch a run gets."""
     from .solver import resolve_arch   # the solver imports this module
 
-    basis = make_basis(cfg.solver.basis, grid_knots(cfg))
-    kind = "mapped" if cfg.domain.map is not None else basis.kind
-    return scatter.applies(resolve_arch(cfg.arch) != "cpu", kind, basis.stencil, cfg.dim, cfg.solver.scatter)
+    return scatter.coloured(cfg, gpu=resolve_arch(cfg.arch) != "cpu")
 
 
 def _mapped(cfg: Config) -> MappedGrid | None:

@@ -173,7 +173,7 @@ def make_stencil(ctx, mapped: MappedGrid):
         return D.inverse()
 
     outer, inner = _loops(span, ctx.unroll)
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 9, kind="mapped")
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 9)
 
 
 def make_locate(ctx, mapped: MappedGrid, fail, n_codes: int, code: int):

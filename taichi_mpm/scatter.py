@@ -20,7 +20,9 @@ import math
 
 import taichi as ti
 
+from .basis import make_basis
 from .grid import LEAF, Grid
+from .knots import grid_knots
 from .sums import CPU_TASK, cpu_threads
 
 
@@ -32,6 +34,13 @@ def applies(gpu: bool, stencil_kind: str, width: int, dim: int, setting: str) ->
     if setting == "coloured":
         return bounded  # (config.py refuses coloured where the stencil is unbounded)
     return bounded and not gpu
+
+
+def coloured(cfg, gpu: bool) -> bool:
+    """Whether a run of `cfg` (on a GPU when `gpu`) bins its particles for the coloured scatter."""
+    basis = make_basis(cfg.solver.basis, grid_knots(cfg))
+    kind = "mapped" if cfg.domain.map is not None else basis.kind
+    return applies(gpu, kind, basis.stencil, cfg.dim, cfg.solver.scatter)
 
 
 class BlockBins:

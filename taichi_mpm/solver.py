@@ -122,8 +122,7 @@ def thread_independent(cfg: Config, body_force: bool = False) -> bool:
     threads' order (ddmp's nodal volumes, F-bar's averages, the crack finder's node sums, and the accumulators of
     external work, dissipation, wall and grip impulses). tests/test_scatter.py checks 1 and 2 threads bit-identical."""
     s = cfg.solver
-    kind = "mapped" if cfg.domain.map is not None else make_basis(s.basis, grid_knots(cfg)).kind
-    if not scatter.applies(False, kind, make_basis(s.basis, grid_knots(cfg)).stencil, cfg.dim, s.scatter):
+    if not scatter.coloured(cfg, gpu=False):
         return False
     mats = [cfg.materials[b.material] for b in cfg.bodies]
     walls = cfg.domain.boundaries
@@ -237,8 +236,7 @@ class Simulation:
             self.mapped.allocate_particles(n)
         self.grid = Grid(d, shape, self.cfg.domain.sparse, vec)
         gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
-        coloured = scatter.applies(gpu, self.basis.kind if self.mapped is None else "mapped", self.basis.stencil,
-                                   d, self.cfg.solver.scatter)
+        coloured = scatter.coloured(self.cfg, gpu)
         self.bins = scatter.BlockBins(d, self.grid, n) if coloured else None  # atomic-free P2G (scatter.py)
         self.crack = crack_finder.CrackFinder(self) if self.cfg.crack is not None else None
         self.fbar = fbar.create(self)  # solver.volumetric: fbar (fbar.py), else None
@@ -1187,7 +1185,7 @@ class Simulation:
         near its old value). Compares the spread tr(M2) of each body with the spread its mean F predicts from
         the reference state, M2_pred = A M2_ref A^T with A = mean F (mean F at the reference)^-1."""
         if all(MODELS[m.model].fluid or MODELS[m.model].plastic for m in self._materials):
-            return  # no solid body to check: skip the moments pass (65k particles: 8 ms, its f64 atomic adds)
+            return  # no solid body to check: skip the moments pass
         shapes = self._body_shapes()
         if self._shape_ref is None:
             self._shape_ref = shapes

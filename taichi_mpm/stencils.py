@@ -106,8 +106,6 @@ class Stencil:
     index: Callable             # @ti.func (off) -> flat contribution number 0..count-1
     count: int
     prepare: Optional[Callable] = None   # per step before P2G, for stencils that read grid state (ddmp)
-    kind: str = "tensor"                 # tensor, cpdi or mapped
-    width: int = 0                       # nodes per axis of a tensor stencil (its nodes: origin + [0, width)^d)
     origin: Optional[Callable] = None    # @ti.func (p) -> the first node of a tensor stencil (scatter.BlockBins)
 
 
@@ -281,7 +279,7 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
         return base
 
     return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), S ** dim, prepare,
-                   "tensor", S, origin)
+                   origin)
 
 
 def _dual_domain_fill(ctx: KernelContext, span: list):
@@ -417,8 +415,7 @@ def _cpdi_stencil(ctx: KernelContext) -> Stencil:
 
     span = [2] * (2 * dim)
     outer, inner = _loops(span, ctx.unroll)
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 4 ** dim,
-                   kind="cpdi")
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 4 ** dim)
 
 
 def make_corner_check(ctx: KernelContext):

@@ -1,7 +1,8 @@
 """Sums over particles in f64 without contended atomic adds.
 
 Every thread adding into the same few f64 slots serialises on their cache line: the energy pass of 65 536
-particles took 8 ms on two threads where the loop alone takes 0.3 ms (docs/performance.md, "Diagnostics").
+particles took 8 ms on two threads where the loop alone takes 0.3 ms (docs/performance.md, "Against the
+reference kernel").
 Two remedies, one per use:
 
 - `Slots`: a few accumulators that hot kernels add into (external work, dissipation). Each is a 0-D field, which
@@ -41,9 +42,6 @@ class Slots:
     def __getitem__(self, k: int):
         return self.fields[k]
 
-    def __len__(self):
-        return len(self.fields)
-
     @property
     def shape(self):
         return (len(self.fields),)
@@ -54,10 +52,6 @@ class Slots:
     def from_numpy(self, values):
         for f, val in zip(self.fields, np.asarray(values, dtype=np.float64)):
             f[None] = float(val)
-
-    def fill(self, value: float):
-        for f in self.fields:
-            f[None] = value
 
 
 class ChunkSums:
@@ -75,7 +69,6 @@ class ChunkSums:
         self.slots = math.prod(self.shape)
         self.chunks = max(1, min(CPU_CHUNKS if cpu_threads() else GPU_CHUNKS, n, MAX_ROW_VALUES // self.slots))
         self.size = -(-max(n, 1) // self.chunks)   # particles per chunk
-        self.n = n
         self.part = ti.field(ti.f64, (self.chunks, self.slots))
         part, size, slots = self.part, self.size, self.slots
 
