@@ -27,8 +27,11 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 import taichi as ti
+from taichi.lang.matrix import make_matrix
 
+from . import traced
 from .knots import DEGREE, greville
+
 
 BASES = ("linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp")
 TENSOR_BASES = ("linear", "gimp", "quadratic", "cubic", "ddmp")   # per-axis weights: the tensor-product fast path
@@ -65,50 +68,49 @@ class Basis:
         return self.stencil ** dim if self.kind in ("tensor", "mapped") else 4 ** dim
 
 
-@ti.func
-def _knot(k, p: ti.template(), n: ti.template()):
-    return ti.min(ti.max(k - p, 0), n)
-
-
 def cox_de_boor(p: int, knot: Callable):
     """The Cox-de Boor recursion (The NURBS Book A2.2) for values and first derivatives of the p + 1 B-splines
     that are nonzero on knot span c, [knot(c), knot(c + 1)), with 0/0 = 0 where repeated knots make a
-    denominator vanish. `knot(k, n)` (a @ti.func) is the k-th knot; n the cell count, for clamped knots."""
+    denominator vanish. `knot(k, n)` is the k-th knot; n the cell count, for clamped knots. Built at trace time
+    (traced.py): the recursion is a few dozen expressions, which a func would walk once per axis and kernel."""
 
-    @ti.func
-    def evaluate(uu, c, n: ti.template()):
-        N = ti.Vector.zero(float, p + 1)   # degree-p values of the functions c-p..c of the span
-        M = ti.Vector.zero(float, p + 1)   # degree p-1 values, for the derivatives
-        N[0] = 1.0
-        for j in ti.static(range(1, p + 1)):
-            if ti.static(j == p):
-                M = N
+    def ratio(num, den):
+        return traced.select(den > 0, num / den, 0.0)   # 0/0 = 0
+
+    @traced.traced
+    def evaluate(uu, c, n):
+        uu, c = traced.local(uu), traced.local(c)
+        N = [1.0] + [0.0] * p   # degree-j values of the functions c-j..c of the span, j = 0..p
+        M = N                   # degree p-1 values, for the derivatives
+        for j in range(1, p + 1):
+            if j == p:
+                M = list(N)
             saved = 0.0
-            for r in ti.static(range(j)):
-                right = knot(c + r + 1, n) - uu
-                left = uu - knot(c + 1 - j + r, n)
-                temp = 0.0
-                if right + left > 0:       # 0/0 = 0
-                    temp = N[r] / (right + left)
-                N[r] = saved + right * temp
+            for r in range(j):
+                right = traced.local(knot(c + r + 1, n) - uu)
+                left = traced.local(uu - knot(c + 1 - j + r, n))
+                temp = traced.local(ratio(N[r], right + left))
+                N[r] = traced.local(saved + right * temp)
                 saved = left * temp
-            N[j] = saved
-        dN = ti.Vector.zero(float, p + 1)
-        for r in ti.static(range(p + 1)):
+            N[j] = traced.local(saved)
+        dN = []
+        for r in range(p + 1):
             # N'_{k,p} = p [N_{k,p-1} / (T_{k+p} - T_k) - N_{k+1,p-1} / (T_{k+p+1} - T_{k+1})], k = c - p + r
             d = 0.0
-            if ti.static(r >= 1):
-                den = knot(c + r, n) - knot(c - p + r, n)
-                if den > 0:
-                    d += M[r - 1] / den
-            if ti.static(r < p):
-                den = knot(c + r + 1, n) - knot(c - p + r + 1, n)
-                if den > 0:
-                    d -= M[r] / den
-            dN[r] = p * d
-        return N, dN
+            if r >= 1:
+                d = d + ratio(M[r - 1], knot(c + r, n) - knot(c - p + r, n))
+            if r < p:
+                d = d - ratio(M[r], knot(c + r + 1, n) - knot(c - p + r + 1, n))
+            dN.append(p * d)
+        return make_matrix(N, float), make_matrix(dN, float)
 
     return evaluate
+
+
+@traced.traced
+def _cell(u, n):
+    """The cell (knot span of a uniform clamped vector) holding u, clamped to 0..n-1."""
+    return ti.min(ti.max(ti.cast(ti.floor(u), int), 0), n - 1)
 
 
 def make_bspline(p: int, name: str) -> Basis:
@@ -118,23 +120,19 @@ def make_bspline(p: int, name: str) -> Basis:
     def coord_py(i, n):  # Greville abscissa of control point i
         return sum(knot_py(i + m, n) for m in range(1, p + 1)) / p
 
-    @ti.func
+    @traced.traced
     def coord(i, n):
-        s = 0.0
-        for m in ti.static(range(1, p + 1)):
-            s += ti.cast(_knot(i + m, p, n), float)
-        return s / p
+        return traced.total([ti.cast(ti.min(ti.max(i + m - p, 0), n), float) for m in range(1, p + 1)]) / p
 
-    @ti.func
-    def clamped_knot(k, n: ti.template()):
+    def clamped_knot(k, n):
         """Knot k of the open uniform vector, indexed so that span c is cell c: {0 (p+1 times), 1, .., n (p+1)}."""
         return ti.cast(ti.min(ti.max(k, 0), n), float)
 
     recursion = cox_de_boor(p, clamped_knot)
 
-    @ti.func
-    def weights_1d(u, n: ti.template(), lp):
-        c = ti.min(ti.max(int(ti.floor(u)), 0), n - 1)  # knot span (cell) holding u
+    @traced.traced
+    def weights_1d(u, n, lp):
+        c = traced.local(_cell(u, n))                    # knot span (cell) holding u
         N, dN = recursion(ti.cast(u, float), c, n)       # values and derivatives of nodes c..c+p
         return c, N, dN
 
@@ -271,9 +269,8 @@ def make_knot_bspline(p: int, name: str, t: np.ndarray) -> Basis:
                 hi = mid - 1
         return lo
 
-    @ti.func
-    def knot(k, n: ti.template()):
-        return data.field[k]
+    def knot(k, n):
+        return traced.at(data.field, k)
 
     recursion = cox_de_boor(p, knot)
 

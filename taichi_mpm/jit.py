@@ -15,6 +15,8 @@ Physics code only: no CLI, rendering or file I/O here.
 
 import weakref
 
+from . import traced
+
 _CACHE_SIZE = 1 << 16
 
 
@@ -56,6 +58,7 @@ def install():
     get_pos_info._original = original
     ASTTransformerContext.get_pos_info = get_pos_info
     _cache_source_lines()
+    traced.install()
     return True
 
 

@@ -37,6 +37,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
 import taichi as ti
+from taichi.lang.matrix import make_matrix
+
+from . import traced
 
 
 @dataclass
@@ -175,108 +178,97 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     outer, inner = _loops(span, ctx.unroll, auto_inner=S)
     prepare, fill = _dual_domain_fill(ctx, span) if smooth else (None, None)
 
-    @ti.func
+    @traced.traced
     def at(p):
         """Stencil origin (storage index), per-axis weights W[a, k], x-derivatives DW[a, k] and node offsets
-        R[a, k] = (x_i - x_p)_a, so the node loop only multiplies."""
-        u = (x[p] - lower) * inv_dx
-        base = ti.Vector.zero(int, dim)
-        W = ti.Matrix.zero(float, dim, S)
-        DW = ti.Matrix.zero(float, dim, S)
-        R = ti.Matrix.zero(float, dim, S)
-        WS = ti.Matrix.zero(float, dim, S)    # ddmp: smoothed weights and derivatives, blend (unused otherwise)
-        DS = ti.Matrix.zero(float, dim, S)
+        R[a, k] = (x_i - x_p)_a, so the node loop only multiplies. Built at trace time (traced.py)."""
+        u = traced.local((traced.at(x, p) - lower) * inv_dx)
+        base, W, DW, R = [], [], [], []
+        WS = [[0.0] * S for _ in range(dim)]   # ddmp: smoothed weights and derivatives, blend (unused otherwise)
+        DS = [[0.0] * S for _ in range(dim)]
         alpha = 1.0
-        for a in ti.static(range(dim)):
+        for a in range(dim):
+            ua = traced.at(u, a)
             lp = 0.0
-            if ti.static(gimp):
+            if gimp:
                 lp = half_width(p)
-                if ti.static(gimp_deforming):
-                    lp = ti.min(lp * ti.abs(F[p][a, a]), 0.5)
+                if gimp_deforming:
+                    lp = ti.min(lp * ti.abs(traced.at(traced.at(F, p), a, a)), 0.5)
                 # a particle's domain ends at the walls: otherwise interior nodes keep weight on a particle
                 # at the wall and carry it through (sticky wall: out at step 1; slip floor at Mach 3)
-                lp = ti.max(ti.min(lp, u[a], n_cells[a] - u[a]), 1e-6)
-            b, w, dw = axes[a].weights_1d(u[a], n_cells[a], lp)   # axes[a]: its own knots (domain.knots)
-            base[a] = b
-            for k in ti.static(range(S)):
-                W[a, k] = w[k]
-                DW[a, k] = dw[k] * inv_dx
-                R[a, k] = (axes[a].coord(b + k, n_cells[a]) - u[a]) * dx
-            if ti.static(smooth):
-                ws, ds, al = basis.smooth_1d(u[a], n_cells[a])
-                alpha *= al
-                for k in ti.static(range(S)):
-                    WS[a, k] = ws[k]
-                    DS[a, k] = ds[k] * inv_dx
-        if ti.static(smooth):
+                lp = ti.max(ti.min(lp, ua, n_cells[a] - ua), 1e-6)
+            b, w, dw = (traced.local(v) for v in axes[a].weights_1d(ua, n_cells[a], lp))   # axes[a]: its knots
+            base.append(b)
+            W.append([traced.at(w, k) for k in range(S)])
+            DW.append([traced.at(dw, k) * inv_dx for k in range(S)])
+            R.append([(axes[a].coord(b + k, n_cells[a]) - ua) * dx for k in range(S)])
+            if smooth:
+                ws, ds, al = (traced.local(v) for v in basis.smooth_1d(ua, n_cells[a]))
+                alpha = alpha * al
+                WS[a] = [traced.at(ws, k) for k in range(S)]
+                DS[a] = [traced.at(ds, k) * inv_dx for k in range(S)]
+        base = make_matrix(base, int)
+        if smooth:
             alpha = ti.max(alpha, 1.0 - fill(base))
-        return base, W, DW, R, WS, DS, alpha
+        return (base, make_matrix(W, float), make_matrix(DW, float), make_matrix(R, float), make_matrix(WS, float),
+                make_matrix(DS, float), alpha)
 
-    @ti.func
-    def pick(M, a: ti.template(), i):
+    def pick(M, a, i):
         """M[a, i]. Along an axis the run-time loop walks, next to unrolled ones, by selects: indexing a local
         matrix at run time moves it from registers to the stack (3D quadratic, 3 nodes unrolled: G2P 23-28 against
         14-17 ms, one thread). A loop that runs all at run time keeps the indexing (selects: G2P 16 against 13 ms)."""
-        v = M[a, 0]
-        if ti.static(outer[a] > 1 and len(inner) > 1):
-            for k in ti.static(range(1, S)):
-                v = ti.select(i == k, M[a, k], v)
-        else:
-            v = M[a, i]
-        return v
+        if outer[a] > 1 and len(inner) > 1:
+            v = traced.at(M, a, 0)
+            for k in range(1, S):
+                v = traced.select(i == k, traced.at(M, a, k), v)
+            return v
+        return traced.at(M, a, i)
 
-    @ti.func
+    @traced.traced
     def node(st, off):
+        """Built at trace time (traced.py): a func would be walked once per unrolled node of every kernel."""
         base, W, DW, R, WS, DS, alpha = st
-        w = 1.0
-        grad = ti.Vector.zero(float, dim)
-        r = ti.Vector.zero(float, dim)
-        Wo = ti.Vector.zero(float, dim)
-        for a in ti.static(range(dim)):
-            Wo[a] = pick(W, a, off[a])
-            w *= Wo[a]
-            r[a] = pick(R, a, off[a])
-        for a in ti.static(range(dim)):
-            g = pick(DW, a, off[a])
-            for b in ti.static(range(dim)):
-                if ti.static(b != a):
-                    g *= Wo[b]
-            if ti.static(smooth):
-                gs = pick(DS, a, off[a])
-                for b in ti.static(range(dim)):
-                    if ti.static(b != a):
-                        gs *= pick(WS, b, off[b])
+        off = traced.local(off)
+        o = [traced.local(traced.at(off, a)) for a in range(dim)]
+        Wo = [traced.local(pick(W, a, o[a])) for a in range(dim)]
+        w = Wo[0]
+        for a in range(1, dim):
+            w = w * Wo[a]
+        grad = []
+        for a in range(dim):
+            g = pick(DW, a, o[a])
+            for b in range(dim):
+                if b != a:
+                    g = g * Wo[b]
+            if smooth:
+                gs = pick(DS, a, o[a])
+                for b in range(dim):
+                    if b != a:
+                        gs = gs * pick(WS, b, o[b])
                 g = alpha * g + (1.0 - alpha) * gs
-            grad[a] = g
-        return base + off, w, grad, r
+            grad.append(g)
+        r = [pick(R, a, o[a]) for a in range(dim)]
+        return base + off, w, make_matrix(grad, float), make_matrix(r, float)
 
-    @ti.func
+    @traced.traced
     def inertia(st):
         """D_p: diagonal for tensor-product weights."""
-        base, W, DW, R, WS, DS, alpha = st
-        D = ti.Matrix.zero(float, dim, dim)
-        for a in ti.static(range(dim)):
-            s = 0.0
-            for k in ti.static(range(S)):
-                s += W[a, k] * R[a, k] * R[a, k]
-            D[a, a] = s
-        return D
+        W, R = traced.local(st[1]), traced.local(st[3])
+        diagonal = [traced.total([traced.at(W, a, k) * traced.at(R, a, k) * traced.at(R, a, k) for k in range(S)])
+                    for a in range(dim)]
+        return make_matrix([[diagonal[a] if b == a else 0.0 for b in range(dim)] for a in range(dim)], float)
 
-    @ti.func
+    @traced.traced
     def inertia_inverse(st):
         """D_p^-1; zero along an axis where D_p vanishes (a B-spline particle exactly on a wall sits on
         the wall's control point: D_p = 0 there and B_p = 0 too, so the affine part is zero, not 0/0)."""
-        Dinv = ti.Matrix.zero(float, dim, dim)
-        D = inertia(st)
-        for a in ti.static(range(dim)):
-            if D[a, a] > d_min:
-                Dinv[a, a] = 1.0 / D[a, a]
-        return Dinv
+        D = traced.local(inertia(st))
+        inverse = [traced.select(traced.at(D, a, a) > d_min, 1.0 / traced.at(D, a, a), 0.0) for a in range(dim)]
+        return make_matrix([[inverse[a] if b == a else 0.0 for b in range(dim)] for a in range(dim)], float)
 
-    @ti.func
+    @traced.traced
     def origin(p):
-        base, W, DW, R, WS, DS, alpha = at(p)   # the weights are dead code here, removed by the compiler
-        return base
+        return at(p)[0]   # the weights are dead code here, removed by the compiler
 
     return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), S ** dim, prepare,
                    origin)
