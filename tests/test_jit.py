@@ -40,3 +40,34 @@ def test_cached_source_positions_equal_taichis_own(monkeypatch, cfg_factory):
     with pytest.raises(Exception) as e:
         k()
     assert "not_defined" in str(e.value) and "test_jit.py" in str(e.value)
+
+
+def test_class_check_tells_class_kernels_from_free_ones():
+    """The linecache-based class check answers as Taichi's getframeinfo one: a kernel and a func in a
+    @ti.data_oriented class body are class members, free ones are not, and a class kernel still runs."""
+    from taichi.lang import kernel_impl
+
+    from taichi_mpm.solver import init_taichi
+
+    init_taichi("cpu", "f64")
+    assert getattr(kernel_impl._inside_class, "_cached", False)
+    out = ti.field(float, ())
+
+    @ti.data_oriented
+    class Holder:
+        @ti.func
+        def twice(self, a):
+            return 2.0 * a
+
+        @ti.kernel
+        def run(self):
+            out[None] = self.twice(21.0)
+
+    @ti.kernel
+    def free():
+        out[None] = 1.0
+
+    assert Holder.run._is_classkernel and Holder.twice.func.classfunc
+    assert not free._is_classkernel
+    Holder().run()
+    assert out[None] == 42.0
