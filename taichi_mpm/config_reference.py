@@ -93,7 +93,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.gravity": ("m/s^2", "gravitational acceleration, one number per axis; null: none"),
     "solver.max_steps": ("", "stop after this many steps; null: no limit"),
     "solver.unroll": ("", "unroll the stencil loop (true / false); auto unrolls stencils of at most 16 nodes "
-                          "whole and the last axis of larger tensor-product ones (3D gimp, quadratic, cubic, ddmp)"),
+                          "whole and the trailing axes of larger tensor-product ones, up to 9 nodes per run-time "
+                          "iteration (3D gimp and quadratic: 9 of 27, cubic and ddmp: 4 of 64)"),
     "solver.scatter": ("", "how P2G adds particle values to the grid: coloured bins the particles by grid block each "
                            "step and lets the blocks of one of 2^d colours add in parallel without atomics (same "
                            "result, 2-3x faster P2G on CPUs; tensor-product bases only); atomic adds atomically; "

@@ -121,14 +121,15 @@ def make_stencil(ctx: KernelContext) -> Stencil:
 
 
 AUTO_FULL = 16   # solver.unroll auto: stencils of at most this many contributions are unrolled whole
+AUTO_INNER = 9   # and larger tensor stencils their trailing axes, up to this many nodes per run-time iteration
 
 
 def _loops(span: list, unroll, auto_inner: int = 1):
     """Split the contribution index into a run-time loop `outer` and a statically unrolled `inner` list (the
     trailing axes, as many as fit in `n` contributions). Unrolled nodes keep the weights in registers but each adds
     its code to the compile: true unrolls everything, false nothing, auto stencils of at most AUTO_FULL
-    contributions whole and larger ones `auto_inner` per run-time iteration (tensor stencils: their last axis,
-    3D quadratic 3 of 27)."""
+    contributions whole and larger ones up to `auto_inner` per run-time iteration (tensor stencils: their
+    trailing axes, 3D quadratic 9 of 27, cubic 4 of 64)."""
     n = math.prod(span) if unroll is True or (unroll == "auto" and math.prod(span) <= AUTO_FULL) else 1
     if unroll == "auto" and n == 1:
         n = auto_inner
@@ -175,7 +176,7 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     half_width = _domain_half_width(ctx)
     d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * dx * dx  # smallest D_p entry inverted
     span = [S] * dim
-    outer, inner = _loops(span, ctx.unroll, auto_inner=S)
+    outer, inner = _loops(span, ctx.unroll, auto_inner=AUTO_INNER)
     prepare, fill = _dual_domain_fill(ctx, span) if smooth else (None, None)
 
     @traced.traced

@@ -64,8 +64,8 @@ def test_linear_momentum_3d_sparse():
 @pytest.mark.slow  # compiles the 3D kernels twice (~40 s CPU cold); the default run steps 3D quadratic elsewhere
 @pytest.mark.parametrize("basis", ["quadratic", "cubic"])
 def test_stencil_loop_split_steps_the_same(basis):
-    """solver.unroll only splits the stencil loop (stencils._loops): 3D auto unrolls the last axis and runs the
-    others at run time, picking their weights by selects; false runs every node at run time. Same nodes in the
+    """solver.unroll only splits the stencil loop (stencils._loops): 3D auto unrolls the trailing axes (quadratic: two,
+    cubic: one) and runs the others at run time, picking their weights by selects; false runs every node at run time. Same nodes in the
     same order, one thread, no fast math: the states agree to round-off (bound 1e-12 of the scale, f64; measured
     bit-identical after 5 steps, quadratic and cubic)."""
     states = []
