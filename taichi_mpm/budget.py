@@ -123,7 +123,9 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
                       for m in mats)
         stencil_nodes = make_basis(cfg.solver.basis).contributions(d)
         floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0) + d + 2   # + xs, vs
-        n += floats * size + 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4
+        kept = cfg.crack.normal_refresh > 0                       # normals kept between steps, their positions
+        floats += 2 * d if kept else 0
+        n += floats * size + 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4 + (4 if kept else 0)
     if _coloured_scatter(cfg):
         n += 4 + 4 * d   # scatter.BlockBins: order, home
     return n

@@ -36,6 +36,7 @@ from .materials import degrade_tension, rankine_damage, rankine_params, sym_eig
 STANDARD, MODIFIED, CONTACT = 0, 1, 2   # particle states: unmodified, cut (tension), cut with normal contact
 S_FLOOR = 1e-3                          # a family whose kept weights sum below this keeps standard functions
 MAX_CELLS = 1 << 26
+CACHE_KEYS = ("crack_normals", "crack_normal_states", "crack_normal_positions", "crack_normals_stale")
 CELL_SPLIT = 2                          # cell list cells of r/2: a query scans 5^d cells, (2.5 r)^d, not (3 r)^d
 ROW_MARGIN = 1e-2                       # cell units: a cell is cut from a search only beyond r + this (rounding)
 
@@ -110,13 +111,26 @@ class CrackFinder:
         # node normals on their own sparse grid (same node indexing as the solver's grid);
         # m marks the node: 1 in a near particle's stencil, 2 on the discontinuity
         self.nodes = Grid(d, sim.grid.shape, True, ["n"])
+        # normals kept between steps (crack.normal_refresh): recomputed once a particle has moved more than half
+        # the skin since they were computed, or any D changed; the cache is part of the state (checkpoints)
+        self.skin = float(cc.normal_refresh) * self.radius
+        self.cached = self.skin > 0
+        if self.cached:
+            self.n_cache = ti.Vector.field(d, float, n)    # n_p as the gradient sums gave it (before band normals)
+            self.s_cache = ti.field(ti.i32, n)             # and the state they gave
+            self.x_ref = ti.Vector.field(d, float, n)      # positions they were computed at
+            self.stale = ti.field(ti.i32, ())              # 1: recompute this step
+            self.stale[None] = 1
+            self.refreshes = ti.field(ti.i32, ())          # steps that recomputed them (diagnostics, tests)
 
     def bytes_per_particle(self) -> int:
         size = 8 if self.sim.cfg.precision == "f64" else 4
         d = self.dim
         floats = 2 + d + 2 + 2 * d + (2 * d if self.apic else 0) + (1 if self.has_law else 0)
         floats += d + 2   # xs, vs: positions and SPH weights in cell order
-        return floats * size + 4 + 4 + (8 if self.n_nodes > 32 else 4) + 4 + 4  # iface, state, mask, pcell, ids
+        floats += 2 * d if self.cached else 0   # cached normals, their positions
+        ints = 4 + 4 + (8 if self.n_nodes > 32 else 4) + 4 + 4 + (4 if self.cached else 0)
+        return floats * size + ints   # iface, state, mask, pcell, ids (, cached state)
 
     def upload(self):
         s, sim = self.sim.scene, self.sim
@@ -132,13 +146,32 @@ class CrackFinder:
         state = {"damage": self.damage()}
         if self.kappa is not None:
             state["damage_kappa"] = self.sim._to_creation(self.kappa.to_numpy())
+        if self.cached:   # a run continued from this state reuses the same normals as the one that goes on
+            state.update(crack_normals=self.sim._to_creation(self.n_cache.to_numpy().astype(np.float64)),
+                         crack_normal_states=self.sim._to_creation(self.s_cache.to_numpy()),
+                         crack_normal_positions=self.sim._to_creation(self.x_ref.to_numpy().astype(np.float64)),
+                         crack_normals_stale=int(self.stale[None]))
         return state
+
+    def invalidate(self):
+        """Recompute the normals at the next step (particles were set from outside)."""
+        if self.cached:
+            self.stale[None] = 1
 
     def set_state(self, state: dict):
         if "damage" in state:
             self.d.from_numpy(self.sim._to_solver(np.asarray(state["damage"], np.float64)))
         if self.kappa is not None and "damage_kappa" in state:
             self.kappa.from_numpy(self.sim._to_solver(np.asarray(state["damage_kappa"], np.float64)))
+        self.invalidate()
+        if self.cached and all(k in state for k in CACHE_KEYS):
+            n, d = self.sim.n, self.dim
+            arrays = [np.asarray(state[k]) for k in CACHE_KEYS[:3]]
+            if [a.shape for a in arrays] == [(n, d), (n,), (n, d)] and all(np.isfinite(a).all() for a in arrays):
+                self.n_cache.from_numpy(self.sim._to_solver(arrays[0].astype(np.float64)))
+                self.s_cache.from_numpy(self.sim._to_solver(arrays[1].astype(np.int32)))
+                self.x_ref.from_numpy(self.sim._to_solver(arrays[2].astype(np.float64)))
+                self.stale[None] = int(np.asarray(state[CACHE_KEYS[3]]))
 
     def update(self):
         """The crack finder's per-step work, before P2G."""
@@ -173,6 +206,10 @@ class CrackFinder:
         cell_lo, cell_hi, pcell, ids, xs = self.cell_lo, self.cell_hi, self.pcell, self.ids, self.xs
         cell_varies, vs, d_range = self.cell_varies, self.vs, self.d_range
         node_mark, node_n = self.nodes.m, self.nodes.vec["n"]
+        cached = self.cached
+        n_cache, s_cache, x_ref, stale, refreshes = (
+            (self.n_cache, self.s_cache, self.x_ref, self.stale, self.refreshes) if cached else (None,) * 5)
+        moved2 = (0.5 * self.skin) ** 2   # a particle this far (squared) from where its normal was computed: refresh
         lower = ti.Vector(sim.lower.tolist())
         dx = sim.dx
         n_cells_grid = sim.n_cells
@@ -352,7 +389,13 @@ class CrackFinder:
                             if hit:
                                 dn, kap = rankine_damage(sig, kappa[p], laws[k][0], laws[k][1], laws[k][2])
                                 kappa[p] = kap
-                                d_f[p] = ti.max(d_f[p], dn)
+                                if dn > d_f[p]:
+                                    d_f[p] = dn
+                                    if ti.static(cached):   # D grew: the normals move with it
+                                        ti.atomic_max(stale[None], 1)
+                if ti.static(cached):
+                    if (x[p] - x_ref[p]).norm_sqr() > moved2:
+                        ti.atomic_max(stale[None], 1)
                 Dp = ti.max(d_f[p], ti.cast(iface[p], float))
                 D[p] = Dp
                 c = flat(cell_of(x[p]))
@@ -412,16 +455,27 @@ class CrackFinder:
             for p in x:
                 st = STANDARD
                 nrm = ti.Vector.zero(float, dim)
-                if cell_varies[pcell[p]]:  # D varies within reach: p may sit near a discontinuity
-                    _, g = damage_field(x[p])
-                    gn = g.norm() * radius
-                    if (D[p] >= dthr or gn >= gthr) and gn > 1e-6:
-                        nrm = g / g.norm()
-                        st = MODIFIED
+                fresh = True
+                if ti.static(cached):
+                    fresh = stale[None] != 0
+                if fresh:
+                    if cell_varies[pcell[p]]:  # D varies within reach: p may sit near a discontinuity
+                        _, g = damage_field(x[p])
+                        gn = g.norm() * radius
+                        if (D[p] >= dthr or gn >= gthr) and gn > 1e-6:
+                            nrm = g / g.norm()
+                            st = MODIFIED
+                    if ti.static(cached):
+                        n_cache[p], s_cache[p], x_ref[p] = nrm, st, x[p]
+                elif ti.static(cached):
+                    nrm, st = n_cache[p], s_cache[p]
                 normal[p] = nrm
                 state[p] = st
                 if st != STANDARD:
                     mark_stencil(p)
+            if ti.static(cached):
+                refreshes[None] += stale[None]
+                stale[None] = 0
 
         @ti.kernel
         def band_normals():

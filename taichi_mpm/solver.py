@@ -1383,6 +1383,8 @@ class Simulation:
         self._potentials = {}
         if "x" in checked:
             self._place_on_map()
+            if self.crack is not None:
+                self.crack.invalidate()   # its normals kept between steps belong to the old positions
         if self.fbar is not None and "F" in checked:
             self.fbar.sync()  # F-bar's start-of-step J follows the new F
         if "v" in checked:
