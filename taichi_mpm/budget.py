@@ -202,11 +202,12 @@ def _grid_bytes(cfg: Config, base_dir, mapped: MappedGrid | None = None) -> tupl
         tops = math.prod(layout["levels"][0])
     else:
         leaves, tops = _active_blocks(cfg, layout, base_dir)
-    grids = 2 if cfg.crack is not None else 1  # the crack finder keeps node normals on a second sparse grid
+    # the crack finder keeps node normals on a second sparse grid, and those kept between steps on a third
+    grids = 1 if cfg.crack is None else (3 if cfg.crack.normal_refresh > 0 else 2)
     top_slots = math.prod(layout["levels"][0])
     pointers = top_slots + (tops * layout["mid"] ** d if len(layout["levels"]) > 1 else 0)
     leaf_nodes = leaves * layout["leaf"] ** d
-    total = grids * pointers * POINTER_SLOT_BYTES + leaf_nodes * (node_bytes + (size * (1 + d) if grids > 1 else 0))
+    total = grids * pointers * POINTER_SLOT_BYTES + leaf_nodes * (node_bytes + size * (1 + d) * (grids - 1))
     if ddmp:
         total += pointers * POINTER_SLOT_BYTES + leaf_nodes * size
     total += map_bytes

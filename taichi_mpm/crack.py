@@ -37,6 +37,7 @@ STANDARD, MODIFIED, CONTACT = 0, 1, 2   # particle states: unmodified, cut (tens
 S_FLOOR = 1e-3                          # a family whose kept weights sum below this keeps standard functions
 MAX_CELLS = 1 << 26
 CACHE_KEYS = ("crack_normals", "crack_normal_states", "crack_normal_positions", "crack_normals_stale")
+NODE_CACHE_KEYS = ("crack_node_cache_index", "crack_node_cache_normal", "crack_node_cache_flag")
 CELL_SPLIT = 2                          # cell list cells of r/2: a query scans 5^d cells, (2.5 r)^d, not (3 r)^d
 ROW_MARGIN = 1e-2                       # cell units: a cell is cut from a search only beyond r + this (rounding)
 
@@ -122,6 +123,9 @@ class CrackFinder:
             self.stale = ti.field(ti.i32, ())              # 1: recompute this step
             self.stale[None] = 1
             self.refreshes = ti.field(ti.i32, ())          # steps that recomputed them (diagnostics, tests)
+            # node normals computed since: m = 1 (normal in n) or 2 (on the discontinuity); 0: not yet
+            self.node_cache = Grid(d, sim.grid.shape, True, ["n"])
+            self.node_cache_fill = ti.field(ti.i32, ())
 
     def bytes_per_particle(self) -> int:
         size = 8 if self.sim.cfg.precision == "f64" else 4
@@ -151,7 +155,19 @@ class CrackFinder:
                          crack_normal_states=self.sim._to_creation(self.s_cache.to_numpy()),
                          crack_normal_positions=self.sim._to_creation(self.x_ref.to_numpy().astype(np.float64)),
                          crack_normals_stale=int(self.stale[None]))
+            state.update(zip(NODE_CACHE_KEYS, self._node_cache_arrays()))
         return state
+
+    def _node_cache_arrays(self):
+        """The node cache as (storage indices, normals, flags), sorted by index (the same file for any threads)."""
+        k = self._k["node_cache_size"]()
+        idx, nrm, flag = np.zeros((k, self.dim), np.int32), np.zeros((k, self.dim)), np.zeros(k)
+        if k:
+            self.node_cache_fill[None] = 0
+            self._k["node_cache_read"](idx, nrm, flag)
+            order = np.lexsort(idx.T[::-1])
+            idx, nrm, flag = idx[order], nrm[order], flag[order]
+        return idx, nrm, flag
 
     def invalidate(self):
         """Recompute the normals at the next step (particles were set from outside)."""
@@ -172,11 +188,22 @@ class CrackFinder:
                 self.s_cache.from_numpy(self.sim._to_solver(arrays[1].astype(np.int32)))
                 self.x_ref.from_numpy(self.sim._to_solver(arrays[2].astype(np.float64)))
                 self.stale[None] = int(np.asarray(state[CACHE_KEYS[3]]))
+                self.node_cache.clear()
+                idx, nrm, flag = (np.asarray(state.get(k, ())) for k in NODE_CACHE_KEYS)
+                k = len(flag)
+                if k and idx.shape == (k, d) and nrm.shape == (k, d) and np.isfinite(nrm).all() and \
+                        (idx >= 0).all() and (idx < np.array(self.nodes.shape)).all():
+                    self._k["node_cache_write"](idx.astype(np.int32), nrm.astype(np.float64),
+                                                flag.astype(np.float64), k)
+                elif k:
+                    self.stale[None] = 1   # not a cache this scene can use: recompute all
 
     def update(self):
         """The crack finder's per-step work, before P2G."""
         self.nodes.clear()
         self._k["prepare"]()
+        if self.cached and self.stale[None]:   # normals are recomputed this step: so are the nodes'
+            self.node_cache.clear()
         self._k["particle_normals"]()
         self._k["band_normals"]()
         self._k["node_normals"]()
@@ -209,6 +236,8 @@ class CrackFinder:
         cached = self.cached
         n_cache, s_cache, x_ref, stale, refreshes = (
             (self.n_cache, self.s_cache, self.x_ref, self.stale, self.refreshes) if cached else (None,) * 5)
+        cache_m, cache_n, cache_fill = ((self.node_cache.m, self.node_cache.vec["n"], self.node_cache_fill)
+                                        if cached else (None,) * 3)
         moved2 = (0.5 * self.skin) ** 2   # a particle this far (squared) from where its normal was computed: refresh
         lower = ti.Vector(sim.lower.tolist())
         dx = sim.dx
@@ -520,17 +549,54 @@ class CrackFinder:
         def node_normals():
             for I in ti.grouped(node_mark):
                 if node_mark[I] > 0:
-                    y = ti.Vector.zero(float, dim)
-                    for a in ti.static(range(dim)):
-                        y[a] = lower[a] + basis.coord(I[a], n_cells_grid[a]) * dx
-                    val, g = damage_field(y)
-                    gn = g.norm() * radius
                     nn = ti.Vector.zero(float, dim)
-                    if gn > 1e-6:
-                        nn = g / g.norm()
+                    on = False   # the node lies on the discontinuity: both sides leave it
+                    known = False
+                    if ti.static(cached):   # computed since the particle normals were
+                        known = cache_m[I] > 0
+                        if known:
+                            nn, on = cache_n[I], cache_m[I] > 1.5
+                    if not known:
+                        y = ti.Vector.zero(float, dim)
+                        for a in ti.static(range(dim)):
+                            y[a] = lower[a] + basis.coord(I[a], n_cells_grid[a]) * dx
+                        val, g = damage_field(y)
+                        gn = g.norm() * radius
+                        if gn > 1e-6:
+                            nn = g / g.norm()
+                        on = gn < gthr and val >= dthr
+                        if ti.static(cached):
+                            cache_n[I], cache_m[I] = nn, ti.select(on, 2.0, 1.0)
                     node_n[I] = nn
-                    if gn < gthr and val >= dthr:
-                        node_mark[I] = 2.0   # the node lies on the discontinuity: both sides leave it
+                    if on:
+                        node_mark[I] = 2.0
+
+        @ti.kernel
+        def node_cache_size() -> ti.i32:
+            k = 0
+            if ti.static(cached):
+                for I in ti.grouped(cache_m):
+                    if cache_m[I] > 0:
+                        k += 1
+            return k
+
+        @ti.kernel
+        def node_cache_read(idx: ti.types.ndarray(), nrm: ti.types.ndarray(), flag: ti.types.ndarray()):
+            if ti.static(cached):
+                for I in ti.grouped(cache_m):
+                    if cache_m[I] > 0:
+                        k = ti.atomic_add(cache_fill[None], 1)
+                        for a in ti.static(range(dim)):
+                            idx[k, a], nrm[k, a] = I[a], cache_n[I][a]
+                        flag[k] = cache_m[I]
+
+        @ti.kernel
+        def node_cache_write(idx: ti.types.ndarray(), nrm: ti.types.ndarray(), flag: ti.types.ndarray(), k: ti.i32):
+            if ti.static(cached):
+                for j in range(k):
+                    I = ti.Vector([idx[j, a] for a in ti.static(range(dim))])
+                    cache_m[I] = flag[j]
+                    cache_n[I] = ti.Vector([nrm[j, a] for a in ti.static(range(dim))])
 
         @ti.kernel
         def particle_masks():
@@ -787,7 +853,8 @@ class CrackFinder:
 
         self._k = dict(prepare=prepare, particle_normals=particle_normals, band_normals=band_normals, node_normals=node_normals,
                        particle_masks=particle_masks, grid_update=grid_update, grid_remap=grid_remap,
-                       partition_check=partition_check)
+                       partition_check=partition_check, node_cache_size=node_cache_size,
+                       node_cache_read=node_cache_read, node_cache_write=node_cache_write)
         return CrackHooks(modified=modified, degrade=degrade, degrade_energy=degrade_energy, p2g=p2g,
                           p2g_momentum=p2g_momentum, g2p=g2p, kernels={"grid_update": grid_update,
                                                                        "grid_remap": grid_remap})
