@@ -22,6 +22,7 @@ import numpy as np
 
 from . import scatter
 from .basis import make_basis
+from .crack import particle_bytes as crack_particle_bytes
 from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid
 from .config import Config, ConfigError
@@ -122,10 +123,7 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
         has_law = any(getattr(m, "tensile_strength", None) is not None and material_models.MODELS[m.model].damage
                       for m in mats)
         stencil_nodes = make_basis(cfg.solver.basis).contributions(d)
-        floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0) + d + 2   # + xs, vs
-        kept = cfg.crack.normal_refresh > 0                       # normals kept between steps, their positions
-        floats += 2 * d if kept else 0
-        n += floats * size + 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4 + (4 if kept else 0)
+        n += crack_particle_bytes(d, cfg.precision, apic, has_law, stencil_nodes, cfg.crack)
     if _coloured_scatter(cfg):
         n += 4 + 4 * d   # scatter.BlockBins: order, home
     return n

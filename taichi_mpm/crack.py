@@ -60,6 +60,18 @@ def grid_fields(dim: int) -> list[str]:
     return [f"A{a}" for a in range(dim)]
 
 
+def particle_bytes(d: int, precision: str, apic: bool, has_law: bool, stencil_nodes: int, cc) -> int:
+    """Bytes per particle of the finder's fields (CrackFinder.__init__; budget.py estimates with it)."""
+    size = 8 if precision == "f64" else 4
+    floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0)   # d, D, normal, sums, gsum, cent
+    floats += d + 2                                # xs, vs: positions and SPH weights in cell order
+    ints = 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4   # iface, state, mask, pcell, ids
+    if cc.normal_refresh > 0:                      # kept normals and their positions; their state, empty masks
+        floats += 2 * d
+        ints += 4 + 8 + 4 + (4 if cc.contact_in_compression else 0)   # (+ the contact gate)
+    return floats * size + ints
+
+
 class CrackFinder:
     def __init__(self, sim):
         cfg, cc = sim.cfg, sim.cfg.crack
@@ -116,25 +128,27 @@ class CrackFinder:
         # the skin since they were computed, or any D changed; the cache is part of the state (checkpoints)
         self.skin = float(cc.normal_refresh) * self.radius
         self.cached = self.skin > 0
+        self.gate, self.epoch = None, 0
         if self.cached:
             self.n_cache = ti.Vector.field(d, float, n)    # n_p as the gradient sums gave it (before band normals)
             self.s_cache = ti.field(ti.i32, n)             # and the state they gave
             self.x_ref = ti.Vector.field(d, float, n)      # positions they were computed at
             self.stale = ti.field(ti.i32, ())              # 1: recompute this step
             self.stale[None] = 1
-            self.refreshes = ti.field(ti.i32, ())          # steps that recomputed them (diagnostics, tests)
+            self.refreshes = 0                             # steps that recomputed them (diagnostics, tests)
+            # contact test gate: 0 where no particle that could face p is within reach until the next refresh
+            self.gate = ti.field(ti.i32, n) if cc.contact_in_compression else None
+            self._gate_due = True
+            # masks found empty since the normals were computed: the stencil origin they were found at (+1, flat),
+            # and in which period of kept normals (`epoch`); same origin and period: still empty, nothing to do
+            self.empty_at = ti.field(ti.i64, n)
+            self.empty_epoch = ti.field(ti.i32, n)
             # node normals computed since: m = 1 (normal in n) or 2 (on the discontinuity); 0: not yet
             self.node_cache = Grid(d, sim.grid.shape, True, ["n"])
             self.node_cache_fill = ti.field(ti.i32, ())
 
     def bytes_per_particle(self) -> int:
-        size = 8 if self.sim.cfg.precision == "f64" else 4
-        d = self.dim
-        floats = 2 + d + 2 + 2 * d + (2 * d if self.apic else 0) + (1 if self.has_law else 0)
-        floats += d + 2   # xs, vs: positions and SPH weights in cell order
-        floats += 2 * d if self.cached else 0   # cached normals, their positions
-        ints = 4 + 4 + (8 if self.n_nodes > 32 else 4) + 4 + 4 + (4 if self.cached else 0)
-        return floats * size + ints   # iface, state, mask, pcell, ids (, cached state)
+        return particle_bytes(self.dim, self.sim.cfg.precision, self.apic, self.has_law, self.n_nodes, self.cc)
 
     def upload(self):
         s, sim = self.sim.scene, self.sim
@@ -173,6 +187,8 @@ class CrackFinder:
         """Recompute the normals at the next step (particles were set from outside)."""
         if self.cached:
             self.stale[None] = 1
+            self._gate_due = True
+            self.epoch += 1   # masks found empty before belong to other normals
 
     def set_state(self, state: dict):
         if "damage" in state:
@@ -180,7 +196,7 @@ class CrackFinder:
         if self.kappa is not None and "damage_kappa" in state:
             self.kappa.from_numpy(self.sim._to_solver(np.asarray(state["damage_kappa"], np.float64)))
         self.invalidate()
-        if self.cached and all(k in state for k in CACHE_KEYS):
+        if self.cached and all(k in state for k in CACHE_KEYS):   # the gate is derived: recomputed next step
             n, d = self.sim.n, self.dim
             arrays = [np.asarray(state[k]) for k in CACHE_KEYS[:3]]
             if [a.shape for a in arrays] == [(n, d), (n,), (n, d)] and all(np.isfinite(a).all() for a in arrays):
@@ -202,12 +218,23 @@ class CrackFinder:
         """The crack finder's per-step work, before P2G."""
         self.nodes.clear()
         self._k["prepare"]()
-        if self.cached and self.stale[None]:   # normals are recomputed this step: so are the nodes'
-            self.node_cache.clear()
-        self._k["particle_normals"]()
+        fresh = True
+        if self.cached:
+            fresh = self.stale[None] != 0   # prepare raised it if a particle moved too far or D grew
+            if fresh:
+                self.node_cache.clear()     # node normals are recomputed with the particles'
+                self.refreshes += 1
+                self.epoch += 1
+        self._k["particle_normals"](int(fresh))
+        if self.cached:
+            if fresh:
+                self.stale[None] = 0
+            if self.gate is not None and (fresh or self._gate_due):
+                self._k["contact_gate"]()
+                self._gate_due = False
         self._k["band_normals"]()
         self._k["node_normals"]()
-        self._k["particle_masks"]()
+        self._k["particle_masks"](self.epoch)
 
     # ------------------------------------------------------------------ kernels
     def build(self, ctx) -> CrackHooks:
@@ -234,8 +261,21 @@ class CrackFinder:
         cell_varies, vs, d_range = self.cell_varies, self.vs, self.d_range
         node_mark, node_n = self.nodes.m, self.nodes.vec["n"]
         cached = self.cached
-        n_cache, s_cache, x_ref, stale, refreshes = (
-            (self.n_cache, self.s_cache, self.x_ref, self.stale, self.refreshes) if cached else (None,) * 5)
+        n_cache, s_cache, x_ref, stale = (self.n_cache, self.s_cache, self.x_ref, self.stale) if cached else (None,) * 4
+        gate = self.gate if cached else None
+        gated = gate is not None
+        empty_at, empty_epoch = (self.empty_at, self.empty_epoch) if cached else (None, None)
+        skip_empty = cached and sten.origin is not None   # tensor stencils: the origin fixes the stencil's nodes
+        grid_shape = list(sim.grid.shape)
+
+        @ti.func
+        def origin_key(p):
+            """1 + the flat storage index of p's stencil origin (i64: large sparse 3D grids pass 2^31 nodes)."""
+            b = sten.origin(p)
+            k = ti.cast(0, ti.i64)
+            for a in ti.static(range(dim)):
+                k = k * grid_shape[a] + ti.cast(b[a], ti.i64)
+            return k + 1
         cache_m, cache_n, cache_fill = ((self.node_cache.m, self.node_cache.vec["n"], self.node_cache_fill)
                                         if cached else (None,) * 3)
         moved2 = (0.5 * self.skin) ** 2   # a particle this far (squared) from where its normal was computed: refresh
@@ -286,13 +326,21 @@ class CrackFinder:
                 k //= cells[dim - 1 - a]
             return c
 
+        def make_row(span: int, reach_cells: float):
+            """row(c, u, o) for searches within reach_cells (cell units) of the query, over cells c +- span."""
+
+            @ti.func
+            def row(c, u, o):
+                return row_within(c, u, o, span, reach_cells * reach_cells)
+            return row
+
         @ti.func
-        def row(c, u, o):
-            """The candidates of one row (along the last axis) of the 5^d cells around cell c: a slice [j0, j1) of
-            `ids`, since the row's cells are consecutive in the sorted order. o: the row's offsets on the other
-            axes; u: the query point in cell units. Cells that cannot hold a particle within r of u are cut
-            (their particles would fail the d2 < r^2 test anyway), so sums keep their terms and their order."""
-            rem = float(CELL_SPLIT * CELL_SPLIT)   # r^2 in cell units, less the row's squared gap
+        def row_within(c, u, o, span: ti.template(), reach2: ti.template()):
+            """The candidates of one row (along the last axis) of the (2 span + 1)^d cells around cell c: a slice
+            [j0, j1) of `ids`, since the row's cells are consecutive in the sorted order. o: the row's offsets on the
+            other axes; u: the query point in cell units. Cells that cannot hold a particle within the reach of u are
+            cut (their particles would fail the d2 < r^2 test anyway), so sums keep their terms and their order."""
+            rem = float(reach2)   # the reach squared in cell units, less the row's squared gap
             base, inside = 0, True
             for a in ti.static(range(dim - 1)):
                 k = c[a] + o[a]
@@ -309,12 +357,21 @@ class CrackFinder:
             if inside and rem > 0:
                 z = ti.static(dim - 1)
                 reach = ti.sqrt(rem) + ROW_MARGIN
-                lo = ti.max(ti.min(int(ti.floor(u[z] - reach)), cells[z] - 1), 0, c[z] - CELL_SPLIT)
-                hi = ti.min(ti.max(int(ti.floor(u[z] + reach)), 0), cells[z] - 1, c[z] + CELL_SPLIT)
+                lo = ti.max(ti.min(int(ti.floor(u[z] - reach)), cells[z] - 1), 0, c[z] - span)
+                hi = ti.min(ti.max(int(ti.floor(u[z] + reach)), 0), cells[z] - 1, c[z] + span)
                 if lo <= hi:
                     first, last = base * cells[z] + lo, base * cells[z] + hi
                     j0, j1 = cell_start[first], cell_start[last] + cell_count[last]
             return j0, j1
+
+        row = make_row(CELL_SPLIT, float(CELL_SPLIT))
+        # the contact gate's search: as far as two particles can come closer until the next refresh (each moves at
+        # most skin / 2 from where the normals were computed, so 2 skin from where the gate is computed)
+        wide_cells = CELL_SPLIT * (1.0 + 2.0 * float(cc.normal_refresh))
+        wide_span = int(math.ceil(wide_cells))
+        row_wide = make_row(wide_span, wide_cells)
+        rows_wide = [(-wide_span, wide_span + 1)] * (dim - 1)
+        wide2 = (wide_cells / inv_cell) ** 2 * (1 + 1e-4)
 
         @ti.func
         def cell_units(xq):
@@ -480,13 +537,10 @@ class CrackFinder:
                 node_mark[I] = 1.0
 
         @ti.kernel
-        def particle_normals():
+        def particle_normals(fresh: ti.i32):
             for p in x:
                 st = STANDARD
                 nrm = ti.Vector.zero(float, dim)
-                fresh = True
-                if ti.static(cached):
-                    fresh = stale[None] != 0
                 if fresh:
                     if cell_varies[pcell[p]]:  # D varies within reach: p may sit near a discontinuity
                         _, g = damage_field(x[p])
@@ -502,9 +556,6 @@ class CrackFinder:
                 state[p] = st
                 if st != STANDARD:
                     mark_stencil(p)
-            if ti.static(cached):
-                refreshes[None] += stale[None]
-                stale[None] = 0
 
         @ti.kernel
         def band_normals():
@@ -599,9 +650,45 @@ class CrackFinder:
                     cache_n[I] = ti.Vector([nrm[j, a] for a in ti.static(range(dim))])
 
         @ti.kernel
-        def particle_masks():
+        def contact_gate():
+            """gate[p] = 0 where the contact test cannot find a particle facing p until the normals are recomputed:
+            none within the reach two particles can close to by then has a normal against p's (band particles, whose
+            normals follow their neighbours every step, count as facing), so skipping its sums changes nothing."""
+            if ti.static(gated):
+                for p in x:
+                    g = 0
+                    if s_cache[p] != STANDARD or D[p] >= dthr:   # p may be near before the next refresh
+                        if s_cache[p] == STANDARD:
+                            g = 1                                # a band particle itself
+                        else:
+                            n = n_cache[p]
+                            c = cell_of(x[p])
+                            u = cell_units(x[p])
+                            for o in ti.grouped(ti.ndrange(*rows_wide)):
+                                j0, j1 = row_wide(c, u, o)
+                                for j in range(j0, j1):
+                                    if (x[p] - xs[j]).norm_sqr() < wide2:
+                                        q = ids[j]
+                                        if n.dot(n_cache[q]) < -contact_thr or (s_cache[q] == STANDARD
+                                                                                and D[q] >= dthr):
+                                            g = 1
+                    gate[p] = g
+
+        @ti.kernel
+        def particle_masks(epoch: ti.i32):
             for p in x:
-                if state[p] != STANDARD:
+                key = ti.cast(0, ti.i64)
+                still_empty = False
+                if ti.static(skip_empty):
+                    # within one period of kept normals a node's side depends only on the node and p's normal
+                    # (band particles excepted: theirs follow their neighbours each step)
+                    if state[p] != STANDARD and s_cache[p] != STANDARD:
+                        key = origin_key(p)
+                        still_empty = empty_epoch[p] == epoch and empty_at[p] == key
+                if still_empty:
+                    state[p] = STANDARD
+                    mask[p] = 0
+                elif state[p] != STANDARD:
                     n = normal[p]
                     sd = sten.at(p)
                     m = ti.cast(0, mask_t)
@@ -625,15 +712,22 @@ class CrackFinder:
                     if m != 0 and St >= S_FLOOR:
                         st = MODIFIED
                         if ti.static(contact):  # material across within reach, and trial normal traction < 0
-                            vc, touching = normal_closing_speed(p, n)
-                            if touching:   # nested: Taichi's `and` evaluates both sides, and the stress costs
-                                if n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
-                                    st = CONTACT
+                            facing = True   # no particle that could face p within reach: not touching
+                            if ti.static(gated):
+                                facing = gate[p] != 0
+                            if facing:
+                                vc, touching = normal_closing_speed(p, n)
+                                if touching:   # nested: Taichi's `and` evaluates both sides; the stress costs
+                                    if n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
+                                        st = CONTACT
                     Sn, Gn, cn = St, Gt, ct
                     if st == CONTACT:   # the normal family keeps the nodes across
                         Sn, Gn, cn = St + Sx, Gt + Gx, ct + cx
                     state[p] = st
                     mask[p] = m
+                    if ti.static(skip_empty):
+                        if m == 0 and key != 0:
+                            empty_at[p], empty_epoch[p] = key, epoch
                     sums[p] = ti.Vector([St, Sn])
                     for a in ti.static(range(dim)):
                         gsum[p][0, a] = Gt[a]
@@ -854,7 +948,8 @@ class CrackFinder:
         self._k = dict(prepare=prepare, particle_normals=particle_normals, band_normals=band_normals, node_normals=node_normals,
                        particle_masks=particle_masks, grid_update=grid_update, grid_remap=grid_remap,
                        partition_check=partition_check, node_cache_size=node_cache_size,
-                       node_cache_read=node_cache_read, node_cache_write=node_cache_write)
+                       node_cache_read=node_cache_read, node_cache_write=node_cache_write,
+                       contact_gate=contact_gate)
         return CrackHooks(modified=modified, degrade=degrade, degrade_energy=degrade_energy, p2g=p2g,
                           p2g_momentum=p2g_momentum, g2p=g2p, kernels={"grid_update": grid_update,
                                                                        "grid_remap": grid_remap})
