@@ -495,8 +495,12 @@ class CrackFinder:
                     ti.atomic_min(d_range[0], cell_lo[c])
                     ti.atomic_max(d_range[1], cell_hi[c])
             for c in cell_count:  # per occupied cell, not per particle: the cells' min / max D over its 5^d block
-                cell_varies[c] = 0
-                if cell_count[c] > 0 and d_range[1] > d_range[0]:   # nothing to scan where D is one value
+                scan = True   # only the gradient sums read it: not needed while the normals are kept
+                if ti.static(cached):
+                    scan = stale[None] != 0
+                if scan:
+                    cell_varies[c] = 0
+                if scan and cell_count[c] > 0 and d_range[1] > d_range[0]:   # nothing to scan where D is one value
                     lo, hi = 1.0, 0.0
                     cc = unflat(c)
                     for off in ti.grouped(ti.ndrange(*nbr)):
