@@ -246,6 +246,7 @@ class CrackFinder:
         sten = ctx.stencil
         span = sten.span
         kirchhoff, wall, gravity_kick = ctx.kirchhoff, ctx.wall, ctx.gravity_kick  # runtime gravity (solver)
+        add = ctx.add
         vgrad, basis, mat = ctx.vgrad, ctx.basis, ctx.mat
         grid = sim.grid
         gm, gv = grid.m, grid.vec["v"]
@@ -536,8 +537,9 @@ class CrackFinder:
         @ti.func
         def mark_stencil(p):
             sd = sten.at(p)
-            for off in ti.grouped(ti.ndrange(*span)):
-                I, w, gw, r = sten.node(sd, off)
+            for o in ti.grouped(ti.ndrange(*sten.outer)):
+              for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split)
+                I, w, gw, r = sten.node(sd, o + sten.inner[k])
                 node_mark[I] = 1.0
 
         @ti.kernel
@@ -701,7 +703,9 @@ class CrackFinder:
                     Gx = ti.Vector.zero(float, dim)
                     ct = ti.Vector.zero(float, dim)
                     cx = ti.Vector.zero(float, dim)
-                    for off in ti.grouped(ti.ndrange(*span)):
+                    for o in ti.grouped(ti.ndrange(*sten.outer)):
+                      for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split)
+                        off = o + sten.inner[k]
                         I, w, gw, r = sten.node(sd, off)
                         if node_mark[I] > 1.5 or n.dot(node_n[I]) < -thr:
                             m |= ti.cast(1, mask_t) << ti.cast(sten.index(off), mask_t)
@@ -824,29 +828,33 @@ class CrackFinder:
             ct, cn = centroids(p)
             fam = family(p)
             contact_state = fam[1]
-            for off in ti.grouped(ti.ndrange(*span)):
+            for o in ti.grouped(ti.ndrange(*sten.outer)):
+              for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split of the stencil loop)
+                off = o + sten.inner[k]
                 I, w, gw, r = sten.node(st, off)
                 wt, wn, gt, gn = weights(fam, off, w, gw)
                 mom_t, mom_n = split_momentum(vp, Ap, r, ct, cn)
-                gm[I] += wt * mp
+                add(gm, I, wt * mp)   # plain adds inside the solver's colour loop (no other thread at this node)
                 if contact_state:
                     for a in ti.static(range(dim)):
-                        Arows[a][I] += mp * (wn - wt) * n[a] * n
-                gv[I] += mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n)) + kick * (
-                    Pt @ (stress @ gt + wt * force_density) + Pn @ (stress @ gn + wn * force_density))
+                        add(Arows[a], I, mp * (wn - wt) * n[a] * n)
+                add(gv, I, mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n)) + kick * (
+                    Pt @ (stress @ gt + wt * force_density) + Pn @ (stress @ gn + wn * force_density)))
                 if ti.static(flip):
-                    gv_old[I] += mp * (wt * (Pt @ vp) + wn * (Pn @ vp))
+                    add(gv_old, I, mp * (wt * (Pt @ vp) + wn * (Pn @ vp)))
 
         @ti.func
         def p2g_momentum(p, st, mp, vp, Ap):
             Pt, Pn, n = frame(p)
             ct, cn = centroids(p)
             fam = family(p)
-            for off in ti.grouped(ti.ndrange(*span)):
+            for o in ti.grouped(ti.ndrange(*sten.outer)):
+              for k in ti.static(range(len(sten.inner))):  # noqa: E111
+                off = o + sten.inner[k]
                 I, w, gw, r = sten.node(st, off)
                 wt, wn, gt, gn = weights(fam, off, w, gw)
                 mom_t, mom_n = split_momentum(vp, Ap, r, ct, cn)
-                gv2[I] += mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n))
+                add(gv2, I, mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n)))
 
         @ti.func
         def g2p(p, st, deform: ti.template()):
@@ -858,7 +866,9 @@ class CrackFinder:
             v_pic = ti.Vector.zero(float, dim)
             dv = ti.Vector.zero(float, dim)
             G = ti.Matrix.zero(float, dim, dim)
-            for off in ti.grouped(ti.ndrange(*span)):
+            for o in ti.grouped(ti.ndrange(*sten.outer)):
+              for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split of the stencil loop)
+                off = o + sten.inner[k]
                 I, w, gw, r = sten.node(st, off)
                 wt, wn, gt, gn = weights(fam, off, w, gw)
                 vi = gv[I]

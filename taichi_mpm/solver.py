@@ -574,7 +574,21 @@ class Simulation:
                 L = affine(p, sten.at(p))
             return L
 
-        ctx.density, ctx.kirchhoff = density, kirchhoff
+        bins = self.bins
+        coloured = bins is not None
+        if coloured:
+            bins.build(sten.origin)
+
+        @ti.func
+        def add(g: ti.template(), I, value):
+            """g[I] += value: a plain add when P2G scatters by colours (no other thread touches the node, see
+            scatter.py), else an atomic one."""
+            if ti.static(coloured):
+                g[I] = g[I] + value
+            else:
+                g[I] += value
+
+        ctx.density, ctx.kirchhoff, ctx.add = density, kirchhoff, add
         if self.fbar is not None:
             self.fbar.build(ctx)
         crack = self.crack is not None  # crack finder (crack.py): modified shape functions near discontinuities
@@ -590,19 +604,6 @@ class Simulation:
                 force += load[p]
             return force
 
-        bins = self.bins
-        coloured = bins is not None
-        if coloured:
-            bins.build(sten.origin)
-
-        @ti.func
-        def add(g: ti.template(), I, value):
-            """g[I] += value: a plain add when P2G scatters by colours (no other thread touches the node, see
-            scatter.py), else an atomic one."""
-            if ti.static(coloured):
-                g[I] = g[I] + value
-            else:
-                g[I] += value
 
         @ti.func
         def p2g_particle(p, kick):

@@ -73,6 +73,7 @@ class KernelContext:
     kirchhoff: Optional[Callable] = None       # (p, F) -> Kirchhoff stress
     wall: Optional[Callable] = None            # (I, v) -> v with wall conditions
     gravity_kick: Any = None    # ti.func (kick_before, kick_after) -> the velocity gravity adds over a leapfrog kick
+    add: Optional[Callable] = None   # @ti.func (g, I, value): g[I] += value, plain where P2G scatters by colours
     extra: dict = field(default_factory=dict)
 
     @property
