@@ -65,6 +65,7 @@ def particle_bytes(d: int, precision: str, apic: bool, has_law: bool, stencil_no
     size = 8 if precision == "f64" else 4
     floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0)   # d, D, normal, sums, gsum, cent
     floats += d + 2                                # xs, vs: positions and SPH weights in cell order
+    floats += d if cc.contact_in_compression else 0   # ns: normals in cell order (contact test)
     ints = 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4   # iface, state, mask, pcell, ids
     if cc.normal_refresh > 0:                      # kept normals and their positions; their state, empty masks
         floats += 2 * d
@@ -121,6 +122,8 @@ class CrackFinder:
         self.ids = ti.field(ti.i32, n)
         self.xs = ti.Vector.field(d, float, n)          # x[ids[j]]: positions in cell order, so searches stream
         self.vs = ti.Vector.field(2, float, n)          # (V, V D) of particle ids[j]: the SPH sums' weights
+        # normals in cell order, so the contact test's facing check streams (only with contact in compression)
+        self.ns = ti.Vector.field(d, float, n) if cc.contact_in_compression else None
         # node normals on their own sparse grid (same node indexing as the solver's grid);
         # m marks the node: 1 in a near particle's stencil, 2 on the discontinuity
         self.nodes = Grid(d, sim.grid.shape, True, ["n"])
@@ -233,6 +236,8 @@ class CrackFinder:
                 self._k["contact_gate"]()
                 self._gate_due = False
         self._k["band_normals"]()
+        if self.ns is not None:
+            self._k["sort_normals"]()
         self._k["node_normals"]()
         self._k["particle_masks"](self.epoch)
 
@@ -260,6 +265,7 @@ class CrackFinder:
         cell_count, cell_fill, cell_start = self.cell_count, self.cell_fill, self.cell_start
         cell_lo, cell_hi, pcell, ids, xs = self.cell_lo, self.cell_hi, self.pcell, self.ids, self.xs
         cell_varies, vs, d_range = self.cell_varies, self.vs, self.d_range
+        ns = self.ns
         node_mark, node_n = self.nodes.m, self.nodes.vec["n"]
         cached = self.cached
         n_cache, s_cache, x_ref, stale = (self.n_cache, self.s_cache, self.x_ref, self.stale) if cached else (None,) * 4
@@ -430,8 +436,8 @@ class CrackFinder:
                 for j in range(j0, j1):
                     d2 = (x[p] - xs[j]).norm_sqr()
                     if d2 < radius2_cut:
-                        q = ids[j]
-                        if n.dot(normal[q]) < -contact_thr:   # few neighbours face p: test before the sqrt
+                        if n.dot(ns[j]) < -contact_thr:   # few neighbours face p: test before the sqrt
+                            q = ids[j]
                             dist = ti.sqrt(d2)
                             if dist < radius:
                                 s = dist * inv_r
@@ -654,6 +660,12 @@ class CrackFinder:
                     I = ti.Vector([idx[j, a] for a in ti.static(range(dim))])
                     cache_m[I] = flag[j]
                     cache_n[I] = ti.Vector([nrm[j, a] for a in ti.static(range(dim))])
+
+        @ti.kernel
+        def sort_normals():
+            if ti.static(contact):
+                for j in ids:
+                    ns[j] = normal[ids[j]]
 
         @ti.kernel
         def contact_gate():
@@ -963,7 +975,7 @@ class CrackFinder:
                        particle_masks=particle_masks, grid_update=grid_update, grid_remap=grid_remap,
                        partition_check=partition_check, node_cache_size=node_cache_size,
                        node_cache_read=node_cache_read, node_cache_write=node_cache_write,
-                       contact_gate=contact_gate)
+                       contact_gate=contact_gate, sort_normals=sort_normals)
         return CrackHooks(modified=modified, degrade=degrade, degrade_energy=degrade_energy, p2g=p2g,
                           p2g_momentum=p2g_momentum, g2p=g2p, kernels={"grid_update": grid_update,
                                                                        "grid_remap": grid_remap})
