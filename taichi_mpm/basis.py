@@ -191,7 +191,7 @@ def make_ddmp() -> Basis:
 
     @ti.func
     def cell(u, n):
-        c = ti.min(ti.max(int(ti.floor(u)), 0), n - 1)
+        c = _cell(u, n)
         return c, ti.cast(u, float) - ti.cast(c, float)
 
     @ti.func

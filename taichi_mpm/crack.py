@@ -283,6 +283,7 @@ class CrackFinder:
             for a in ti.static(range(dim)):
                 k = k * grid_shape[a] + ti.cast(b[a], ti.i64)
             return k + 1
+
         cache_m, cache_n, cache_fill = ((self.node_cache.m, self.node_cache.vec["n"], self.node_cache_fill)
                                         if cached else (None,) * 3)
         moved2 = (0.5 * self.skin) ** 2   # a particle this far (squared) from where its normal was computed: refresh

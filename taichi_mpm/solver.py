@@ -604,7 +604,6 @@ class Simulation:
                 force += load[p]
             return force
 
-
         @ti.func
         def p2g_particle(p, kick):
             st = sten.at(p)

@@ -259,17 +259,16 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     def inertia(st):
         """D_p: diagonal for tensor-product weights."""
         W, R = traced.local(st[1]), traced.local(st[3])
-        diagonal = [traced.total([traced.at(W, a, k) * traced.at(R, a, k) * traced.at(R, a, k) for k in range(S)])
-                    for a in range(dim)]
-        return make_matrix([[diagonal[a] if b == a else 0.0 for b in range(dim)] for a in range(dim)], float)
+        return traced.diagonal([traced.total([traced.at(W, a, k) * traced.at(R, a, k) * traced.at(R, a, k)
+                                              for k in range(S)]) for a in range(dim)])
 
     @traced.traced
     def inertia_inverse(st):
         """D_p^-1; zero along an axis where D_p vanishes (a B-spline particle exactly on a wall sits on
         the wall's control point: D_p = 0 there and B_p = 0 too, so the affine part is zero, not 0/0)."""
         D = traced.local(inertia(st))
-        inverse = [traced.select(traced.at(D, a, a) > d_min, 1.0 / traced.at(D, a, a), 0.0) for a in range(dim)]
-        return make_matrix([[inverse[a] if b == a else 0.0 for b in range(dim)] for a in range(dim)], float)
+        return traced.diagonal([traced.select(traced.at(D, a, a) > d_min, 1.0 / traced.at(D, a, a), 0.0)
+                                for a in range(dim)])
 
     @traced.traced
     def origin(p):

@@ -50,6 +50,12 @@ def total(terms):
     return s
 
 
+def diagonal(values):
+    """The diagonal matrix of `values` (float)."""
+    n = len(values)
+    return make_matrix([[values[a] if b == a else 0.0 for b in range(n)] for a in range(n)], float)
+
+
 def _shape(m):
     return m.get_shape()
 
@@ -64,7 +70,7 @@ def matmul(x, y):
     if len(sy) == 1:
         return make_matrix([total([at(x, i, k) * at(y, k) for k in range(sx[1])]) for i in range(sx[0])])
     return make_matrix([[total([at(x, i, k) * at(y, k, j) for k in range(sx[1])]) for j in range(sy[1])]
-                   for i in range(sx[0])])
+                        for i in range(sx[0])])
 
 
 def dot(x, y):
@@ -104,9 +110,13 @@ def trace(m):
     return total([at(m, i, i) for i in range(_shape(m)[0])])
 
 
+def _cyclic(m, n):
+    """E(i, j) = m[i mod n, j mod n]: the cofactor formulas of Taichi's determinant and inverse."""
+    return lambda i, j: at(m, i % n, j % n)
+
+
 def _det(m, n):
-    def E(i, j):
-        return at(m, i % n, j % n)
+    E = _cyclic(m, n)
     if n == 1:
         return E(0, 0)
     if n == 2:
@@ -129,11 +139,9 @@ def inverse(m):
     inv_det = 1.0 / _det(m, n)
     if n == 2:
         return inv_det * make_matrix([[at(m, 1, 1), -at(m, 0, 1)], [-at(m, 1, 0), at(m, 0, 0)]])
-
-    def E(i, j):
-        return at(m, i % 3, j % 3)
+    E = _cyclic(m, 3)
     return inv_det * make_matrix([[E(i + 1, j + 1) * E(i + 2, j + 2) - E(i + 2, j + 1) * E(i + 1, j + 2)
-                              for i in range(3)] for j in range(3)])
+                                   for i in range(3)] for j in range(3)])
 
 
 def _filled_vector(n, dtype, val):
