@@ -69,7 +69,7 @@ def particle_bytes(d: int, precision: str, apic: bool, has_law: bool, stencil_no
     ints = 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4   # iface, state, mask, pcell, ids
     if cc.normal_refresh > 0:                      # kept normals and their positions; their state, empty masks
         floats += 2 * d
-        ints += 4 + 8 + 4 + (4 if cc.contact_in_compression else 0)   # (+ the contact gate)
+        ints += 4 + 8 + 4 + (8 if cc.contact_in_compression else 0)   # (+ the contact list's count and start)
     return floats * size + ints
 
 
@@ -131,7 +131,7 @@ class CrackFinder:
         # the skin since they were computed, or any D changed; the cache is part of the state (checkpoints)
         self.skin = float(cc.normal_refresh) * self.radius
         self.cached = self.skin > 0
-        self.gate, self.epoch = None, 0
+        self.listed, self.epoch = False, 0
         if self.cached:
             self.n_cache = ti.Vector.field(d, float, n)    # n_p as the gradient sums gave it (before band normals)
             self.s_cache = ti.field(ti.i32, n)             # and the state they gave
@@ -139,9 +139,16 @@ class CrackFinder:
             self.stale = ti.field(ti.i32, ())              # 1: recompute this step
             self.stale[None] = 1
             self.refreshes = 0                             # steps that recomputed them (diagnostics, tests)
-            # contact test gate: 0 where no particle that could face p is within reach until the next refresh
-            self.gate = ti.field(ti.i32, n) if cc.contact_in_compression else None
-            self._gate_due = True
+            # contact list: per particle, the particles that could face it within reach until the next refresh,
+            # found when the normals are computed; the contact test sums over them instead of searching each step.
+            # count -1: search each step (a band particle: its normal follows its neighbours); ids: a growing pool
+            self.listed = bool(cc.contact_in_compression)
+            if self.listed:
+                self.contact_count = ti.field(ti.i32, n)
+                self.contact_start = ti.field(ti.i32, n)
+                self.contact_fill = ti.field(ti.i32, ())
+                self.contact_ids = ti.ndarray(ti.i32, 1)
+                self._list_due = True
             # masks found empty since the normals were computed: the stencil origin they were found at (+1, flat),
             # and in which period of kept normals (`epoch`); same origin and period: still empty, nothing to do
             self.empty_at = ti.field(ti.i64, n)
@@ -190,7 +197,7 @@ class CrackFinder:
         """Recompute the normals at the next step (particles were set from outside)."""
         if self.cached:
             self.stale[None] = 1
-            self._gate_due = True
+            self._list_due = True
             self.epoch += 1   # masks found empty before belong to other normals
 
     def set_state(self, state: dict):
@@ -199,7 +206,7 @@ class CrackFinder:
         if self.kappa is not None and "damage_kappa" in state:
             self.kappa.from_numpy(self.sim._to_solver(np.asarray(state["damage_kappa"], np.float64)))
         self.invalidate()
-        if self.cached and all(k in state for k in CACHE_KEYS):   # the gate is derived: recomputed next step
+        if self.cached and all(k in state for k in CACHE_KEYS):   # the contact list is derived: rebuilt next step
             n, d = self.sim.n, self.dim
             arrays = [np.asarray(state[k]) for k in CACHE_KEYS[:3]]
             if [a.shape for a in arrays] == [(n, d), (n,), (n, d)] and all(np.isfinite(a).all() for a in arrays):
@@ -232,14 +239,29 @@ class CrackFinder:
         if self.cached:
             if fresh:
                 self.stale[None] = 0
-            if self.gate is not None and (fresh or self._gate_due):
-                self._k["contact_gate"]()
-                self._gate_due = False
+            if self.listed and (fresh or self._list_due):
+                self._build_contact_list()
         self._k["band_normals"]()
         if self.ns is not None:
             self._k["sort_normals"]()
         self._k["node_normals"]()
-        self._k["particle_masks"](self.epoch)
+        self._k["particle_masks"](self.epoch, self.contact_ids if self.listed else self._no_list)
+
+    def _build_contact_list(self):
+        """Count each particle's facing candidates, take their slots in the pool (grown when short), write them."""
+        need = self._k["contact_list"](self.contact_ids, False)
+        if need > self.contact_ids.shape[0]:
+            self.contact_ids = ti.ndarray(ti.i32, need + need // 4)
+        self._k["contact_list"](self.contact_ids, True)
+        self._list_due = False
+
+    def contact_lists(self) -> list:
+        """Per particle in creation order: the creation indices its contact test sums over until the next refresh,
+        or None where it searches each step (inspection, tests)."""
+        count, start = self.contact_count.to_numpy(), self.contact_start.to_numpy()
+        ids, perm = self.contact_ids.to_numpy(), self.sim._perm
+        lists = [None if k < 0 else perm[ids[s:s + k]] for k, s in zip(count, start)]
+        return [lists[slot] for slot in np.argsort(perm)]
 
     # ------------------------------------------------------------------ kernels
     def build(self, ctx) -> CrackHooks:
@@ -269,8 +291,10 @@ class CrackFinder:
         node_mark, node_n = self.nodes.m, self.nodes.vec["n"]
         cached = self.cached
         n_cache, s_cache, x_ref, stale = (self.n_cache, self.s_cache, self.x_ref, self.stale) if cached else (None,) * 4
-        gate = self.gate if cached else None
-        gated = gate is not None
+        listed = self.listed
+        contact_count, contact_start, contact_fill = ((self.contact_count, self.contact_start, self.contact_fill)
+                                                      if listed else (None,) * 3)
+        self._no_list = ti.ndarray(ti.i32, 1)   # particle_masks' argument without a contact list
         empty_at, empty_epoch = (self.empty_at, self.empty_epoch) if cached else (None, None)
         skip_empty = cached and sten.origin is not None   # tensor stencils: the origin fixes the stencil's nodes
         grid_shape = list(sim.grid.shape)
@@ -373,8 +397,8 @@ class CrackFinder:
             return j0, j1
 
         row = make_row(CELL_SPLIT, float(CELL_SPLIT))
-        # the contact gate's search: as far as two particles can come closer until the next refresh (each moves at
-        # most skin / 2 from where the normals were computed, so 2 skin from where the gate is computed)
+        # the contact list's search: as far as two particles can come closer until the next refresh (each moves at
+        # most skin / 2 from where the normals were computed, so 2 skin from where the list is built)
         wide_cells = CELL_SPLIT * (1.0 + 2.0 * float(cc.normal_refresh))
         wide_span = int(math.ceil(wide_cells))
         row_wide = make_row(wide_span, wide_cells)
@@ -426,25 +450,50 @@ class CrackFinder:
             return wk, dk
 
         @ti.func
-        def normal_closing_speed(p, n):
-            """Kernel-weighted mean of (v_q - v_p) . n_p over neighbours q across the discontinuity
-            (n_p . n_q < -threshold): negative when the other side approaches p; and whether any q is in reach."""
-            c = cell_of(x[p])
-            u = cell_units(x[p])
+        def contact_term(n, vp, q, d2):
+            """A facing neighbour q at squared distance d2 (< r^2, up to rounding): its kernel weight, and that times
+            its closing speed (v_q - v_p) . n."""
+            wk = 0.0
+            dist = ti.sqrt(d2)
+            if dist < radius:
+                wk, _ = sph_kernel(dist * inv_r)
+            return wk, wk * (v[q] - vp).dot(n)
+
+        @ti.func
+        def closing_speed(p, n, pool: ti.template()):
+            """Kernel-weighted mean of (v_q - v_p) . n_p over neighbours q within r across the discontinuity
+            (n_p . n_q < -threshold): negative when the other side approaches p; and whether any q is in reach.
+            Sums over p's contact list where it has one (the candidates in the order the search met them when it
+            was built), else searches the cell list."""
+            xp, vp = x[p], v[p]   # read once: the loops below are the contact test's cost
             sw, sv = 0.0, 0.0
-            for o in ti.grouped(ti.ndrange(*rows)):
-                j0, j1 = row(c, u, o)
-                for j in range(j0, j1):
-                    d2 = (x[p] - xs[j]).norm_sqr()
+            k = -1
+            if ti.static(listed):
+                k = contact_count[p]
+            if k >= 0:
+                s0 = 0
+                if ti.static(listed):
+                    s0 = contact_start[p]
+                for i in range(s0, s0 + k):
+                    q = pool[i]
+                    d2 = (xp - x[q]).norm_sqr()
                     if d2 < radius2_cut:
-                        if n.dot(ns[j]) < -contact_thr:   # few neighbours face p: test before the sqrt
-                            q = ids[j]
-                            dist = ti.sqrt(d2)
-                            if dist < radius:
-                                s = dist * inv_r
-                                wk, _ = sph_kernel(s)
+                        if n.dot(normal[q]) < -contact_thr:
+                            wk, wv = contact_term(n, vp, q, d2)
+                            sw += wk
+                            sv += wv
+            else:
+                c = cell_of(xp)
+                u = cell_units(xp)
+                for o in ti.grouped(ti.ndrange(*rows)):
+                    j0, j1 = row(c, u, o)
+                    for j in range(j0, j1):
+                        d2 = (xp - xs[j]).norm_sqr()
+                        if d2 < radius2_cut:
+                            if n.dot(ns[j]) < -contact_thr:   # few neighbours face p: test before the sqrt
+                                wk, wv = contact_term(n, vp, ids[j], d2)
                                 sw += wk
-                                sv += wk * (v[q] - v[p]).dot(n)
+                                sv += wv
             res = 0.0
             if sw > 0:
                 res = sv / sw
@@ -668,33 +717,60 @@ class CrackFinder:
                 for j in ids:
                     ns[j] = normal[ids[j]]
 
+        @ti.func
+        def kept_facing(q):
+            """q's kept normal for the contact list's search; a band particle, which counts as facing any p, as a
+            vector of length 2 (no normal has it)."""
+            nq = n_cache[q]
+            if s_cache[q] == STANDARD and D[q] >= dthr:
+                nq = ti.Vector.zero(float, dim)
+                nq[0] = 2.0
+            return nq
+
         @ti.kernel
-        def contact_gate():
-            """gate[p] = 0 where the contact test cannot find a particle facing p until the normals are recomputed:
-            none within the reach two particles can close to by then has a normal against p's (band particles, whose
-            normals follow their neighbours every step, count as facing), so skipping its sums changes nothing."""
-            if ti.static(gated):
+        def contact_list(pool: ti.types.ndarray(dtype=ti.i32, ndim=1), write: ti.template()) -> ti.i32:
+            """Each particle's contact list: the particles within the reach two particles can close to before the
+            normals are recomputed whose kept normal faces p's (band particles, whose normals follow their
+            neighbours every step, count as facing). write False: count them and take slots in the pool (returns
+            the slots needed); write True: fill the slots. A band particle itself searches each step (count -1)."""
+            if ti.static(listed):
+                if ti.static(not write):
+                    contact_fill[None] = 0
+                    for j in ids:   # the kept normals in cell order, so the searches below stream
+                        ns[j] = kept_facing(ids[j])
                 for p in x:
-                    g = 0
+                    k = 0
                     if s_cache[p] != STANDARD or D[p] >= dthr:   # p may be near before the next refresh
                         if s_cache[p] == STANDARD:
-                            g = 1                                # a band particle itself
+                            k = -1
                         else:
-                            n = n_cache[p]
-                            c = cell_of(x[p])
-                            u = cell_units(x[p])
+                            n, xp = n_cache[p], x[p]
+                            s0 = 0
+                            if ti.static(write):
+                                s0 = contact_start[p]
+                            c = cell_of(xp)
+                            u = cell_units(xp)
                             for o in ti.grouped(ti.ndrange(*rows_wide)):
                                 j0, j1 = row_wide(c, u, o)
                                 for j in range(j0, j1):
-                                    if (x[p] - xs[j]).norm_sqr() < wide2:
-                                        q = ids[j]
-                                        if n.dot(n_cache[q]) < -contact_thr or (s_cache[q] == STANDARD
-                                                                                and D[q] >= dthr):
-                                            g = 1
-                    gate[p] = g
+                                    if (xp - xs[j]).norm_sqr() < wide2:
+                                        nq = ns[j]
+                                        if n.dot(nq) < -contact_thr or nq.norm_sqr() > 2.0:
+                                            if ti.static(write):
+                                                pool[s0 + k] = ids[j]
+                                            k += 1
+                    if ti.static(not write):
+                        contact_count[p] = k
+                        contact_start[p] = 0
+                        if k > 0:
+                            contact_start[p] = ti.atomic_add(contact_fill[None], k)
+            fill = 0
+            if ti.static(listed):
+                fill = contact_fill[None]
+            return fill
 
         @ti.kernel
-        def particle_masks(epoch: ti.i32):
+        def particle_masks(epoch: ti.i32, pool: ti.types.ndarray(dtype=ti.i32, ndim=1)):
             for p in x:
                 key = ti.cast(0, ti.i64)
                 still_empty = False
@@ -733,14 +809,10 @@ class CrackFinder:
                     if m != 0 and St >= S_FLOOR:
                         st = MODIFIED
                         if ti.static(contact):  # material across within reach, and trial normal traction < 0
-                            facing = True   # no particle that could face p within reach: not touching
-                            if ti.static(gated):
-                                facing = gate[p] != 0
-                            if facing:
-                                vc, touching = normal_closing_speed(p, n)
-                                if touching:   # nested: Taichi's `and` evaluates both sides; the stress costs
-                                    if n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
-                                        st = CONTACT
+                            vc, touching = closing_speed(p, n, pool)
+                            if touching:   # nested: Taichi's `and` evaluates both sides; the stress costs
+                                if n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
+                                    st = CONTACT
                     Sn, Gn, cn = St, Gt, ct
                     if st == CONTACT:   # the normal family keeps the nodes across
                         Sn, Gn, cn = St + Sx, Gt + Gx, ct + cx
@@ -791,90 +863,102 @@ class CrackFinder:
 
         @ti.func
         def family(p):
-            """A modified particle's mask, contact flag and sums, read once per particle."""
+            """A modified particle's mask, contact flag, the reciprocals of its sums and its gradient sums, read once
+            per particle (a multiply per node instead of a divide)."""
             Gt = ti.Vector([gsum[p][0, a] for a in ti.static(range(dim))])
             Gn = ti.Vector([gsum[p][1, a] for a in ti.static(range(dim))])
-            return mask[p], state[p] == CONTACT, sums[p][0], sums[p][1], Gt, Gn
+            return mask[p], state[p] == CONTACT, 1.0 / sums[p][0], 1.0 / sums[p][1], Gt, Gn
 
         @ti.func
-        def weights(fam, off, w, gw):
-            """Rescaled tangential and normal functions of one node: (Nt, Nn, grad Nt, grad Nn)."""
-            m, contact_state, St, Sn, Gt, Gn = fam
+        def tangential(fam, off, w, gw):
+            """The rescaled tangential function of one node and its gradient: Nt = N*_t / S_t and
+            grad Nt = (grad N*_t - Nt grad S_t) / S_t, N*_t = 0 for a node across. W_ip = Nt I + (Nn - Nt) n n^T;
+            a particle not in contact has Nn = Nt (same nodes, sums and centroids): a scalar weight."""
+            m, _, iSt, _, Gt, _ = fam
             across = (m >> ti.cast(sten.index(off), mask_t)) & ti.cast(1, mask_t)
-            wt, wn = w, w
-            gt, gn = gw, gw
+            wt, gt = w, gw
             if across != 0:
                 wt, gt = 0.0, ti.Vector.zero(float, dim)
-                if not contact_state:
-                    wn, gn = 0.0, ti.Vector.zero(float, dim)
-            return wt / St, wn / Sn, (St * gt - wt * Gt) / (St * St), (Sn * gn - wn * Gn) / (Sn * Sn)
+            wt *= iSt
+            return wt, (gt - wt * Gt) * iSt
 
         @ti.func
-        def frame(p):
-            n = normal[p]
-            Pn = n.outer_product(n)
-            return ti.Matrix.identity(float, dim) - Pn, Pn, n
+        def normal_family(fam, w, gw):
+            """The rescaled normal function of a particle in contact (it keeps the nodes across) and its gradient."""
+            _, _, _, iSn, _, Gn = fam
+            wn = w * iSn
+            return wn, (gw - wn * Gn) * iSn
 
         @ti.func
-        def centroids(p):
-            ct = ti.Vector.zero(float, dim)
-            cn = ti.Vector.zero(float, dim)
+        def momentum_origins(p, vp, Ap):
+            """APIC about each family's centroid c: a node sees vp + Ap (r - c) = (vp - Ap c) + Ap r, so
+            sum_i W_ip mom_i = v_p exactly; returns vp - Ap c of the tangential and the normal family."""
+            vt, vn = vp, vp
             if ti.static(apic):
                 ct = ti.Vector([cent[p][0, a] for a in ti.static(range(dim))])
                 cn = ti.Vector([cent[p][1, a] for a in ti.static(range(dim))])
-            return ct, cn
+                vt, vn = vp - Ap @ ct, vp - Ap @ cn
+            return vt, vn
 
         @ti.func
-        def split_momentum(vp, Ap, r, ct, cn):
-            """Velocity a node sees through the tangential and normal parts (APIC about each part's centroid)."""
-            mom_t, mom_n = vp, vp
+        def node_momentum(v0, Ap, r):
+            mom = v0
             if ti.static(apic):
-                mom_t = vp + Ap @ (r - ct)
-                mom_n = vp + Ap @ (r - cn)
-            return mom_t, mom_n
+                mom = v0 + Ap @ r
+            return mom
 
         @ti.func
         def p2g(p, st, mp, stress, vp, Ap, force_density, kick):
-            """P2G of a particle near a discontinuity: mass, momentum (APIC about the kept nodes'
-            centroid, so sum_i W_ip mom_i = v_p exactly), stress force and body force."""
-            Pt, Pn, n = frame(p)
-            ct, cn = centroids(p)
+            """P2G of a particle near a discontinuity: mass, momentum (APIC about each family's centroid), stress
+            force and body force through W_ip; the normal family's terms only for a particle in contact."""
+            n = normal[p]
             fam = family(p)
-            contact_state = fam[1]
+            vt, vn = momentum_origins(p, vp, Ap)
             for o in ti.grouped(ti.ndrange(*sten.outer)):
               for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split of the stencil loop)
                 off = o + sten.inner[k]
                 I, w, gw, r = sten.node(st, off)
-                wt, wn, gt, gn = weights(fam, off, w, gw)
-                mom_t, mom_n = split_momentum(vp, Ap, r, ct, cn)
-                add(gm, I, wt * mp)   # plain adds inside the solver's colour loop (no other thread at this node)
-                if contact_state:
+                wt, gt = tangential(fam, off, w, gw)
+                mom_t = node_momentum(vt, Ap, r)
+                f_t = stress @ gt + wt * force_density
+                mv = mp * wt * mom_t + kick * f_t
+                dw = 0.0   # Nn - Nt
+                if fam[1]:
+                    wn, gn = normal_family(fam, w, gw)
+                    dw = wn - wt
+                    f_n = stress @ gn + wn * force_density
+                    mom_n = node_momentum(vn, Ap, r)
+                    mv += (mp * (wn * n.dot(mom_n) - wt * n.dot(mom_t)) + kick * n.dot(f_n - f_t)) * n
                     for a in ti.static(range(dim)):
-                        add(Arows[a], I, mp * (wn - wt) * n[a] * n)
-                add(gv, I, mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n)) + kick * (
-                    Pt @ (stress @ gt + wt * force_density) + Pn @ (stress @ gn + wn * force_density)))
+                        add(Arows[a], I, mp * dw * n[a] * n)
+                add(gm, I, wt * mp)   # plain adds inside the solver's colour loop (no other thread at this node)
+                add(gv, I, mv)
                 if ti.static(flip):
-                    add(gv_old, I, mp * (wt * (Pt @ vp) + wn * (Pn @ vp)))
+                    add(gv_old, I, mp * (wt * vp + dw * n.dot(vp) * n))
 
         @ti.func
         def p2g_momentum(p, st, mp, vp, Ap):
-            Pt, Pn, n = frame(p)
-            ct, cn = centroids(p)
+            n = normal[p]
             fam = family(p)
+            vt, vn = momentum_origins(p, vp, Ap)
             for o in ti.grouped(ti.ndrange(*sten.outer)):
               for k in ti.static(range(len(sten.inner))):  # noqa: E111
                 off = o + sten.inner[k]
                 I, w, gw, r = sten.node(st, off)
-                wt, wn, gt, gn = weights(fam, off, w, gw)
-                mom_t, mom_n = split_momentum(vp, Ap, r, ct, cn)
-                add(gv2, I, mp * (wt * (Pt @ mom_t) + wn * (Pn @ mom_n)))
+                wt, _ = tangential(fam, off, w, gw)
+                mom_t = node_momentum(vt, Ap, r)
+                mv = mp * wt * mom_t
+                if fam[1]:
+                    wn, _ = normal_family(fam, w, gw)
+                    mv += mp * (wn * n.dot(node_momentum(vn, Ap, r)) - wt * n.dot(mom_t)) * n
+                add(gv2, I, mv)
 
         @ti.func
         def g2p(p, st, deform: ti.template()):
             """(v_pic, FLIP increment, APIC B, velocity gradient G) with the modified functions.
             APIC's affine C of such a particle is its velocity gradient: B = G D_p makes the solver's
             C = B D_p^-1 equal G."""
-            Pt, Pn, n = frame(p)
+            n = normal[p]
             fam = family(p)
             v_pic = ti.Vector.zero(float, dim)
             dv = ti.Vector.zero(float, dim)
@@ -883,16 +967,22 @@ class CrackFinder:
               for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split of the stencil loop)
                 off = o + sten.inner[k]
                 I, w, gw, r = sten.node(st, off)
-                wt, wn, gt, gn = weights(fam, off, w, gw)
+                wt, gt = tangential(fam, off, w, gw)
                 vi = gv[I]
-                v_pic += wt * (Pt @ vi) + wn * (Pn @ vi)
-                if ti.static(flip):
-                    dvi = vi - gv_old[I]
-                    dv += wt * (Pt @ dvi) + wn * (Pn @ dvi)
                 vg = vi
                 if ti.static(deform):  # MUSL's deform pass reads the remapped velocities
                     vg = vgrad[I]
-                G += (Pt @ vg).outer_product(gt) + (Pn @ vg).outer_product(gn)
+                dvi = ti.Vector.zero(float, dim)
+                if ti.static(flip):
+                    dvi = vi - gv_old[I]
+                v_pic += wt * vi
+                dv += wt * dvi
+                G += vg.outer_product(gt)
+                if fam[1]:   # (Pt vg) gt^T + (Pn vg) gn^T
+                    wn, gn = normal_family(fam, w, gw)
+                    v_pic += (wn - wt) * n.dot(vi) * n
+                    dv += (wn - wt) * n.dot(dvi) * n
+                    G += (n.dot(vg) * n).outer_product(gn - gt)
             return v_pic, dv, G @ sten.inertia(st), G
 
         # ---- grid update with tensor node mass ----------------------------------
@@ -954,14 +1044,18 @@ class CrackFinder:
                     I, w, gw, r = sten.node(st, off)
                     wt, wn, gt, gn = w, w, gw, gw
                     if st_ != STANDARD:
-                        wt, wn, gt, gn = weights(family(p), off, w, gw)
+                        fam = family(p)
+                        wt, gt = tangential(fam, off, w, gw)
+                        wn, gn = wt, gt
+                        if fam[1]:
+                            wn, gn = normal_family(fam, w, gw)
                     swt += wt
                     swn += wn
                     sgt += gt
                     sgn += gn
                     if st_ != STANDARD:
-                        Pt, Pn, n = frame(p)
-                        Wsum += wt * Pt + wn * Pn
+                        Pn = normal[p].outer_product(normal[p])   # W_ip = Nt (I - n n^T) + Nn n n^T
+                        Wsum += wt * (ti.Matrix.identity(float, dim) - Pn) + wn * Pn
                     else:
                         Wsum += w * ti.Matrix.identity(float, dim)
                 out[p, 0] = st_
@@ -972,11 +1066,12 @@ class CrackFinder:
                 out[p, 5] = ti.abs(Wsum - ti.Matrix.identity(float, dim)).max()
                 out[p, 6] = ti.cast(mask[p] != 0, float)
 
-        self._k = dict(prepare=prepare, particle_normals=particle_normals, band_normals=band_normals, node_normals=node_normals,
+        self._k = dict(prepare=prepare, particle_normals=particle_normals, band_normals=band_normals,
+                       node_normals=node_normals,
                        particle_masks=particle_masks, grid_update=grid_update, grid_remap=grid_remap,
                        partition_check=partition_check, node_cache_size=node_cache_size,
                        node_cache_read=node_cache_read, node_cache_write=node_cache_write,
-                       contact_gate=contact_gate, sort_normals=sort_normals)
+                       contact_list=contact_list, sort_normals=sort_normals)
         return CrackHooks(modified=modified, degrade=degrade, degrade_energy=degrade_energy, p2g=p2g,
                           p2g_momentum=p2g_momentum, g2p=g2p, kernels={"grid_update": grid_update,
                                                                        "grid_remap": grid_remap})

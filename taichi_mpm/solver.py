@@ -750,6 +750,28 @@ class Simulation:
 
         vgrad = gv2 if f["musl"] else gv  # MUSL takes grad v from the remapped velocities
 
+        @ti.func
+        def g2p_sums(p, st, velocity: ti.template(), deform: ti.template()):
+            """A particle's G2P sums over its stencil: (v_pic, FLIP increment, APIC B, velocity gradient G)."""
+            v_pic = ti.Vector.zero(float, dim)
+            dv = ti.Vector.zero(float, dim)
+            B = ti.Matrix.zero(float, dim, dim)
+            G = ti.Matrix.zero(float, dim, dim)
+            for o in ti.grouped(ti.ndrange(*outer)):
+              for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
+                I, w, gw, r = sten.node(st, o + inner[k])
+                vi = gv[I]
+                v_pic += w * vi
+                if ti.static(velocity and f["flip"]):
+                    dv += w * (vi - gv_old[I])
+                if ti.static(velocity and f["apic"] and not basis.apic_gradient):
+                    B += w * vi.outer_product(r)
+                if ti.static(deform):
+                    G += vgrad[I].outer_product(gw)
+                elif ti.static(f["apic"] and basis.apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
+                    G += vi.outer_product(gw)
+            return v_pic, dv, B, G
+
         @ti.kernel
         def g2p(dt: float, kick: float, velocity: ti.template(), deform: ti.template()):
             """Grid to particles. velocity: new v (PIC, FLIP or APIC) and APIC's C, and the work of body forces
@@ -762,22 +784,13 @@ class Simulation:
                 dv = ti.Vector.zero(float, dim)
                 B = ti.Matrix.zero(float, dim, dim)
                 G = ti.Matrix.zero(float, dim, dim)
-                for o in ti.grouped(ti.ndrange(*outer)):
-                  for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
-                    I, w, gw, r = sten.node(st, o + inner[k])
-                    vi = gv[I]
-                    v_pic += w * vi
-                    if ti.static(velocity and f["flip"]):
-                        dv += w * (vi - gv_old[I])
-                    if ti.static(velocity and f["apic"] and not basis.apic_gradient):
-                        B += w * vi.outer_product(r)
-                    if ti.static(deform):
-                        G += vgrad[I].outer_product(gw)
-                    elif ti.static(f["apic"] and basis.apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
-                        G += vi.outer_product(gw)
-                if ti.static(crack):
-                    if crk.modified(p):
+                modified = False
+                if ti.static(crack):   # near a discontinuity: the modified functions instead
+                    modified = crk.modified(p)
+                    if modified:
                         v_pic, dv, B, G = crk.g2p(p, st, deform)
+                if not modified:
+                    v_pic, dv, B, G = g2p_sums(p, st, velocity, deform)
                 if ti.static(velocity):
                     v_old = v[p]
                     if ti.static(f["flip"]):
