@@ -40,6 +40,7 @@ CACHE_KEYS = ("crack_normals", "crack_normal_states", "crack_normal_positions", 
 NODE_CACHE_KEYS = ("crack_node_cache_index", "crack_node_cache_normal", "crack_node_cache_flag")
 CELL_SPLIT = 2                          # cell list cells of r/2: a query scans 5^d cells, (2.5 r)^d, not (3 r)^d
 ROW_MARGIN = 1e-2                       # cell units: a cell is cut from a search only beyond r + this (rounding)
+CONE_MARGIN = 1e-4                      # a cell's normals are ruled out as facing only beyond this (rounding)
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,7 @@ class CrackHooks:
     p2g: Callable               # (p, st, mp, stress, vp, Ap, force_density, kick)
     p2g_momentum: Callable      # (p, st, mp, vp, Ap): MUSL's remap
     g2p: Callable               # (p, st, deform) -> (v_pic, FLIP increment, APIC B, velocity gradient)
-    kernels: dict               # grid_update, grid_remap
+    kernels: dict               # grid_update_tensor, grid_remap_tensor (the solver's own where no particle touches)
 
 
 def grid_fields(dim: int) -> list[str]:
@@ -104,6 +105,7 @@ class CrackFinder:
         self.kappa = ti.field(float, n) if self.has_law else None
         self.normal = ti.Vector.field(d, float, n)      # n_p (zero when not near a discontinuity)
         self.state = ti.field(ti.i32, n)
+        self.contacts = ti.field(ti.i32, ())            # particles in contact this step (CONTACT)
         self.mask_t = ti.u64 if self.n_nodes > 32 else ti.u32
         self.mask = ti.field(self.mask_t, n)            # bit k: stencil node k lies across the discontinuity
         self.sums = ti.Vector.field(2, float, n)        # S_t = sum_j Nt*_j, S_n = sum_j Nn*_j
@@ -148,6 +150,8 @@ class CrackFinder:
                 self.contact_start = ti.field(ti.i32, n)
                 self.contact_fill = ti.field(ti.i32, ())
                 self.contact_ids = ti.ndarray(ti.i32, 1)
+                self.cell_dir = ti.Vector.field(d, float, self.n_cell_total)   # the cells' normal cones (build)
+                self.cell_spread = ti.field(float, self.n_cell_total)
                 self._list_due = True
             # masks found empty since the normals were computed: the stencil origin they were found at (+1, flat),
             # and in which period of kept normals (`epoch`); same origin and period: still empty, nothing to do
@@ -247,6 +251,10 @@ class CrackFinder:
         self._k["node_normals"]()
         self._k["particle_masks"](self.epoch, self.contact_ids if self.listed else self._no_list)
 
+    def in_contact(self) -> bool:
+        """Whether a particle is in contact this step (after `update`): only then is a node mass a tensor."""
+        return self.cc.contact_in_compression and self.contacts[None] > 0
+
     def _build_contact_list(self):
         """Count each particle's facing candidates, take their slots in the pool (grown when short), write them."""
         need = self._k["contact_list"](self.contact_ids, False)
@@ -281,7 +289,7 @@ class CrackFinder:
         Arows = [grid.vec[name] for name in grid_fields(dim)]
         flip, apic, musl = sim.feat["flip"], sim.feat["apic"], sim.feat["musl"]
         x, v, F, vol0 = sim.x, sim.v, sim.F, sim.vol0
-        d_f, D, iface, kappa = self.d, self.D, self.iface, self.kappa
+        d_f, D, iface, kappa, contacts = self.d, self.D, self.iface, self.kappa, self.contacts
         normal, state, mask, sums, gsum, cent = self.normal, self.state, self.mask, self.sums, self.gsum, self.cent
         mask_t = self.mask_t
         cell_count, cell_fill, cell_start = self.cell_count, self.cell_fill, self.cell_start
@@ -294,6 +302,7 @@ class CrackFinder:
         listed = self.listed
         contact_count, contact_start, contact_fill = ((self.contact_count, self.contact_start, self.contact_fill)
                                                       if listed else (None,) * 3)
+        cell_dir, cell_spread = (self.cell_dir, self.cell_spread) if listed else (None, None)
         self._no_list = ti.ndarray(ti.i32, 1)   # particle_masks' argument without a contact list
         empty_at, empty_epoch = (self.empty_at, self.empty_epoch) if cached else (None, None)
         skip_empty = cached and sten.origin is not None   # tensor stencils: the origin fixes the stencil's nodes
@@ -358,20 +367,12 @@ class CrackFinder:
                 k //= cells[dim - 1 - a]
             return c
 
-        def make_row(span: int, reach_cells: float):
-            """row(c, u, o) for searches within reach_cells (cell units) of the query, over cells c +- span."""
-
-            @ti.func
-            def row(c, u, o):
-                return row_within(c, u, o, span, reach_cells * reach_cells)
-            return row
-
         @ti.func
-        def row_within(c, u, o, span: ti.template(), reach2: ti.template()):
-            """The candidates of one row (along the last axis) of the (2 span + 1)^d cells around cell c: a slice
-            [j0, j1) of `ids`, since the row's cells are consecutive in the sorted order. o: the row's offsets on the
-            other axes; u: the query point in cell units. Cells that cannot hold a particle within the reach of u are
-            cut (their particles would fail the d2 < r^2 test anyway), so sums keep their terms and their order."""
+        def row_cells(c, u, o, span: ti.template(), reach2: ti.template()):
+            """One row (along the last axis) of the (2 span + 1)^d cells around cell c, as the flat indices of its first
+            and last cell (first > last: none). o: the row's offsets on the other axes; u: the query point in cell
+            units. Cells that cannot hold a particle within sqrt(reach2) cells of u are cut (their particles would
+            fail the distance test anyway), so sums keep their terms and their order."""
             rem = float(reach2)   # the reach squared in cell units, less the row's squared gap
             base, inside = 0, True
             for a in ti.static(range(dim - 1)):
@@ -385,7 +386,7 @@ class CrackFinder:
                     gap = u[a] - (k + 1)
                 rem -= ti.max(gap - ROW_MARGIN, 0.0) ** 2
                 base = base * cells[a] + k
-            j0, j1 = 0, 0
+            first, last = 0, -1
             if inside and rem > 0:
                 z = ti.static(dim - 1)
                 reach = ti.sqrt(rem) + ROW_MARGIN
@@ -393,15 +394,23 @@ class CrackFinder:
                 hi = ti.min(ti.max(int(ti.floor(u[z] + reach)), 0), cells[z] - 1, c[z] + span)
                 if lo <= hi:
                     first, last = base * cells[z] + lo, base * cells[z] + hi
-                    j0, j1 = cell_start[first], cell_start[last] + cell_count[last]
+            return first, last
+
+        @ti.func
+        def row(c, u, o):
+            """The SPH searches' candidates in one row of cells: a slice [j0, j1) of `ids` (the row's cells are
+            consecutive in the sorted order)."""
+            first, last = row_cells(c, u, o, CELL_SPLIT, float(CELL_SPLIT * CELL_SPLIT))
+            j0, j1 = 0, 0
+            if first <= last:
+                j0, j1 = cell_start[first], cell_start[last] + cell_count[last]
             return j0, j1
 
-        row = make_row(CELL_SPLIT, float(CELL_SPLIT))
         # the contact list's search: as far as two particles can come closer until the next refresh (each moves at
         # most skin / 2 from where the normals were computed, so 2 skin from where the list is built)
         wide_cells = CELL_SPLIT * (1.0 + 2.0 * float(cc.normal_refresh))
         wide_span = int(math.ceil(wide_cells))
-        row_wide = make_row(wide_span, wide_cells)
+        wide_reach2 = wide_cells * wide_cells
         rows_wide = [(-wide_span, wide_span + 1)] * (dim - 1)
         wide2 = (wide_cells / inv_cell) ** 2 * (1 + 1e-4)
 
@@ -514,13 +523,19 @@ class CrackFinder:
             Fp = F[p]
             return kirchhoff(p, Fp) / Fp.determinant()
 
+        @ti.func
+        def rescan():
+            """Whether this step recomputes the normals, so needs where D varies (the gradient sums read it only)."""
+            scan = True
+            if ti.static(cached):
+                scan = stale[None] != 0
+            return scan
+
         @ti.kernel
         def prepare():
             for c in cell_count:
                 cell_count[c] = 0
                 cell_fill[c] = 0
-                cell_lo[c] = 1.0
-                cell_hi[c] = 0.0
             for p in x:
                 if ti.static(has_law):
                     sig = effective_stress(p)
@@ -539,34 +554,10 @@ class CrackFinder:
                 if ti.static(cached):
                     if (x[p] - x_ref[p]).norm_sqr() > moved2:
                         ti.atomic_max(stale[None], 1)
-                Dp = ti.max(d_f[p], ti.cast(iface[p], float))
-                D[p] = Dp
+                D[p] = ti.max(d_f[p], ti.cast(iface[p], float))
                 c = flat(cell_of(x[p]))
                 pcell[p] = c
                 ti.atomic_add(cell_count[c], 1)
-                ti.atomic_min(cell_lo[c], Dp)
-                ti.atomic_max(cell_hi[c], Dp)
-            d_range[0], d_range[1] = 1.0, 0.0
-            for c in cell_count:
-                if cell_count[c] > 0:
-                    ti.atomic_min(d_range[0], cell_lo[c])
-                    ti.atomic_max(d_range[1], cell_hi[c])
-            for c in cell_count:  # per occupied cell, not per particle: the cells' min / max D over its 5^d block
-                scan = True   # only the gradient sums read it: not needed while the normals are kept
-                if ti.static(cached):
-                    scan = stale[None] != 0
-                if scan:
-                    cell_varies[c] = 0
-                if scan and cell_count[c] > 0 and d_range[1] > d_range[0]:   # nothing to scan where D is one value
-                    lo, hi = 1.0, 0.0
-                    cc = unflat(c)
-                    for off in ti.grouped(ti.ndrange(*nbr)):
-                        cn = cc + off
-                        if (cn >= 0).all() and (cn < cells_v).all():
-                            cid = flat(cn)
-                            lo = ti.min(lo, cell_lo[cid])
-                            hi = ti.max(hi, cell_hi[cid])
-                    cell_varies[c] = ti.cast(hi > lo, ti.i32)
             ti.loop_config(serialize=True)
             for c in range(1, n_cell_total):
                 cell_start[c] = cell_start[c - 1] + cell_count[c - 1]
@@ -589,6 +580,31 @@ class CrackFinder:
                 q = ids[j]
                 xs[j] = x[q]
                 vs[j] = ti.Vector([vol0[q], vol0[q] * D[q]])
+            # where D varies: the cells' min / max of D, then over each occupied cell's 5^d block (refresh steps only)
+            d_range[0], d_range[1] = 1.0, 0.0
+            for c in cell_count:
+                if rescan():
+                    lo, hi = 1.0, 0.0
+                    for j in range(cell_start[c], cell_start[c] + cell_count[c]):
+                        Dq = D[ids[j]]
+                        lo, hi = ti.min(lo, Dq), ti.max(hi, Dq)
+                    cell_lo[c], cell_hi[c] = lo, hi
+                    if cell_count[c] > 0:
+                        ti.atomic_min(d_range[0], lo)
+                        ti.atomic_max(d_range[1], hi)
+            for c in cell_count:
+                if rescan():
+                    cell_varies[c] = 0
+                    if cell_count[c] > 0 and d_range[1] > d_range[0]:   # nothing to scan where D is one value
+                        lo, hi = 1.0, 0.0
+                        cc = unflat(c)
+                        for off in ti.grouped(ti.ndrange(*nbr)):
+                            cn = cc + off
+                            if (cn >= 0).all() and (cn < cells_v).all():
+                                cid = flat(cn)
+                                lo = ti.min(lo, cell_lo[cid])
+                                hi = ti.max(hi, cell_hi[cid])
+                        cell_varies[c] = ti.cast(hi > lo, ti.i32)
 
         @ti.func
         def mark_stencil(p):
@@ -727,6 +743,31 @@ class CrackFinder:
                 nq[0] = 2.0
             return nq
 
+        @ti.func
+        def normal_cone(c):
+            """A cone holding the kept normals of cell c (cell order, `kept_facing`): a unit direction u and a spread
+            s >= |n_q - u| for every q, so n_p . n_q >= n_p . u - s: no particle of the cell faces p where that bound
+            is >= -threshold. No normal in the cell: s = -2 (nothing faces); a band particle: s = 4 (anything may)."""
+            total = ti.Vector.zero(float, dim)
+            band = False
+            for j in range(cell_start[c], cell_start[c] + cell_count[c]):
+                nq = ns[j]
+                if nq.norm_sqr() > 2.0:
+                    band = True
+                else:
+                    total += nq
+            u = ti.Vector.zero(float, dim)
+            if total.norm_sqr() > 0:
+                u = total.normalized()
+            spread = -2.0
+            if band:
+                spread = 4.0
+            else:
+                for j in range(cell_start[c], cell_start[c] + cell_count[c]):
+                    if ns[j].norm_sqr() > 0:
+                        spread = ti.max(spread, (ns[j] - u).norm())
+            return u, spread
+
         @ti.kernel
         def contact_list(pool: ti.types.ndarray(dtype=ti.i32, ndim=1), write: ti.template()) -> ti.i32:
             """Each particle's contact list: the particles within the reach two particles can close to before the
@@ -738,6 +779,8 @@ class CrackFinder:
                     contact_fill[None] = 0
                     for j in ids:   # the kept normals in cell order, so the searches below stream
                         ns[j] = kept_facing(ids[j])
+                    for c in cell_count:
+                        cell_dir[c], cell_spread[c] = normal_cone(c)
                 for p in x:
                     k = 0
                     if s_cache[p] != STANDARD or D[p] >= dthr:   # p may be near before the next refresh
@@ -751,14 +794,16 @@ class CrackFinder:
                             c = cell_of(xp)
                             u = cell_units(xp)
                             for o in ti.grouped(ti.ndrange(*rows_wide)):
-                                j0, j1 = row_wide(c, u, o)
-                                for j in range(j0, j1):
-                                    if (xp - xs[j]).norm_sqr() < wide2:
-                                        nq = ns[j]
-                                        if n.dot(nq) < -contact_thr or nq.norm_sqr() > 2.0:
-                                            if ti.static(write):
-                                                pool[s0 + k] = ids[j]
-                                            k += 1
+                                first, last = row_cells(c, u, o, wide_span, wide_reach2)
+                                for cell in range(first, last + 1):
+                                    if n.dot(cell_dir[cell]) - cell_spread[cell] < CONE_MARGIN - contact_thr:
+                                        for j in range(cell_start[cell], cell_start[cell] + cell_count[cell]):
+                                            if (xp - xs[j]).norm_sqr() < wide2:
+                                                nq = ns[j]
+                                                if n.dot(nq) < -contact_thr or nq.norm_sqr() > 2.0:
+                                                    if ti.static(write):
+                                                        pool[s0 + k] = ids[j]
+                                                    k += 1
                     if ti.static(not write):
                         contact_count[p] = k
                         contact_start[p] = 0
@@ -771,6 +816,7 @@ class CrackFinder:
 
         @ti.kernel
         def particle_masks(epoch: ti.i32, pool: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+            contacts[None] = 0
             for p in x:
                 key = ti.cast(0, ti.i64)
                 still_empty = False
@@ -813,6 +859,7 @@ class CrackFinder:
                             if touching:   # nested: Taichi's `and` evaluates both sides; the stress costs
                                 if n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
                                     st = CONTACT
+                                    contacts[None] += 1
                     Sn, Gn, cn = St, Gt, ct
                     if st == CONTACT:   # the normal family keeps the nodes across
                         Sn, Gn, cn = St + Sx, Gt + Gx, ct + cx
@@ -1073,8 +1120,8 @@ class CrackFinder:
                        node_cache_read=node_cache_read, node_cache_write=node_cache_write,
                        contact_list=contact_list, sort_normals=sort_normals)
         return CrackHooks(modified=modified, degrade=degrade, degrade_energy=degrade_energy, p2g=p2g,
-                          p2g_momentum=p2g_momentum, g2p=g2p, kernels={"grid_update": grid_update,
-                                                                       "grid_remap": grid_remap})
+                          p2g_momentum=p2g_momentum, g2p=g2p, kernels={"grid_update_tensor": grid_update,
+                                                                       "grid_remap_tensor": grid_remap})
 
     def partition_check(self) -> np.ndarray:
         """(N, 7) per particle in creation order: state, sum Nt, sum Nn, max|sum grad Nt|, max|sum grad Nn|,

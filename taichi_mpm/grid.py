@@ -14,32 +14,36 @@ MAX_TOP_POINTERS = 1 << 16          # pointer slots at the top level before a se
 
 
 class Grid:
-    def __init__(self, dim: int, shape: list[int], sparse: bool, vector_fields: list[str]):
-        """`shape`: nodes per axis. Allocates `m` (mass) and one dim-vector field per name."""
+    def __init__(self, dim: int, shape: list[int], sparse: bool, vector_fields: list[str], apart: list[str] = ()):
+        """`shape`: nodes per axis. Allocates `m` (mass) and one dim-vector field per name. The fields of
+        `vector_fields` lie interleaved node by node (P2G touches them together: one cache line); those of `apart`
+        (read by few particles) in arrays of their own in the same blocks, so they do not dilute the others."""
         self.dim, self.shape, self.sparse = dim, list(shape), sparse
         self.m = ti.field(float)
-        self.vec = {name: ti.Vector.field(dim, float) for name in vector_fields}
+        self.vec = {name: ti.Vector.field(dim, float) for name in [*vector_fields, *apart]}
         axes = ti.axes(*range(dim))
-        places = [self.m, *self.vec.values()]
+        places = [self.m, *(self.vec[name] for name in vector_fields)]
+        groups = [places] + [[self.vec[name]] for name in apart]
         self.levels = []
         self.leaf = leaf = LEAF[dim]
         self.blocks = [math.ceil(s / leaf) for s in self.shape]   # leaf blocks per axis
         if not sparse:
-            ti.root.dense(axes, self.shape).place(*places)
+            for group in groups:
+                ti.root.dense(axes, self.shape).place(*group)
             return
         # power-of-two pointer extents: Taichi 1.7 drops writes in some non-power-of-two 3D pointer grids
         blocks = [_pow2(math.ceil(s / leaf)) for s in self.shape]
         if math.prod(blocks) <= MAX_TOP_POINTERS:
             top = ti.root.pointer(axes, blocks)
             self.levels = [top]
-            top.dense(axes, leaf).place(*places)
         else:
             mid_n = 8 if dim == 3 else 64  # 2D: 16 made the clear 10x slower at 16384^2 cells
             tops = [_pow2(math.ceil(b / mid_n)) for b in blocks]
             top = ti.root.pointer(axes, tops)
             mid = top.pointer(axes, mid_n)
             self.levels = [top, mid]
-            mid.dense(axes, leaf).place(*places)
+        for group in groups:
+            self.levels[-1].dense(axes, leaf).place(*group)
 
     def block_field(self, dtype):
         """A field with one value per leaf block (indexed by block coordinates, node // LEAF): on a sparse grid it

@@ -229,12 +229,13 @@ class Simulation:
         self.state = ti.Vector.field(self.n_state, float, n) if self.n_state else None
         vec = ["v"] + (["v_old"] if f["flip"] else []) + (["v2"] if f["musl"] else [])
         vec += ["grip"] if f["grips"] else []  # component 0: the grip (from 1) whose particles touch the node
-        vec += crack_finder.grid_fields(d) if self.cfg.crack is not None else []  # tensor node mass rows
         shape = [self.basis.axis(a).nodes(nc) for a, nc in enumerate(self.n_cells)]
         if self.mapped is not None:
             shape = self.mapped.shape    # control points of the map, in parameter space
             self.mapped.allocate_particles(n)
-        self.grid = Grid(d, shape, self.cfg.domain.sparse, vec)
+        # the crack finder's tensor node mass rows: only particles in contact add to them
+        apart = crack_finder.grid_fields(d) if self.cfg.crack is not None else []
+        self.grid = Grid(d, shape, self.cfg.domain.sparse, vec, apart)
         gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
         coloured = scatter.coloured(self.cfg, gpu)
         self.bins = scatter.BlockBins(d, self.grid, n) if coloured else None  # atomic-free P2G (scatter.py)
@@ -1044,13 +1045,15 @@ class Simulation:
         self._scatter("p2g", kick)
         if self.feat["grips"]:
             k["flag_grip_nodes"]()
-        k["grid_update"](kick_before, kick_after)
+        # the node mass is a tensor only at nodes of particles in contact (crack.py); without any, the plain update
+        tensor = self.crack is not None and self.crack.in_contact()
+        k["grid_update_tensor" if tensor else "grid_update"](kick_before, kick_after)
         self.fail[None] = _NO_FAIL
         self.vmax2[None] = 0.0
         if self.feat["musl"]:
             k["g2p"](dt, kick, True, False)
             self._scatter("p2g_momentum", moved=False)  # the first g2p pass left the positions
-            k["grid_remap"]()
+            k["grid_remap_tensor" if tensor else "grid_remap"]()
             k["g2p"](dt, kick, False, True)
         else:
             k["g2p"](dt, kick, True, True)
