@@ -44,14 +44,16 @@ def time_steps(step, steps: int, repeats: int, sync=ti.sync, cpu: bool = False):
 
 
 def kernel_timer(spent: dict, clock=time.perf_counter):
-    """timed(name, fn): fn wrapped to add its duration, between two ti.sync(), to spent[name] (per-kernel times)."""
+    """timed(name, fn): fn wrapped to add its duration, between two ti.sync(), to spent[name] (per-kernel times);
+    it returns what fn returns."""
     def timed(name, fn):
         def call(*args):
             ti.sync()
             t = clock()
-            fn(*args)
+            out = fn(*args)
             ti.sync()
             spent[name] = spent.get(name, 0.0) + clock() - t
+            return out
         return call
     return timed
 

@@ -82,22 +82,20 @@ def run_case(scene, n_grid, crack, steps, arch, kernel_steps):
 
 
 def kernel_times(sim, steps):
-    """Mean CPU ms (all threads) per step of each crack-finder kernel (and the node grid's clear), each between two
+    """Mean CPU ms (all threads) per step of each crack-finder kernel, each between two
     ti.sync(): CPU time, not wall time, since other jobs on a shared machine move wall time far more."""
     crack, spent = sim.crack, {}
     timed = kernel_timer(spent, time.process_time)
 
-    saved_k, saved_clear = dict(crack._k), crack.nodes.clear
-    for name in ("prepare", "particle_normals", "band_normals", "node_normals", "particle_masks"):
+    saved_k = dict(crack._k)
+    for name in ("prepare", "particle_normals", "contact_list", "band_normals", "node_normals", "particle_masks"):
         if name in crack._k:
             crack._k[name] = timed(name, crack._k[name])
-    crack.nodes.clear = timed("clear", saved_clear)
     try:
         for _ in range(steps):
             sim.step()
     finally:
         crack._k.update(saved_k)
-        crack.nodes.clear = saved_clear
     return {k: v / steps * 1e3 for k, v in spent.items()}
 
 

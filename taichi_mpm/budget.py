@@ -22,6 +22,7 @@ import numpy as np
 
 from . import scatter
 from .basis import make_basis
+from .crack import grid_fields as crack_grid_fields
 from .crack import particle_bytes as crack_particle_bytes
 from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid
@@ -186,8 +187,9 @@ def _grid_bytes(cfg: Config, base_dir, mapped: MappedGrid | None = None) -> tupl
     d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
     layout = grid_layout(cfg, mapped)
     map_bytes = mapped.field_floats() * size if mapped is not None else 0
-    vectors = 1 + (cfg.solver.transfer == "flip") + (cfg.solver.update == "musl") + (d if cfg.crack else 0)
-    node_bytes = size * (1 + d * vectors)
+    crack_vectors, crack_scalars = crack_grid_fields(d) if cfg.crack else ([], [])
+    vectors = 1 + (cfg.solver.transfer == "flip") + (cfg.solver.update == "musl") + len(crack_vectors)
+    node_bytes = size * (1 + d * vectors + len(crack_scalars))
     nodes = math.prod(layout["nodes"])
     ddmp = cfg.solver.basis == "ddmp"   # its nodal volumes live on a grid of their own, one scalar per node
     if not cfg.domain.sparse:
@@ -200,8 +202,8 @@ def _grid_bytes(cfg: Config, base_dir, mapped: MappedGrid | None = None) -> tupl
         tops = math.prod(layout["levels"][0])
     else:
         leaves, tops = _active_blocks(cfg, layout, base_dir)
-    # the crack finder keeps node normals on a second sparse grid, and those kept between steps on a third
-    grids = 1 if cfg.crack is None else (3 if cfg.crack.normal_refresh > 0 else 2)
+    # the crack finder keeps the node normals kept between steps on a second sparse grid
+    grids = 2 if cfg.crack is not None and cfg.crack.normal_refresh > 0 else 1
     top_slots = math.prod(layout["levels"][0])
     pointers = top_slots + (tops * layout["mid"] ** d if len(layout["levels"]) > 1 else 0)
     leaf_nodes = leaves * layout["leaf"] ** d

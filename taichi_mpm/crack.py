@@ -36,7 +36,12 @@ from .materials import degrade_tension, rankine_damage, rankine_params, sym_eig
 STANDARD, MODIFIED, CONTACT = 0, 1, 2   # particle states: unmodified, cut (tension), cut with normal contact
 S_FLOOR = 1e-3                          # a family whose kept weights sum below this keeps standard functions
 MAX_CELLS = 1 << 26
-CACHE_KEYS = ("crack_normals", "crack_normal_states", "crack_normal_positions", "crack_normals_stale")
+CACHE_KEYS = ("crack_normals", "crack_normal_states", "crack_normal_positions", "crack_normals_stale",
+              "crack_normal_drift")
+KEEP, DRIFTED, ALL = 0, 1, 2            # normals this step: kept / recomputed where they drifted / all recomputed
+BIG = 1e30
+DRIFT_LIMIT = 0.5                       # skins: a normal is recomputed once its neighbours may have moved against
+                                        # it by this much (the bound a particle's own motion triggers refreshes at)
 NODE_CACHE_KEYS = ("crack_node_cache_index", "crack_node_cache_normal", "crack_node_cache_flag")
 CELL_SPLIT = 2                          # cell list cells of r/2: a query scans 5^d cells, (2.5 r)^d, not (3 r)^d
 ROW_MARGIN = 1e-2                       # cell units: a cell is cut from a search only beyond r + this (rounding)
@@ -56,9 +61,11 @@ class CrackHooks:
     kernels: dict               # grid_update_tensor, grid_remap_tensor (the solver's own where no particle touches)
 
 
-def grid_fields(dim: int) -> list[str]:
-    """Extra grid vector fields (rows of the anisotropic node mass A_i) the crack finder needs."""
-    return [f"A{a}" for a in range(dim)]
+def grid_fields(dim: int) -> tuple[list[str], list[str]]:
+    """The crack finder's fields in the solver's grid (cleared with it each step): vectors (the rows of the
+    anisotropic node mass A_i, the node normal) and scalars (the node's mark: 1 in a near particle's stencil,
+    2 on the discontinuity)."""
+    return [f"A{a}" for a in range(dim)] + ["crack_n"], ["crack_mark"]
 
 
 def particle_bytes(d: int, precision: str, apic: bool, has_law: bool, stencil_nodes: int, cc) -> int:
@@ -68,8 +75,8 @@ def particle_bytes(d: int, precision: str, apic: bool, has_law: bool, stencil_no
     floats += d + 2                                # xs, vs: positions and SPH weights in cell order
     floats += d if cc.contact_in_compression else 0   # ns: normals in cell order (contact test)
     ints = 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4   # iface, state, mask, pcell, ids
-    if cc.normal_refresh > 0:                      # kept normals and their positions; their state, empty masks
-        floats += 2 * d
+    if cc.normal_refresh > 0:   # kept normals, positions at the last refresh, drift; their state, empty masks
+        floats += 2 * d + 1
         ints += 4 + 8 + 4 + (8 if cc.contact_in_compression else 0)   # (+ the contact list's count and start)
     return floats * size + ints
 
@@ -126,21 +133,26 @@ class CrackFinder:
         self.vs = ti.Vector.field(2, float, n)          # (V, V D) of particle ids[j]: the SPH sums' weights
         # normals in cell order, so the contact test's facing check streams (only with contact in compression)
         self.ns = ti.Vector.field(d, float, n) if cc.contact_in_compression else None
-        # node normals on their own sparse grid (same node indexing as the solver's grid);
-        # m marks the node: 1 in a near particle's stencil, 2 on the discontinuity
-        self.nodes = Grid(d, sim.grid.shape, True, ["n"])
-        # normals kept between steps (crack.normal_refresh): recomputed once a particle has moved more than half
-        # the skin since they were computed, or any D changed; the cache is part of the state (checkpoints)
+        # normals kept between steps (crack.normal_refresh). Once a particle has moved half the skin since the last
+        # refresh, each particle's neighbourhood is checked: a normal is recomputed where the particles around it
+        # have moved against each other by the skin (summed over refreshes; a body moving as a whole keeps its
+        # normals), all of them where D changed; the cache is part of the state (checkpoints)
         self.skin = float(cc.normal_refresh) * self.radius
         self.cached = self.skin > 0
         self.listed, self.epoch = False, 0
         if self.cached:
             self.n_cache = ti.Vector.field(d, float, n)    # n_p as the gradient sums gave it (before band normals)
             self.s_cache = ti.field(ti.i32, n)             # and the state they gave
-            self.x_ref = ti.Vector.field(d, float, n)      # positions they were computed at
-            self.stale = ti.field(ti.i32, ())              # 1: recompute this step
-            self.stale[None] = 1
-            self.refreshes = 0                             # steps that recomputed them (diagnostics, tests)
+            self.x_ref = ti.Vector.field(d, float, n)      # positions at the last refresh
+            self.drift = ti.field(float, n)                # bound on the neighbours' motion against p since n_p was
+            self.stale = ti.field(ti.i32, ())              # KEEP, DRIFTED (a particle moved) or ALL (D changed)
+            self.stale[None] = ALL
+            self.refreshes = 0                             # steps that refreshed them (diagnostics, tests)
+            self.recomputed = ti.field(ti.i64, ())         # normals recomputed in all (diagnostics, tests)
+            # per cell: the box of its particles' motion since the last refresh, and the box's size over its 5^d block
+            self.cell_dlo = ti.Vector.field(d, float, self.n_cell_total)
+            self.cell_dhi = ti.Vector.field(d, float, self.n_cell_total)
+            self.cell_drift = ti.field(float, self.n_cell_total)
             # contact list: per particle, the particles that could face it within reach until the next refresh,
             # found when the normals are computed; the contact test sums over them instead of searching each step.
             # count -1: search each step (a band particle: its normal follows its neighbours); ids: a growing pool
@@ -182,7 +194,8 @@ class CrackFinder:
             state.update(crack_normals=self.sim._to_creation(self.n_cache.to_numpy().astype(np.float64)),
                          crack_normal_states=self.sim._to_creation(self.s_cache.to_numpy()),
                          crack_normal_positions=self.sim._to_creation(self.x_ref.to_numpy().astype(np.float64)),
-                         crack_normals_stale=int(self.stale[None]))
+                         crack_normals_stale=int(self.stale[None]),
+                         crack_normal_drift=self.sim._to_creation(self.drift.to_numpy().astype(np.float64)))
             state.update(zip(NODE_CACHE_KEYS, self._node_cache_arrays()))
         return state
 
@@ -200,7 +213,7 @@ class CrackFinder:
     def invalidate(self):
         """Recompute the normals at the next step (particles were set from outside)."""
         if self.cached:
-            self.stale[None] = 1
+            self.stale[None] = ALL
             self._list_due = True
             self.epoch += 1   # masks found empty before belong to other normals
 
@@ -212,37 +225,38 @@ class CrackFinder:
         self.invalidate()
         if self.cached and all(k in state for k in CACHE_KEYS):   # the contact list is derived: rebuilt next step
             n, d = self.sim.n, self.dim
-            arrays = [np.asarray(state[k]) for k in CACHE_KEYS[:3]]
-            if [a.shape for a in arrays] == [(n, d), (n,), (n, d)] and all(np.isfinite(a).all() for a in arrays):
+            arrays = [np.asarray(state[k]) for k in CACHE_KEYS[:3] + CACHE_KEYS[4:]]
+            if [a.shape for a in arrays] == [(n, d), (n,), (n, d), (n,)] and all(np.isfinite(a).all() for a in arrays):
                 self.n_cache.from_numpy(self.sim._to_solver(arrays[0].astype(np.float64)))
                 self.s_cache.from_numpy(self.sim._to_solver(arrays[1].astype(np.int32)))
                 self.x_ref.from_numpy(self.sim._to_solver(arrays[2].astype(np.float64)))
-                self.stale[None] = int(np.asarray(state[CACHE_KEYS[3]]))
+                self.drift.from_numpy(self.sim._to_solver(arrays[3].astype(np.float64)))
+                self.stale[None] = min(max(int(np.asarray(state[CACHE_KEYS[3]])), KEEP), ALL)
                 self.node_cache.clear()
                 idx, nrm, flag = (np.asarray(state.get(k, ())) for k in NODE_CACHE_KEYS)
                 k = len(flag)
                 if k and idx.shape == (k, d) and nrm.shape == (k, d) and np.isfinite(nrm).all() and \
-                        (idx >= 0).all() and (idx < np.array(self.nodes.shape)).all():
+                        (idx >= 0).all() and (idx < np.array(self.sim.grid.shape)).all():
                     self._k["node_cache_write"](idx.astype(np.int32), nrm.astype(np.float64),
                                                 flag.astype(np.float64), k)
                 elif k:
-                    self.stale[None] = 1   # not a cache this scene can use: recompute all
+                    self.stale[None] = ALL   # not a cache this scene can use: recompute all
 
     def update(self):
         """The crack finder's per-step work, before P2G."""
-        self.nodes.clear()
         self._k["prepare"]()
-        fresh = True
+        level = ALL
         if self.cached:
-            fresh = self.stale[None] != 0   # prepare raised it if a particle moved too far or D grew
-            if fresh:
+            level = int(self.stale[None])   # prepare raised it if a particle moved too far or D grew
+            if level != KEEP:
                 self.node_cache.clear()     # node normals are recomputed with the particles'
                 self.refreshes += 1
                 self.epoch += 1
-        self._k["particle_normals"](int(fresh))
+        fresh = level != KEEP
+        self._k["particle_normals"](level)
         if self.cached:
             if fresh:
-                self.stale[None] = 0
+                self.stale[None] = KEEP
             if self.listed and (fresh or self._list_due):
                 self._build_contact_list()
         self._k["band_normals"]()
@@ -286,7 +300,7 @@ class CrackFinder:
         grid = sim.grid
         gm, gv = grid.m, grid.vec["v"]
         gv_old, gv2 = grid.vec.get("v_old"), grid.vec.get("v2")
-        Arows = [grid.vec[name] for name in grid_fields(dim)]
+        Arows = [grid.vec[f"A{a}"] for a in range(dim)]
         flip, apic, musl = sim.feat["flip"], sim.feat["apic"], sim.feat["musl"]
         x, v, F, vol0 = sim.x, sim.v, sim.F, sim.vol0
         d_f, D, iface, kappa, contacts = self.d, self.D, self.iface, self.kappa, self.contacts
@@ -296,9 +310,12 @@ class CrackFinder:
         cell_lo, cell_hi, pcell, ids, xs = self.cell_lo, self.cell_hi, self.pcell, self.ids, self.xs
         cell_varies, vs, d_range = self.cell_varies, self.vs, self.d_range
         ns = self.ns
-        node_mark, node_n = self.nodes.m, self.nodes.vec["n"]
+        node_mark, node_n = grid.scalar["crack_mark"], grid.vec["crack_n"]   # the step's node marks and normals
         cached = self.cached
         n_cache, s_cache, x_ref, stale = (self.n_cache, self.s_cache, self.x_ref, self.stale) if cached else (None,) * 4
+        drift, cell_dlo, cell_dhi, cell_drift, recomputed = (
+            (self.drift, self.cell_dlo, self.cell_dhi, self.cell_drift, self.recomputed) if cached else (None,) * 5)
+        drift_limit = DRIFT_LIMIT * self.skin
         listed = self.listed
         contact_count, contact_start, contact_fill = ((self.contact_count, self.contact_start, self.contact_fill)
                                                       if listed else (None,) * 3)
@@ -550,10 +567,10 @@ class CrackFinder:
                                 if dn > d_f[p]:
                                     d_f[p] = dn
                                     if ti.static(cached):   # D grew: the normals move with it
-                                        ti.atomic_max(stale[None], 1)
+                                        ti.atomic_max(stale[None], ALL)
                 if ti.static(cached):
                     if (x[p] - x_ref[p]).norm_sqr() > moved2:
-                        ti.atomic_max(stale[None], 1)
+                        ti.atomic_max(stale[None], DRIFTED)
                 D[p] = ti.max(d_f[p], ti.cast(iface[p], float))
                 c = flat(cell_of(x[p]))
                 pcell[p] = c
@@ -580,31 +597,48 @@ class CrackFinder:
                 q = ids[j]
                 xs[j] = x[q]
                 vs[j] = ti.Vector([vol0[q], vol0[q] * D[q]])
-            # where D varies: the cells' min / max of D, then over each occupied cell's 5^d block (refresh steps only)
+            # refresh steps only: the cells' min / max of D and box of motion since the last refresh, then over each
+            # occupied cell's 5^d block (where D varies; how far particles that reach each other moved apart)
             d_range[0], d_range[1] = 1.0, 0.0
             for c in cell_count:
                 if rescan():
                     lo, hi = 1.0, 0.0
+                    dlo = ti.Vector([BIG] * dim)
+                    dhi = ti.Vector([-BIG] * dim)
                     for j in range(cell_start[c], cell_start[c] + cell_count[c]):
-                        Dq = D[ids[j]]
-                        lo, hi = ti.min(lo, Dq), ti.max(hi, Dq)
+                        q = ids[j]
+                        lo, hi = ti.min(lo, D[q]), ti.max(hi, D[q])
+                        if ti.static(cached):
+                            dq = xs[j] - x_ref[q]
+                            dlo, dhi = ti.min(dlo, dq), ti.max(dhi, dq)
                     cell_lo[c], cell_hi[c] = lo, hi
+                    if ti.static(cached):
+                        cell_dlo[c], cell_dhi[c] = dlo, dhi
                     if cell_count[c] > 0:
                         ti.atomic_min(d_range[0], lo)
                         ti.atomic_max(d_range[1], hi)
             for c in cell_count:
                 if rescan():
                     cell_varies[c] = 0
+                    if ti.static(cached):
+                        cell_drift[c] = 0.0
                     if cell_count[c] > 0 and d_range[1] > d_range[0]:   # nothing to scan where D is one value
                         lo, hi = 1.0, 0.0
+                        dlo = ti.Vector([BIG] * dim)
+                        dhi = ti.Vector([-BIG] * dim)
                         cc = unflat(c)
                         for off in ti.grouped(ti.ndrange(*nbr)):
                             cn = cc + off
                             if (cn >= 0).all() and (cn < cells_v).all():
                                 cid = flat(cn)
-                                lo = ti.min(lo, cell_lo[cid])
-                                hi = ti.max(hi, cell_hi[cid])
+                                if cell_count[cid] > 0:
+                                    lo = ti.min(lo, cell_lo[cid])
+                                    hi = ti.max(hi, cell_hi[cid])
+                                    if ti.static(cached):
+                                        dlo, dhi = ti.min(dlo, cell_dlo[cid]), ti.max(dhi, cell_dhi[cid])
                         cell_varies[c] = ti.cast(hi > lo, ti.i32)
+                        if ti.static(cached):
+                            cell_drift[c] = (dhi - dlo).norm()
 
         @ti.func
         def mark_stencil(p):
@@ -615,11 +649,19 @@ class CrackFinder:
                 node_mark[I] = 1.0
 
         @ti.kernel
-        def particle_normals(fresh: ti.i32):
+        def particle_normals(level: ti.i32):
+            """The particles' normals: kept (KEEP), recomputed where the neighbours moved against each other by the
+            skin since they were (DRIFTED; the normal is the same for a neighbourhood moved as a whole), or all."""
             for p in x:
                 st = STANDARD
                 nrm = ti.Vector.zero(float, dim)
-                if fresh:
+                redo = level != KEEP
+                if ti.static(cached):
+                    if level == DRIFTED:   # bound on the neighbours' motion against p since n_p was computed
+                        moved = drift[p] + cell_drift[pcell[p]]
+                        redo = moved > drift_limit
+                        drift[p] = moved
+                if redo:
                     if cell_varies[pcell[p]]:  # D varies within reach: p may sit near a discontinuity
                         _, g = damage_field(x[p])
                         gn = g.norm() * radius
@@ -627,9 +669,13 @@ class CrackFinder:
                             nrm = g / g.norm()
                             st = MODIFIED
                     if ti.static(cached):
-                        n_cache[p], s_cache[p], x_ref[p] = nrm, st, x[p]
+                        n_cache[p], s_cache[p], drift[p] = nrm, st, 0.0
+                        recomputed[None] += 1
                 elif ti.static(cached):
                     nrm, st = n_cache[p], s_cache[p]
+                if ti.static(cached):
+                    if level != KEEP:
+                        x_ref[p] = x[p]
                 normal[p] = nrm
                 state[p] = st
                 if st != STANDARD:

@@ -14,16 +14,19 @@ MAX_TOP_POINTERS = 1 << 16          # pointer slots at the top level before a se
 
 
 class Grid:
-    def __init__(self, dim: int, shape: list[int], sparse: bool, vector_fields: list[str], apart: list[str] = ()):
+    def __init__(self, dim: int, shape: list[int], sparse: bool, vector_fields: list[str], apart: list[str] = (),
+                 apart_scalars: list[str] = ()):
         """`shape`: nodes per axis. Allocates `m` (mass) and one dim-vector field per name. The fields of
         `vector_fields` lie interleaved node by node (P2G touches them together: one cache line); those of `apart`
-        (read by few particles) in arrays of their own in the same blocks, so they do not dilute the others."""
+        (dim-vectors) and `apart_scalars` (`scalar`), read by few particles, in arrays of their own in the same
+        blocks, so they do not dilute the others."""
         self.dim, self.shape, self.sparse = dim, list(shape), sparse
         self.m = ti.field(float)
         self.vec = {name: ti.Vector.field(dim, float) for name in [*vector_fields, *apart]}
+        self.scalar = {name: ti.field(float) for name in apart_scalars}
         axes = ti.axes(*range(dim))
         places = [self.m, *(self.vec[name] for name in vector_fields)]
-        groups = [places] + [[self.vec[name]] for name in apart]
+        groups = [places] + [[self.vec[name]] for name in apart] + [[f] for f in self.scalar.values()]
         self.levels = []
         self.leaf = leaf = LEAF[dim]
         self.blocks = [math.ceil(s / leaf) for s in self.shape]   # leaf blocks per axis
@@ -60,8 +63,7 @@ class Grid:
             for level in reversed(self.levels):
                 level.deactivate_all()
         else:
-            self.m.fill(0)
-            for f in self.vec.values():
+            for f in [self.m, *self.vec.values(), *self.scalar.values()]:
                 f.fill(0)
 
 

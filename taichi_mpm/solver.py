@@ -233,9 +233,9 @@ class Simulation:
         if self.mapped is not None:
             shape = self.mapped.shape    # control points of the map, in parameter space
             self.mapped.allocate_particles(n)
-        # the crack finder's tensor node mass rows: only particles in contact add to them
-        apart = crack_finder.grid_fields(d) if self.cfg.crack is not None else []
-        self.grid = Grid(d, shape, self.cfg.domain.sparse, vec, apart)
+        # the crack finder's node fields (tensor node mass rows, node normals and marks): few particles touch them
+        apart, apart_scalars = crack_finder.grid_fields(d) if self.cfg.crack is not None else ([], [])
+        self.grid = Grid(d, shape, self.cfg.domain.sparse, vec, apart, apart_scalars)
         gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
         coloured = scatter.coloured(self.cfg, gpu)
         self.bins = scatter.BlockBins(d, self.grid, n) if coloured else None  # atomic-free P2G (scatter.py)
