@@ -301,8 +301,9 @@ class Crack(Strict):
     contact_in_compression: bool = True
     damage_threshold: Annotated[float, Field(ge=0, le=1)] = 0.5
     gradient_threshold: Annotated[float, Field(ge=0)] = 0.1
-    # particle normals kept between steps until a particle has moved half this fraction of the SPH support radius
-    # since they were computed, or a damage value changed; 0: recomputed every step (docs/crack_finder.md)
+    # particle normals kept between steps; once a particle has moved half this fraction of the SPH support radius,
+    # those whose neighbours moved against each other by that much are recomputed (all if a damage value changed);
+    # 0: recomputed every step (docs/crack_finder.md)
     normal_refresh: Annotated[float, Field(ge=0, le=0.5)] = 0.01
 
 

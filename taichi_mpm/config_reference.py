@@ -116,9 +116,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "crack.damage_threshold": ("1", "damage D at or above which a particle is near a discontinuity"),
     "crack.gradient_threshold": ("1", "|grad D| r (r: the SPH radius) at or above which a particle is near a "
                                       "discontinuity"),
-    "crack.normal_refresh": ("1", "particle normals (the SPH damage gradients) are kept between steps until a "
-                                  "particle has moved half this fraction of the SPH radius since they were "
-                                  "computed, or a damage value changed; 0: recomputed every step"),
+    "crack.normal_refresh": ("1", "particle normals (the SPH damage gradients) are kept between steps; once a "
+                                  "particle has moved half this fraction of the SPH radius, those whose "
+                                  "neighbours moved against each other by that much are recomputed (all if a "
+                                  "damage value changed); 0: recomputed every step"),
     "materials": ("", "named materials; bodies refer to them by name"),
     "materials.<name>": ("", "one material"),
     # materials.<name>.*: from the models' schemas (taichi_mpm/materials/), added below DESCRIPTIONS

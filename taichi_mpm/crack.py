@@ -1,6 +1,7 @@
 """Crack finder: cracks and body interfaces inside one velocity field (seed talk, Part II).
 
-Per step, before P2G (`CrackFinder.update`, five kernels; details and reasons in docs/crack_finder.md):
+Per step, before P2G (`CrackFinder.update`: kernels prepare, particle_normals, classify; at a refresh of the kept
+normals also contact_list; details and reasons in docs/crack_finder.md):
   1. damage law (Rankine, materials.py) updates d_p; D_p = max(d_p, I_p) (I_p: interface flag);
      a cell list (cells of r/2, r = SPH support radius) bins the particles: counting sort, linear in N.
   2. particles whose neighbourhood holds varying D get the Shepard-normalised SPH gradient of D;
@@ -75,7 +76,7 @@ def particle_bytes(d: int, precision: str, apic: bool, has_law: bool, stencil_no
     floats += d + 2                                # xs, vs: positions and SPH weights in cell order
     floats += d if cc.contact_in_compression else 0   # ns: normals in cell order (contact test)
     ints = 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4   # iface, state, mask, pcell, ids
-    if cc.normal_refresh > 0:   # kept normals, positions at the last refresh, drift; their state, empty masks
+    if cc.normal_refresh > 0:   # kept normals, positions at the last refresh, drift; their state, masks found
         floats += 2 * d + 1
         ints += 4 + 8 + 4 + (8 if cc.contact_in_compression else 0)   # (+ the contact list's count and start)
     return floats * size + ints
@@ -165,10 +166,10 @@ class CrackFinder:
                 self.cell_dir = ti.Vector.field(d, float, self.n_cell_total)   # the cells' normal cones (build)
                 self.cell_spread = ti.field(float, self.n_cell_total)
                 self._list_due = True
-            # masks found empty since the normals were computed: the stencil origin they were found at (+1, flat),
-            # and in which period of kept normals (`epoch`); same origin and period: still empty, nothing to do
-            self.empty_at = ti.field(ti.i64, n)
-            self.empty_epoch = ti.field(ti.i32, n)
+            # each mask's stencil origin (+1, flat) and period of kept normals (`epoch`) when it was found; same
+            # origin and period: the same mask (a node's side depends only on the kept node and particle normals)
+            self.mask_at = ti.field(ti.i64, n)
+            self.mask_epoch = ti.field(ti.i32, n)
             # node normals computed since: m = 1 (normal in n) or 2 (on the discontinuity); 0: not yet
             self.node_cache = Grid(d, sim.grid.shape, True, ["n"])
             self.node_cache_fill = ti.field(ti.i32, ())
@@ -215,7 +216,7 @@ class CrackFinder:
         if self.cached:
             self.stale[None] = ALL
             self._list_due = True
-            self.epoch += 1   # masks found empty before belong to other normals
+            self.epoch += 1   # masks found before belong to other normals
 
     def set_state(self, state: dict):
         if "damage" in state:
@@ -259,11 +260,7 @@ class CrackFinder:
                 self.stale[None] = KEEP
             if self.listed and (fresh or self._list_due):
                 self._build_contact_list()
-        self._k["band_normals"]()
-        if self.ns is not None:
-            self._k["sort_normals"]()
-        self._k["node_normals"]()
-        self._k["particle_masks"](self.epoch, self.contact_ids if self.listed else self._no_list)
+        self._k["classify"](self.epoch, self.contact_ids if self.listed else self._no_list)
 
     def in_contact(self) -> bool:
         """Whether a particle is in contact this step (after `update`): only then is a node mass a tensor."""
@@ -321,8 +318,8 @@ class CrackFinder:
                                                       if listed else (None,) * 3)
         cell_dir, cell_spread = (self.cell_dir, self.cell_spread) if listed else (None, None)
         self._no_list = ti.ndarray(ti.i32, 1)   # particle_masks' argument without a contact list
-        empty_at, empty_epoch = (self.empty_at, self.empty_epoch) if cached else (None, None)
-        skip_empty = cached and sten.origin is not None   # tensor stencils: the origin fixes the stencil's nodes
+        mask_at, mask_epoch = (self.mask_at, self.mask_epoch) if cached else (None, None)
+        reuse_masks = cached and sten.origin is not None   # tensor stencils: the origin fixes the stencil's nodes
         grid_shape = list(sim.grid.shape)
 
         @ti.func
@@ -681,7 +678,7 @@ class CrackFinder:
                 if st != STANDARD:
                     mark_stencil(p)
 
-        @ti.kernel
+        @ti.func
         def band_normals():
             """A damaged particle without a gradient (the middle of an odd-width damage band) joins one side:
             its normal is the principal direction of its undamaged neighbours' normals, signed so that its
@@ -720,7 +717,7 @@ class CrackFinder:
                         state[p] = MODIFIED
                         mark_stencil(p)
 
-        @ti.kernel
+        @ti.func
         def node_normals():
             for I in ti.grouped(node_mark):
                 if node_mark[I] > 0:
@@ -773,7 +770,7 @@ class CrackFinder:
                     cache_m[I] = flag[j]
                     cache_n[I] = ti.Vector([nrm[j, a] for a in ti.static(range(dim))])
 
-        @ti.kernel
+        @ti.func
         def sort_normals():
             if ti.static(contact):
                 for j in ids:
@@ -860,25 +857,25 @@ class CrackFinder:
                 fill = contact_fill[None]
             return fill
 
-        @ti.kernel
-        def particle_masks(epoch: ti.i32, pool: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+        @ti.func
+        def particle_masks(epoch, pool: ti.template()):
             contacts[None] = 0
             for p in x:
                 key = ti.cast(0, ti.i64)
-                still_empty = False
-                if ti.static(skip_empty):
+                known = False   # p's mask is the one found before (no node normals to read)
+                if ti.static(reuse_masks):
                     # within one period of kept normals a node's side depends only on the node and p's normal
                     # (band particles excepted: theirs follow their neighbours each step)
                     if state[p] != STANDARD and s_cache[p] != STANDARD:
                         key = origin_key(p)
-                        still_empty = empty_epoch[p] == epoch and empty_at[p] == key
-                if still_empty:
+                        known = mask_epoch[p] == epoch and mask_at[p] == key
+                if known and mask[p] == 0:   # still nothing across
                     state[p] = STANDARD
-                    mask[p] = 0
                 elif state[p] != STANDARD:
                     n = normal[p]
                     sd = sten.at(p)
                     m = ti.cast(0, mask_t)
+                    m_known = mask[p]
                     St, Sx = 0.0, 0.0   # weights of the nodes on p's side / across
                     Gt = ti.Vector.zero(float, dim)
                     Gx = ti.Vector.zero(float, dim)
@@ -888,8 +885,14 @@ class CrackFinder:
                       for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split)
                         off = o + sten.inner[k]
                         I, w, gw, r = sten.node(sd, off)
-                        if node_mark[I] > 1.5 or n.dot(node_n[I]) < -thr:
-                            m |= ti.cast(1, mask_t) << ti.cast(sten.index(off), mask_t)
+                        bit = ti.cast(1, mask_t) << ti.cast(sten.index(off), mask_t)
+                        across = False
+                        if known:
+                            across = (m_known & bit) != 0
+                        else:
+                            across = node_mark[I] > 1.5 or n.dot(node_n[I]) < -thr
+                        if across:
+                            m |= bit
                             Sx += w
                             Gx += gw
                             cx += w * r
@@ -911,9 +914,9 @@ class CrackFinder:
                         Sn, Gn, cn = St + Sx, Gt + Gx, ct + cx
                     state[p] = st
                     mask[p] = m
-                    if ti.static(skip_empty):
-                        if m == 0 and key != 0:
-                            empty_at[p], empty_epoch[p] = key, epoch
+                    if ti.static(reuse_masks):
+                        if key != 0:
+                            mask_at[p], mask_epoch[p] = key, epoch
                     sums[p] = ti.Vector([St, Sn])
                     for a in ti.static(range(dim)):
                         gsum[p][0, a] = Gt[a]
@@ -921,6 +924,15 @@ class CrackFinder:
                         if ti.static(apic):
                             cent[p][0, a] = ct[a] / St
                             cent[p][1, a] = cn[a] / Sn
+
+        @ti.kernel
+        def classify(epoch: ti.i32, pool: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+            """Steps 4-6 after the particle normals, one launch (each loop still runs in parallel, in turn): band
+            middles, the normals in cell order (contact searches), node normals, masks and contact."""
+            band_normals()
+            sort_normals()
+            node_normals()
+            particle_masks(epoch, pool)
 
         # ---- funcs used inside the solver's kernels -----------------------------
         @ti.func
@@ -1082,9 +1094,10 @@ class CrackFinder:
         @ti.func
         def node_mass(I):
             A = ti.Matrix.zero(float, dim, dim)
-            for a in ti.static(range(dim)):
-                for b in ti.static(range(dim)):
-                    A[a, b] = Arows[a][I][b]
+            if node_mark[I] > 0:   # only particles in contact add to A, and their stencils are marked
+                for a in ti.static(range(dim)):
+                    for b in ti.static(range(dim)):
+                        A[a, b] = Arows[a][I][b]
             return gm[I], A
 
         @ti.func
@@ -1159,12 +1172,10 @@ class CrackFinder:
                 out[p, 5] = ti.abs(Wsum - ti.Matrix.identity(float, dim)).max()
                 out[p, 6] = ti.cast(mask[p] != 0, float)
 
-        self._k = dict(prepare=prepare, particle_normals=particle_normals, band_normals=band_normals,
-                       node_normals=node_normals,
-                       particle_masks=particle_masks, grid_update=grid_update, grid_remap=grid_remap,
+        self._k = dict(prepare=prepare, particle_normals=particle_normals, contact_list=contact_list,
+                       classify=classify, grid_update=grid_update, grid_remap=grid_remap,
                        partition_check=partition_check, node_cache_size=node_cache_size,
-                       node_cache_read=node_cache_read, node_cache_write=node_cache_write,
-                       contact_list=contact_list, sort_normals=sort_normals)
+                       node_cache_read=node_cache_read, node_cache_write=node_cache_write)
         return CrackHooks(modified=modified, degrade=degrade, degrade_energy=degrade_energy, p2g=p2g,
                           p2g_momentum=p2g_momentum, g2p=g2p, kernels={"grid_update_tensor": grid_update,
                                                                        "grid_remap_tensor": grid_remap})
