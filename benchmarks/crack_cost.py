@@ -88,7 +88,7 @@ def kernel_times(sim, steps):
     timed = kernel_timer(spent, time.process_time)
 
     saved_k = dict(crack._k)
-    for name in ("prepare", "particle_normals", "contact_list", "classify"):
+    for name in ("prepare", "bin_cells", "particle_normals", "contact_list", "classify"):
         if name in crack._k:
             crack._k[name] = timed(name, crack._k[name])
     try:

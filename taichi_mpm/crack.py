@@ -1,7 +1,7 @@
 """Crack finder: cracks and body interfaces inside one velocity field (seed talk, Part II).
 
 Per step, before P2G (`CrackFinder.update`: kernels prepare, particle_normals, classify; at a refresh of the kept
-normals also contact_list; details and reasons in docs/crack_finder.md):
+normals also bin_cells and contact_list; details and reasons in docs/crack_finder.md):
   1. damage law (Rankine, materials.py) updates d_p; D_p = max(d_p, I_p) (I_p: interface flag);
      a cell list (cells of r/2, r = SPH support radius) bins the particles: counting sort, linear in N.
   2. particles whose neighbourhood holds varying D get the Shepard-normalised SPH gradient of D;
@@ -141,6 +141,7 @@ class CrackFinder:
         self.skin = float(cc.normal_refresh) * self.radius
         self.cached = self.skin > 0
         self.listed, self.epoch = False, 0
+        self._cells_due = True   # the cell list must be built before the next step's searches
         if self.cached:
             self.n_cache = ti.Vector.field(d, float, n)    # n_p as the gradient sums gave it (before band normals)
             self.s_cache = ti.field(ti.i32, n)             # and the state they gave
@@ -215,7 +216,7 @@ class CrackFinder:
         """Recompute the normals at the next step (particles were set from outside)."""
         if self.cached:
             self.stale[None] = ALL
-            self._list_due = True
+            self._list_due = self._cells_due = True
             self.epoch += 1   # masks found before belong to other normals
 
     def set_state(self, state: dict):
@@ -254,6 +255,9 @@ class CrackFinder:
                 self.refreshes += 1
                 self.epoch += 1
         fresh = level != KEEP
+        if fresh or self._cells_due:   # between refreshes: rebuilt as it was at the last one (after set_state)
+            self._k["bin_cells"](int(not fresh))
+            self._cells_due = False
         self._k["particle_normals"](level)
         if self.cached:
             if fresh:
@@ -411,14 +415,28 @@ class CrackFinder:
             return first, last
 
         @ti.func
-        def row(c, u, o):
-            """The SPH searches' candidates in one row of cells: a slice [j0, j1) of `ids` (the row's cells are
-            consecutive in the sorted order)."""
-            first, last = row_cells(c, u, o, CELL_SPLIT, float(CELL_SPLIT * CELL_SPLIT))
+        def cells_slice(cells_range):
+            """The particles of cells first..last: a slice [j0, j1) of `ids` (consecutive cells are consecutive in
+            the sorted order)."""
+            first, last = cells_range
             j0, j1 = 0, 0
             if first <= last:
                 j0, j1 = cell_start[first], cell_start[last] + cell_count[last]
             return j0, j1
+
+        @ti.func
+        def row(c, u, o):
+            """The SPH searches' candidates in one row of cells (reach r)."""
+            return cells_slice(row_cells(c, u, o, CELL_SPLIT, float(CELL_SPLIT * CELL_SPLIT)))
+
+        @ti.func
+        def listed_at(p):
+            """Where the cell list holds p (from the particle normals on): with kept normals, its position at the
+            last refresh; the node normals and band middles of the steps until the next are found there."""
+            xp = x[p]
+            if ti.static(cached):
+                xp = x_ref[p]
+            return xp
 
         # the contact list's search: as far as two particles can come closer until the next refresh (each moves at
         # most skin / 2 from where the normals were computed, so 2 skin from where the list is built)
@@ -505,16 +523,18 @@ class CrackFinder:
                             wk, wv = contact_term(n, vp, q, d2)
                             sw += wk
                             sv += wv
-            else:
-                c = cell_of(xp)
-                u = cell_units(xp)
-                for o in ti.grouped(ti.ndrange(*rows)):
-                    j0, j1 = row(c, u, o)
+            else:   # the cell list holds the last refresh's positions: search the reach they can close to
+                xl = listed_at(p)
+                c = cell_of(xl)
+                u = cell_units(xl)
+                for o in ti.grouped(ti.ndrange(*rows_wide)):
+                    j0, j1 = cells_slice(row_cells(c, u, o, wide_span, wide_reach2))
                     for j in range(j0, j1):
-                        d2 = (xp - xs[j]).norm_sqr()
+                        q = ids[j]
+                        d2 = (xp - x[q]).norm_sqr()
                         if d2 < radius2_cut:
                             if n.dot(ns[j]) < -contact_thr:   # few neighbours face p: test before the sqrt
-                                wk, wv = contact_term(n, vp, ids[j], d2)
+                                wk, wv = contact_term(n, vp, q, d2)
                                 sw += wk
                                 sv += wv
             res = 0.0
@@ -547,9 +567,7 @@ class CrackFinder:
 
         @ti.kernel
         def prepare():
-            for c in cell_count:
-                cell_count[c] = 0
-                cell_fill[c] = 0
+            """The damage law and D; whether the kept normals are due (raises `stale`)."""
             for p in x:
                 if ti.static(has_law):
                     sig = effective_stress(p)
@@ -569,7 +587,27 @@ class CrackFinder:
                     if (x[p] - x_ref[p]).norm_sqr() > moved2:
                         ti.atomic_max(stale[None], DRIFTED)
                 D[p] = ti.max(d_f[p], ti.cast(iface[p], float))
-                c = flat(cell_of(x[p]))
+
+        @ti.func
+        def binned_position(p, at_refresh):
+            """Where the cell list holds p: its position, or at the last refresh (`at_refresh`, kept normals only)."""
+            xp = x[p]
+            if ti.static(cached):
+                if at_refresh:
+                    xp = x_ref[p]
+            return xp
+
+        @ti.kernel
+        def bin_cells(at_refresh: ti.i32):
+            """The cell list (a counting sort), with positions and SPH weights in cell order, and on refreshes
+            where D varies and how far particles within reach moved against each other. With kept normals it is
+            built at refreshes only: until the next one, node normals and band middles are found in the
+            configuration the particle normals were (particles have moved at most half the skin since)."""
+            for c in cell_count:
+                cell_count[c] = 0
+                cell_fill[c] = 0
+            for p in x:
+                c = flat(cell_of(binned_position(p, at_refresh)))
                 pcell[p] = c
                 ti.atomic_add(cell_count[c], 1)
             ti.loop_config(serialize=True)
@@ -592,7 +630,7 @@ class CrackFinder:
                     ids[s0 + j + 1] = key
             for j in ids:
                 q = ids[j]
-                xs[j] = x[q]
+                xs[j] = binned_position(q, at_refresh)
                 vs[j] = ti.Vector([vol0[q], vol0[q] * D[q]])
             # refresh steps only: the cells' min / max of D and box of motion since the last refresh, then over each
             # occupied cell's 5^d block (where D varies; how far particles that reach each other moved apart)
@@ -686,13 +724,14 @@ class CrackFinder:
             for p in x:
                 if state[p] == STANDARD and D[p] >= dthr:
                     T = ti.Matrix.zero(float, dim, dim)
-                    c = cell_of(x[p])
-                    u = cell_units(x[p])
+                    xp = listed_at(p)   # in the configuration of the cell list, as the kept normals
+                    c = cell_of(xp)
+                    u = cell_units(xp)
                     for o in ti.grouped(ti.ndrange(*rows)):
                         j0, j1 = row(c, u, o)
                         for j in range(j0, j1):
                             q = ids[j]
-                            d2 = (x[p] - x[q]).norm_sqr()
+                            d2 = (xp - xs[j]).norm_sqr()
                             if d2 < radius2_cut and D[q] < dthr and state[q] == MODIFIED:
                                 dist = ti.sqrt(d2)
                                 if dist < radius:
@@ -830,7 +869,7 @@ class CrackFinder:
                         if s_cache[p] == STANDARD:
                             k = -1
                         else:
-                            n, xp = n_cache[p], x[p]
+                            n, xp = n_cache[p], listed_at(p)
                             s0 = 0
                             if ti.static(write):
                                 s0 = contact_start[p]
@@ -1172,8 +1211,8 @@ class CrackFinder:
                 out[p, 5] = ti.abs(Wsum - ti.Matrix.identity(float, dim)).max()
                 out[p, 6] = ti.cast(mask[p] != 0, float)
 
-        self._k = dict(prepare=prepare, particle_normals=particle_normals, contact_list=contact_list,
-                       classify=classify, grid_update=grid_update, grid_remap=grid_remap,
+        self._k = dict(prepare=prepare, bin_cells=bin_cells, particle_normals=particle_normals,
+                       contact_list=contact_list, classify=classify, grid_update=grid_update, grid_remap=grid_remap,
                        partition_check=partition_check, node_cache_size=node_cache_size,
                        node_cache_read=node_cache_read, node_cache_write=node_cache_write)
         return CrackHooks(modified=modified, degrade=degrade, degrade_energy=degrade_energy, p2g=p2g,
