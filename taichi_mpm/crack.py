@@ -41,6 +41,8 @@ CACHE_KEYS = ("crack_normals", "crack_normal_states", "crack_normal_positions", 
               "crack_normal_drift")
 KEEP, DRIFTED, ALL = 0, 1, 2            # normals this step: kept / recomputed where they drifted / all recomputed
 BIG = 1e30
+SLOTS, FILL, OVERFLOW = 0, 1, 2         # the contact lists' build stages (CrackFinder._build_contact_list)
+LIST_SLACK = 8                          # slots a contact list gets beyond its last length (+25 %)
 DRIFT_LIMIT = 0.5                       # skins: a normal is recomputed once its neighbours may have moved against
                                         # it by this much (the bound a particle's own motion triggers refreshes at)
 NODE_CACHE_KEYS = ("crack_node_cache_index", "crack_node_cache_normal", "crack_node_cache_flag")
@@ -163,6 +165,7 @@ class CrackFinder:
                 self.contact_count = ti.field(ti.i32, n)
                 self.contact_start = ti.field(ti.i32, n)
                 self.contact_fill = ti.field(ti.i32, ())
+                self.contact_over = ti.field(ti.i32, ())   # slots the lists that outgrew theirs need
                 self.contact_ids = ti.ndarray(ti.i32, 1)
                 self.cell_dir = ti.Vector.field(d, float, self.n_cell_total)   # the cells' normal cones (build)
                 self.cell_spread = ti.field(float, self.n_cell_total)
@@ -271,12 +274,25 @@ class CrackFinder:
         return self.cc.contact_in_compression and self.contacts[None] > 0
 
     def _build_contact_list(self):
-        """Count each particle's facing candidates, take their slots in the pool (grown when short), write them."""
-        need = self._k["contact_list"](self.contact_ids, False)
-        if need > self.contact_ids.shape[0]:
-            self.contact_ids = ti.ndarray(ti.i32, need + need // 4)
-        self._k["contact_list"](self.contact_ids, True)
+        """Take each particle's slots in the pool (sized by its last list), write the lists in one search, and
+        search again only for those that outgrew their slots; the pool grows when short."""
+        build = self._k["contact_list"]
+        taken = build(self.contact_ids, SLOTS)
+        self._reserve_pool(taken)
+        over = build(self.contact_ids, FILL)
+        if over:
+            self._reserve_pool(taken + over)
+            build(self.contact_ids, OVERFLOW)
         self._list_due = False
+
+    def _reserve_pool(self, size: int):
+        """A pool of at least `size` slots, keeping what it holds."""
+        if size > self.contact_ids.shape[0]:
+            held = self.contact_ids.to_numpy()
+            grown = np.zeros(size + size // 4, np.int32)
+            grown[:len(held)] = held
+            self.contact_ids = ti.ndarray(ti.i32, len(grown))
+            self.contact_ids.from_numpy(grown)
 
     def contact_lists(self) -> list:
         """Per particle in creation order: the creation indices its contact test sums over until the next refresh,
@@ -318,8 +334,8 @@ class CrackFinder:
             (self.drift, self.cell_dlo, self.cell_dhi, self.cell_drift, self.recomputed) if cached else (None,) * 5)
         drift_limit = DRIFT_LIMIT * self.skin
         listed = self.listed
-        contact_count, contact_start, contact_fill = ((self.contact_count, self.contact_start, self.contact_fill)
-                                                      if listed else (None,) * 3)
+        contact_count, contact_start, contact_fill, contact_over = (
+            (self.contact_count, self.contact_start, self.contact_fill, self.contact_over) if listed else (None,) * 4)
         cell_dir, cell_spread = (self.cell_dir, self.cell_spread) if listed else (None, None)
         self._no_list = ti.ndarray(ti.i32, 1)   # particle_masks' argument without a contact list
         mask_at, mask_epoch = (self.mask_at, self.mask_epoch) if cached else (None, None)
@@ -850,51 +866,72 @@ class CrackFinder:
                         spread = ti.max(spread, (ns[j] - u).norm())
             return u, spread
 
+        @ti.func
+        def facing_scan(p, pool: ti.template(), s0, cap):
+            """The particles within the reach two particles can close to before the normals are recomputed whose
+            kept normal faces p's (band particles, whose normals follow their neighbours every step, count as
+            facing), in the order the search meets them: the first `cap` written to pool[s0:], all counted."""
+            k = 0
+            n, xp = n_cache[p], listed_at(p)
+            c = cell_of(xp)
+            u = cell_units(xp)
+            for o in ti.grouped(ti.ndrange(*rows_wide)):
+                first, last = row_cells(c, u, o, wide_span, wide_reach2)
+                for cell in range(first, last + 1):
+                    if n.dot(cell_dir[cell]) - cell_spread[cell] < CONE_MARGIN - contact_thr:
+                        for j in range(cell_start[cell], cell_start[cell] + cell_count[cell]):
+                            if (xp - xs[j]).norm_sqr() < wide2:
+                                nq = ns[j]
+                                if n.dot(nq) < -contact_thr or nq.norm_sqr() > 2.0:
+                                    if k < cap:
+                                        pool[s0 + k] = ids[j]
+                                    k += 1
+            return k
+
         @ti.kernel
-        def contact_list(pool: ti.types.ndarray(dtype=ti.i32, ndim=1), write: ti.template()) -> ti.i32:
-            """Each particle's contact list: the particles within the reach two particles can close to before the
-            normals are recomputed whose kept normal faces p's (band particles, whose normals follow their
-            neighbours every step, count as facing). write False: count them and take slots in the pool (returns
-            the slots needed); write True: fill the slots. A band particle itself searches each step (count -1)."""
+        def contact_list(pool: ti.types.ndarray(dtype=ti.i32, ndim=1), stage: ti.template()) -> ti.i32:
+            """Each particle's contact list (`facing_scan`), in one search: SLOTS takes each particle's slots in
+            the pool, its last count + 25 % + LIST_SLACK (returns the slots taken); FILL writes and counts the
+            lists, and marks one that outgrew its slots (start -1; returns the slots those need); OVERFLOW gives
+            those their exact slots and searches again. A band particle itself searches each step (count -1)."""
             if ti.static(listed):
-                if ti.static(not write):
+                if ti.static(stage == SLOTS):
                     contact_fill[None] = 0
-                    for j in ids:   # the kept normals in cell order, so the searches below stream
+                    for j in ids:   # the kept normals in cell order, so the searches stream
                         ns[j] = kept_facing(ids[j])
                     for c in cell_count:
                         cell_dir[c], cell_spread[c] = normal_cone(c)
-                for p in x:
-                    k = 0
-                    if s_cache[p] != STANDARD or D[p] >= dthr:   # p may be near before the next refresh
-                        if s_cache[p] == STANDARD:
-                            k = -1
-                        else:
-                            n, xp = n_cache[p], listed_at(p)
-                            s0 = 0
-                            if ti.static(write):
-                                s0 = contact_start[p]
-                            c = cell_of(xp)
-                            u = cell_units(xp)
-                            for o in ti.grouped(ti.ndrange(*rows_wide)):
-                                first, last = row_cells(c, u, o, wide_span, wide_reach2)
-                                for cell in range(first, last + 1):
-                                    if n.dot(cell_dir[cell]) - cell_spread[cell] < CONE_MARGIN - contact_thr:
-                                        for j in range(cell_start[cell], cell_start[cell] + cell_count[cell]):
-                                            if (xp - xs[j]).norm_sqr() < wide2:
-                                                nq = ns[j]
-                                                if n.dot(nq) < -contact_thr or nq.norm_sqr() > 2.0:
-                                                    if ti.static(write):
-                                                        pool[s0 + k] = ids[j]
-                                                    k += 1
-                    if ti.static(not write):
-                        contact_count[p] = k
+                    for p in x:
+                        cap = 0
+                        if s_cache[p] != STANDARD:   # p may be near before the next refresh
+                            last = ti.max(contact_count[p], 0)
+                            cap = last + last // 4 + LIST_SLACK
+                        elif D[p] >= dthr:   # a band particle
+                            cap = -1
+                        contact_count[p] = cap
                         contact_start[p] = 0
-                        if k > 0:
+                        if cap > 0:
+                            contact_start[p] = ti.atomic_add(contact_fill[None], cap)
+                elif ti.static(stage == FILL):
+                    contact_over[None] = 0
+                    for p in x:
+                        cap = contact_count[p]
+                        if cap > 0:
+                            k = facing_scan(p, pool, contact_start[p], cap)
+                            contact_count[p] = k
+                            if k > cap:
+                                contact_start[p] = -1
+                                ti.atomic_add(contact_over[None], k)
+                else:
+                    for p in x:
+                        if contact_start[p] < 0:
+                            k = contact_count[p]
                             contact_start[p] = ti.atomic_add(contact_fill[None], k)
-            fill = 0
+                            facing_scan(p, pool, contact_start[p], k)
+            out = 0
             if ti.static(listed):
-                fill = contact_fill[None]
-            return fill
+                out = contact_over[None] if ti.static(stage == FILL) else contact_fill[None]
+            return out
 
         @ti.func
         def particle_masks(epoch, pool: ti.template()):

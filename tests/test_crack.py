@@ -406,7 +406,7 @@ def _gliding_pair(refresh):
 
 def test_a_body_moving_as_a_whole_keeps_its_normals():
     """A refresh recomputes a normal only where the neighbours moved against each other by the skin: the blocks
-    gliding together pass several refreshes (particles move 0.5 % of r between them) and never recompute one after
+    gliding together refresh at every step (particles move more than 0.5 % of r in each) and never recompute one after
     the first step; their kept normals match those recomputed every step (the normal of a neighbourhood moved as a
     whole is the same, up to rounding: bound 1e-6), and the same particles are modified."""
     sim = _gliding_pair(0.01)
