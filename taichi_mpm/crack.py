@@ -76,7 +76,7 @@ def particle_bytes(d: int, precision: str, apic: bool, has_law: bool, stencil_no
     size = 8 if precision == "f64" else 4
     floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0)   # d, D, normal, sums, gsum, cent
     floats += d + 2                                # xs, vs: positions and SPH weights in cell order
-    floats += d if cc.contact_in_compression else 0   # ns: normals in cell order (contact test)
+    floats += d if cc.contact_in_compression else 0   # ns: normals in cell order (contact searches)
     ints = 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4   # iface, state, mask, pcell, ids
     if cc.normal_refresh > 0:   # kept normals, positions at the last refresh, drift; their state, masks found
         floats += 2 * d + 1
@@ -134,7 +134,7 @@ class CrackFinder:
         self.ids = ti.field(ti.i32, n)
         self.xs = ti.Vector.field(d, float, n)          # x[ids[j]]: positions in cell order, so searches stream
         self.vs = ti.Vector.field(2, float, n)          # (V, V D) of particle ids[j]: the SPH sums' weights
-        # normals in cell order, so the contact test's facing check streams (only with contact in compression)
+        # normals in cell order, so the contact lists' searches stream (only with contact in compression)
         self.ns = ti.Vector.field(d, float, n) if cc.contact_in_compression else None
         # normals kept between steps (crack.normal_refresh). Once a particle has moved half the skin since the last
         # refresh, each particle's neighbourhood is checked: a normal is recomputed where the particles around it
