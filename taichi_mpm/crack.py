@@ -144,6 +144,7 @@ class CrackFinder:
         self.cached = self.skin > 0
         self.listed, self.epoch = False, 0
         self._cells_due = True   # the cell list must be built before the next step's searches
+        self.contact_ids = ti.ndarray(ti.i32, 1)   # the contact lists' pool (one unused slot without lists)
         if self.cached:
             self.n_cache = ti.Vector.field(d, float, n)    # n_p as the gradient sums gave it (before band normals)
             self.s_cache = ti.field(ti.i32, n)             # and the state they gave
@@ -166,7 +167,6 @@ class CrackFinder:
                 self.contact_start = ti.field(ti.i32, n)
                 self.contact_fill = ti.field(ti.i32, ())
                 self.contact_over = ti.field(ti.i32, ())   # slots the lists that outgrew theirs need
-                self.contact_ids = ti.ndarray(ti.i32, 1)
                 self.cell_dir = ti.Vector.field(d, float, self.n_cell_total)   # the cells' normal cones (build)
                 self.cell_spread = ti.field(float, self.n_cell_total)
                 self._list_due = True
@@ -267,7 +267,7 @@ class CrackFinder:
                 self.stale[None] = KEEP
             if self.listed and (fresh or self._list_due):
                 self._build_contact_list()
-        self._k["classify"](self.epoch, self.contact_ids if self.listed else self._no_list)
+        self._k["classify"](self.epoch, self.contact_ids)
 
     def in_contact(self) -> bool:
         """Whether a particle is in contact this step (after `update`): only then is a node mass a tensor."""
@@ -337,7 +337,6 @@ class CrackFinder:
         contact_count, contact_start, contact_fill, contact_over = (
             (self.contact_count, self.contact_start, self.contact_fill, self.contact_over) if listed else (None,) * 4)
         cell_dir, cell_spread = (self.cell_dir, self.cell_spread) if listed else (None, None)
-        self._no_list = ti.ndarray(ti.i32, 1)   # particle_masks' argument without a contact list
         mask_at, mask_epoch = (self.mask_at, self.mask_epoch) if cached else (None, None)
         reuse_masks = cached and sten.origin is not None   # tensor stencils: the origin fixes the stencil's nodes
         grid_shape = list(sim.grid.shape)
@@ -606,11 +605,11 @@ class CrackFinder:
 
         @ti.func
         def binned_position(p, at_refresh):
-            """Where the cell list holds p: its position, or at the last refresh (`at_refresh`, kept normals only)."""
+            """Where bin_cells puts p: its position, or where the list held it (`at_refresh`: rebuilt between
+            refreshes, after set_state)."""
             xp = x[p]
-            if ti.static(cached):
-                if at_refresh:
-                    xp = x_ref[p]
+            if at_refresh:
+                xp = listed_at(p)
             return xp
 
         @ti.kernel
