@@ -34,7 +34,7 @@ import yaml
 
 from . import observe as obs
 from .config import ConfigError
-from .study import (_finished, _prepare_out, _study_dump, case_config, default_jobs, load_study, print_progress,
+from .study import (finished_records, prepare_out, study_dump, case_config, default_jobs, load_study, print_progress,
                     run_cases, write_reports)
 
 BASES = ("linear", "gimp", "quadratic", "cubic")          # cheapest stencil first
@@ -126,11 +126,11 @@ def advise(config=None, *, problem: Optional[dict] = None, observe, tolerance: f
     st.jobs = jobs or default_jobs()
     cases = {_key(c["params"]): c for c in st.expand()}
     out = Path(out) if out is not None else Path("advice") / name
-    case_dir = _prepare_out(st, out, named=False, resume=resume, overwrite=overwrite)
+    case_dir = prepare_out(st, out, named=False, resume=resume, overwrite=overwrite)
     if (out / ADVICE).exists() and not (resume or overwrite):
         raise ConfigError(f"{out} already holds advice ({ADVICE}): add --resume or --overwrite")
-    (out / "study.yaml").write_text(yaml.safe_dump(_study_dump(st), sort_keys=False))
-    done = {d: r for d, r in _finished(case_dir).items() if r.get("outcome") in ("ok", "unstable")} if resume else {}
+    (out / "study.yaml").write_text(yaml.safe_dump(study_dump(st), sort_keys=False))
+    done = {d: r for d, r in finished_records(case_dir).items() if r.get("outcome") in ("ok", "unstable")} if resume else {}
     records: dict[str, dict] = {}
 
     def run(batch: list[dict]):

@@ -112,8 +112,9 @@ def compare(config, vary: str, overrides: dict | None = None, out=None, overwrit
     """Run the variants of `config` (path, dict or Config) over `vary` ('KEY=A,B,...') and write the side-by-side
     frames, movie, curves and summary. Returns {"out", "frames", "movie", "curves", "summary", "variants",
     "render_seconds"}."""
-    from .render import FrameRenderer, _options, _write_png, color_fields, field_values, grid_lines, make_movie, \
-        sequence_bounds, sequence_limits
+    from .render import (FrameRenderer, color_fields, field_values, grid_lines, make_movie, sequence_bounds,
+                         sequence_limits, write_png)
+    from .render_options import options
 
     key, values = parse_vary(vary)
     base = load_config(config, overrides or {})
@@ -132,7 +133,7 @@ def compare(config, vary: str, overrides: dict | None = None, out=None, overwrit
         rc["camera"] = camera
     w, h = size or rc["size"]
     rc["size"] = [max(64, int(w) // len(variants)), int(h)]
-    field = _options(rc)["color_by"]
+    field = options(rc)["color_by"]
     try:  # an unknown field or camera: an input error before any run (a field the scene lacks: at its first frame)
         if field not in color_fields():
             field_values({"x": np.zeros((0, base.dim))}, field, base.dim)
@@ -189,7 +190,7 @@ def compare(config, vary: str, overrides: dict | None = None, out=None, overwrit
             for pnl in panels[1:]:
                 row += [sep, pnl]
             path = out / "frames" / f"frame_{k:06d}.png"
-            _write_png(path, np.hstack(row))
+            write_png(path, np.hstack(row))
             frames.append(path)
     finally:
         for r in renderers:
@@ -206,9 +207,9 @@ def compare(config, vary: str, overrides: dict | None = None, out=None, overwrit
 
 def plot_curves(variants, path, dim) -> Path:
     """Energies, momentum and the energy-balance error of every variant over time, one colour per variant."""
-    from .plots import _pyplot
+    from .plots import pyplot
 
-    plt = _pyplot()
+    plt = pyplot()
     panels = (("kinetic", "kinetic energy"), ("strain", "strain energy"), ("total", "total energy (kinetic + "
               "strain + gravity)"), ("momentum", "|linear momentum|"), ("energy_error", "energy-balance error "
               "(fraction of the largest kinetic + strain)"))

@@ -13,14 +13,14 @@ import math
 
 import numpy as np
 
+from .window_layout import CHART, CHART_COLOURS, CHART_LENGTH, HELP, SLIDER_TOLERANCE
+
 FOV = 40.0            # vertical field of view, degrees
 PANEL = (0.01, 0.01, 0.30, 0.42)   # the ImGui panel: x, y (from the top-left), width, height in window units
 SWITCH_KEYS = ("b", "basis", "t", "transfer")   # keys and button events that restart Taichi (a new Simulation)
 
 
 def _chart_capacity() -> int:
-    from .gui import CHART_LENGTH
-
     return 8 + 3 * 2 * (CHART_LENGTH - 1)   # the frame's 4 segments, 3 series of CHART_LENGTH - 1 segments
 
 
@@ -73,8 +73,6 @@ def box_vertices(lower, upper) -> np.ndarray:
 def chart_vertices(session):
     """The strip chart's segments as (vertices (M, 2), colours (M, 3)) in GGUI canvas units (y up), padded to
     CHART_VERTICES with segments outside the window (so the fields keep one size)."""
-    from .gui import CHART, CHART_COLOURS
-
     x0, y0, x1, y1 = CHART
     frame = np.array([[x0, y0], [x1, y0], [x1, y0], [x1, y1], [x1, y1], [x0, y1], [x0, y1], [x0, y0]])
     verts, cols = [frame], [np.full((8, 3), 0.73)]
@@ -113,8 +111,6 @@ class _Buffers:
 def run_ggui(session, title, max_frames=None, screenshot=None, show=True, script=None):
     """The GGUI window's loop over a gui.Session (see gui.run_gui for the arguments); returns the last simulation."""
     import taichi as ti
-
-    from .gui import HELP, SLIDER_TOLERANCE
 
     res = tuple(int(r) for r in session.res)
     window = buffers = shown = None

@@ -27,13 +27,10 @@ import numpy as np
 
 from .colour_range import LiveLimits
 from .render import available_fields, field_values
+from .window_layout import CHART, CHART_COLOURS, CHART_LENGTH, HELP, SLIDER_TOLERANCE
 
-HELP = "space: pause  s: step  r: reset  c: colour  b: basis  t: transfer  drag: push  arrows: turn (3D)  esc: quit"
 BASES = ("linear", "gimp", "quadratic", "cubic")
 TRANSFERS = ("pic", "flip", "apic")
-CHART = (0.62, 0.06, 0.99, 0.24)   # the energy strip chart's box in window units: x0, y0, x1, y1
-CHART_LENGTH = 200                 # frames the chart keeps
-CHART_COLOURS = {"kinetic": 0xD62728, "strain": 0x1F77B4, "total": 0x222222}
 
 
 class View:
@@ -179,9 +176,6 @@ def window_title(cfg, kind: str | None = None, support: tuple[bool, bool] | None
 
 GRAVITY_MAX = 20.0                 # m/s^2: the gravity slider's range (at least the config's |g|)
 STIFFNESS_RANGE = (0.1, 4.0)       # the stiffness-scale slider's range
-# a slider "moved" when it differs from the session's value by more than this: the widgets hold float32, so the
-# config's 0.99 comes back as 0.99000001 and would otherwise count as a move every frame
-SLIDER_TOLERANCE = 1e-6
 
 
 def down_direction(cfg) -> np.ndarray:

@@ -633,10 +633,10 @@ def run_study(study_path, out=None, jobs: Optional[int] = None, scheduler: Optio
             print(f"{c['id']}  {json.dumps(c['params'], default=str)}" + (f"  repeat {c['repeat']}" if st.repeats > 1 else ""))
         print(f"{len(cases)} cases; results would go to {out}")
         return None
-    case_dir = _prepare_out(st, out, named=out == Path("studies") / st.name, resume=resume, overwrite=overwrite)
-    done = _finished(case_dir) if resume else {}
+    case_dir = prepare_out(st, out, named=out == Path("studies") / st.name, resume=resume, overwrite=overwrite)
+    done = finished_records(case_dir) if resume else {}
     todo = [c for c in cases if done.get(c["digest"], {}).get("outcome") not in ("ok", "unstable")]
-    (out / "study.yaml").write_text(yaml.safe_dump(_study_dump(st), sort_keys=False))
+    (out / "study.yaml").write_text(yaml.safe_dump(study_dump(st), sort_keys=False))
     finished = [0]
 
     def store(case, rec):
@@ -659,12 +659,12 @@ def run_cases(cases: list, jobs: int, scheduler: Optional[str], timeout: Optiona
         return
     threads = max(1, (os.cpu_count() or 1) // jobs) if jobs > 1 else None
     with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
-        futures = {pool.submit(execute_case, c, timeout, threads, _user_paths()): c for c in cases}
+        futures = {pool.submit(execute_case, c, timeout, threads, user_paths()): c for c in cases}
         for fut in concurrent.futures.as_completed(futures):
             store(futures[fut], fut.result())
 
 
-def _prepare_out(st: Study, out: Path, named: bool, resume: bool, overwrite: bool) -> Path:
+def prepare_out(st: Study, out: Path, named: bool, resume: bool, overwrite: bool) -> Path:
     """Check the output folder (refusing to overwrite results unasked) and return its cases/ folder."""
     def refuse(msg):
         raise ConfigError(msg, key="study" if named else None, line=st.lines.get("study") if named else None,
@@ -712,7 +712,7 @@ def _run_dask(cases, scheduler, timeout, store):
         raise ConfigError("--scheduler needs dask.distributed: pip install 'taichi-mpm[study]'") from e
     client = Client(scheduler) if isinstance(scheduler, str) else Client(scheduler)
     try:
-        futures = {client.submit(execute_case, c, timeout, None, _user_paths(), pure=False, key=f"case-{c['id']}-{c['digest']}"): c
+        futures = {client.submit(execute_case, c, timeout, None, user_paths(), pure=False, key=f"case-{c['id']}-{c['digest']}"): c
                    for c in cases}
         for fut in as_completed(list(futures)):
             case = futures[fut]
@@ -726,7 +726,7 @@ def _run_dask(cases, scheduler, timeout, store):
         client.close()
 
 
-def _user_paths() -> list[str]:
+def user_paths() -> list[str]:
     """This process's import paths outside the Python installation (project and test dirs), for case processes."""
     import sysconfig
     skip = {sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")}
@@ -735,7 +735,7 @@ def _user_paths() -> list[str]:
             and not p.endswith(".zip")]
 
 
-def _finished(case_dir: Path) -> dict:
+def finished_records(case_dir: Path) -> dict:
     out = {}
     for f in case_dir.glob("*.json"):
         try:
@@ -746,7 +746,7 @@ def _finished(case_dir: Path) -> dict:
     return out
 
 
-def _study_dump(st: Study) -> dict:
+def study_dump(st: Study) -> dict:
     d = dict(study=st.name)
     if st.base:
         d["base"] = st.base
@@ -765,7 +765,7 @@ def _study_dump(st: Study) -> dict:
 # ---------------------------------------------------------------- reports
 def collect(st: Study, out: Path) -> list[dict]:
     """The records of this study's cases, in case order."""
-    done = _finished(out / "cases")
+    done = finished_records(out / "cases")
     return [done[c["digest"]] for c in st.expand() if c["digest"] in done]
 
 
@@ -982,19 +982,15 @@ def _md(v) -> str:
 
 # ---------------------------------------------------------------- entry point of a case process
 def main(argv=None):
-    """`python -m taichi_mpm.study --case CASE.json --result OUT.json`: run one case (internal); with a study
-    file instead, the same as `taichi-mpm study`."""
-    ap = argparse.ArgumentParser(prog="python -m taichi_mpm.study", description="run one study case (internal) or a study")
-    ap.add_argument("study", nargs="?", help="a study YAML file (runs the whole study)")
-    ap.add_argument("--case", help="case JSON file (internal: run one case in this process)")
-    ap.add_argument("--result", help="where to write the case record (with --case)")
-    args, rest = ap.parse_known_args(argv)
-    if args.case:
-        rec = run_case_inline(json.loads(Path(args.case).read_text()))
-        Path(args.result).write_text(json.dumps(rec, default=str))
-        return 0
-    from .cli import main as cli_main
-    return cli_main(["study", *([args.study] if args.study else []), *rest])
+    """`python -m taichi_mpm.study --case CASE.json --result OUT.json`: run one case in this process (internal: the
+    process execute_case launches). A whole study runs with `taichi-mpm study`."""
+    ap = argparse.ArgumentParser(prog="python -m taichi_mpm.study", description="run one study case (internal)")
+    ap.add_argument("--case", required=True, help="case JSON file")
+    ap.add_argument("--result", required=True, help="where to write the case record")
+    args = ap.parse_args(argv)
+    rec = run_case_inline(json.loads(Path(args.case).read_text()))
+    Path(args.result).write_text(json.dumps(rec, default=str))
+    return 0
 
 
 if __name__ == "__main__":
