@@ -41,7 +41,9 @@ from typing import Any, Optional
 
 import yaml
 
+from . import observe as obs
 from .config import ConfigError, load_config, read_yaml
+from .errors import InstabilityError
 
 STUDY_KEYS = {"study", "description", "base", "problem", "vary", "cases", "set", "repeats", "metric",
               "time_metric", "convergence_key", "energy_limit", "timeout", "samples", "jobs", "observe", "reference",
@@ -202,17 +204,46 @@ def load_study(source, allow_problems=()) -> Study:
     else:
         path = Path(source)
         data, lines = read_yaml(path)
-    allow = tuple(allow_problems or ())
+    fail = _Refusal(lines, path)
+    st = _study_head(data, fail, path, tuple(allow_problems or ()), lines)
+    _read_sweep(st, data, fail)
+    _read_settings(st, data, fail)
+    # problem types: the project's own, or opted-in `module:factory`; checked before anything is imported
+    types = _problem_types(st)
+    for key, kind in types:
+        why = problem_refused(kind, st.allow_problems)
+        if why:
+            fail(why, key)
+    _read_observe_and_metric(st, data, fail, [t for _, t in types] if types else [None])
+    settled = _check_cases(st, fail)   # every case's config, so a typo fails the study before anything runs
+    if st.observe is not None:
+        st.observe = settled
+        try:
+            st.reference = obs.check_reference(data.get("reference", obs.default_reference(st.observe)), st.observe)
+        except obs.ObserveError as e:
+            fail(str(e), "reference")
+    return st
 
-    def fail(msg, key=None):
+
+class _Refusal:
+    """Raises the ConfigError of a bad study file: the message, the key and the line of the key (or of its nearest
+    enclosing key), the file."""
+
+    def __init__(self, lines: dict, path: Optional[Path]):
+        self.lines, self.path = lines, path
+
+    def __call__(self, msg, key=None):
         line = None
-        if key is not None:   # the key's own line, or its nearest enclosing key's
+        if key is not None:
             parts = str(key).split(".")
             while parts and line is None:
-                line = lines.get(".".join(parts))
+                line = self.lines.get(".".join(parts))
                 parts.pop()
-        raise ConfigError(msg, key=key, line=line, file=path)
+        raise ConfigError(msg, key=key, line=line, file=self.path)
 
+
+def _study_head(data: dict, fail, path, allow: tuple, lines: dict) -> Study:
+    """The study's keys, name, description and its base config or problem."""
     bad_key = _non_text_key(data)
     if bad_key is not None:
         fail(f"keys must be text, got the key {_what(bad_key[1])}", bad_key[0] or None)
@@ -226,24 +257,34 @@ def load_study(source, allow_problems=()) -> Study:
     if "description" in data and not isinstance(data["description"], str):
         fail("must be text", "description")
     if ("base" in data) == ("problem" in data):
-        fail("give exactly one of `base` (a config file) or `problem` (an analytic problem spec)", "base" if "base" in data else "study")
+        fail("give exactly one of `base` (a config file) or `problem` (an analytic problem spec)",
+             "base" if "base" in data else "study")
     st = Study(name=name, path=path, allow_problems=allow, lines=lines)
     if "base" in data:
-        if not isinstance(data["base"], str) or not data["base"] or "\0" in data["base"]:
-            fail(f"must be the path of a config file, got {_what(data['base'])}", "base")
-        base = Path(data["base"])
-        if not base.is_absolute():
-            base = (path.parent if path else Path.cwd()) / base
-        if not base.is_file():
-            fail(f"base config not found: {base}", "base")
-        st.base = str(base.resolve())
-        st.base_data, _ = read_yaml(base)
+        st.base, st.base_data = _base_config(data["base"], path, fail)
     else:
         problem = data["problem"]
         if not isinstance(problem, dict) or "type" not in problem or not all(isinstance(k, str) for k in problem):
             fail("must be a mapping with a `type` (e.g. {type: mms_axis_aligned, dim: 1})", "problem")
         st.problem = problem
+    return st
 
+
+def _base_config(base, path, fail) -> tuple[str, dict]:
+    """(absolute path, contents) of the study's base config; relative paths start at the study file's folder."""
+    if not isinstance(base, str) or not base or "\0" in base:
+        fail(f"must be the path of a config file, got {_what(base)}", "base")
+    found = Path(base)
+    if not found.is_absolute():
+        found = (path.parent if path else Path.cwd()) / found
+    if not found.is_file():
+        fail(f"base config not found: {found}", "base")
+    data, _ = read_yaml(found)
+    return str(found.resolve()), data
+
+
+def _read_sweep(st: Study, data: dict, fail):
+    """`vary`, `cases` and `set`: what differs between the cases and what all of them share."""
     vary = data.get("vary") or {}
     if not isinstance(vary, dict):
         fail("must map dotted keys to lists of values", "vary")
@@ -272,33 +313,29 @@ def load_study(source, allow_problems=()) -> Study:
                 fail("a problem.* key needs a `problem:` section (this study has a `base`)",
                      f"vary.{k}" if k in st.vary else "cases")
 
-    def count(key, default, limit=None):
-        v = data.get(key, default)
-        if not isinstance(v, int) or isinstance(v, bool) or v < 1 or (limit and v > limit):
-            fail(f"must be a whole number from 1{f' to {limit}' if limit else ''}, got {_what(v)}", key)
-        return v
 
-    def positive(key):
-        v = data.get(key)
-        if v is not None and (not _is_number(v) or v <= 0):
-            fail(f"must be a positive number or null, got {_what(v)}", key)
-        return v
+def _whole(data: dict, fail, key: str, default, limit=None) -> int:
+    v = data.get(key, default)
+    if not isinstance(v, int) or isinstance(v, bool) or v < 1 or (limit and v > limit):
+        fail(f"must be a whole number from 1{f' to {limit}' if limit else ''}, got {_what(v)}", key)
+    return v
 
-    st.repeats = count("repeats", 1)
-    st.samples = count("samples", 20, MAX_SAMPLES)
-    st.jobs = count("jobs", default_jobs())
-    timing = data.get("timing", {})
-    if not isinstance(timing, dict) or set(timing) - set(TIMING_DEFAULT):
-        fail("must be a mapping {runs: N, spread: S} (runs of each case's stepping, until the time spread "
-             "(max - min) / median is at most S)", "timing")
-    st.timing = {**TIMING_DEFAULT, **timing}
-    runs, spread = st.timing["runs"], st.timing["spread"]
-    if not isinstance(runs, int) or isinstance(runs, bool) or not 0 <= runs <= 100:
-        fail(f"must be a whole number from 0 to 100, got {_what(runs)}", "timing.runs")
-    if not _is_number(spread) or spread <= 0:
-        fail(f"must be a positive number, got {_what(spread)}", "timing.spread")
-    st.energy_limit = positive("energy_limit")
-    st.timeout = positive("timeout")
+
+def _positive_or_null(data: dict, fail, key: str):
+    v = data.get(key)
+    if v is not None and (not _is_number(v) or v <= 0):
+        fail(f"must be a positive number or null, got {_what(v)}", key)
+    return v
+
+
+def _read_settings(st: Study, data: dict, fail):
+    """The counts, limits, timing and metric keys, and the number of cases the study expands to."""
+    st.repeats = _whole(data, fail, "repeats", 1)
+    st.samples = _whole(data, fail, "samples", 20, MAX_SAMPLES)
+    st.jobs = _whole(data, fail, "jobs", default_jobs())
+    st.timing = _read_timing(data, fail)
+    st.energy_limit = _positive_or_null(data, fail, "energy_limit")
+    st.timeout = _positive_or_null(data, fail, "timeout")
     st.time_metric = data.get("time_metric", "step_time")
     if st.time_metric not in TIME_METRICS:
         fail(f"must be one of {', '.join(TIME_METRICS)}, got {_what(st.time_metric)}", "time_metric")
@@ -311,17 +348,33 @@ def load_study(source, allow_problems=()) -> Study:
     if n_cases > MAX_CASES:
         fail(f"expands to {n_cases} cases (at most {MAX_CASES}: split the study)", "vary" if st.vary else "cases")
 
-    # problem types: the project's own, or opted-in `module:factory`; checked before anything is imported
-    types = []
-    if st.problem is not None:
-        types.append(("problem.type", st.problem["type"]))
-        types += [(f"vary.problem.type.{j}", t) for j, t in enumerate(st.vary.get("problem.type", []))]
-        types += [(f"cases.{i}.problem.type", c["problem.type"]) for i, c in enumerate(st.cases) if "problem.type" in c]
-    for key, kind in types:
-        why = problem_refused(kind, allow)
-        if why:
-            fail(why, key)
-    from . import observe as obs
+
+def _read_timing(data: dict, fail) -> dict:
+    timing = data.get("timing", {})
+    if not isinstance(timing, dict) or set(timing) - set(TIMING_DEFAULT):
+        fail("must be a mapping {runs: N, spread: S} (runs of each case's stepping, until the time spread "
+             "(max - min) / median is at most S)", "timing")
+    timing = {**TIMING_DEFAULT, **timing}
+    runs, spread = timing["runs"], timing["spread"]
+    if not isinstance(runs, int) or isinstance(runs, bool) or not 0 <= runs <= 100:
+        fail(f"must be a whole number from 0 to 100, got {_what(runs)}", "timing.runs")
+    if not _is_number(spread) or spread <= 0:
+        fail(f"must be a positive number, got {_what(spread)}", "timing.spread")
+    return timing
+
+
+def _problem_types(st: Study) -> list[tuple[str, Any]]:
+    """(key, problem type) of every problem type the study names: its problem's and those it varies."""
+    if st.problem is None:
+        return []
+    types = [("problem.type", st.problem["type"])]
+    types += [(f"vary.problem.type.{j}", t) for j, t in enumerate(st.vary.get("problem.type", []))]
+    types += [(f"cases.{i}.problem.type", c["problem.type"]) for i, c in enumerate(st.cases) if "problem.type" in c]
+    return types
+
+
+def _read_observe_and_metric(st: Study, data: dict, fail, types: list):
+    """The quantity of interest (`observe`, parsed; checked per case later) and the error metric of the reports."""
     if "observe" in data:
         try:
             st.observe = obs.parse(data["observe"])
@@ -332,48 +385,55 @@ def load_study(source, allow_problems=()) -> Study:
     st.metric = data.get("metric")
     if st.metric is None and st.observe is not None:
         st.metric = "error_observed"
-    if st.metric is not None:
-        if not isinstance(st.metric, str):
-            fail(f"must be the name of a metric, got {_what(st.metric)}", "metric")
-        known = known_metrics([t for _, t in types] if types else [None])
-        if known is not None and st.observe is not None:
-            known = known + ["observed", "error_observed"]
-        if known is not None and st.metric not in known:
-            fail(f"unknown metric {st.metric!r} for this study (known: {', '.join(known)})", "metric")
+    if st.metric is None:
+        return
+    if not isinstance(st.metric, str):
+        fail(f"must be the name of a metric, got {_what(st.metric)}", "metric")
+    known = known_metrics(types)
+    if known is not None and st.observe is not None:
+        known = known + ["observed", "error_observed"]
+    if known is not None and st.metric not in known:
+        fail(f"unknown metric {st.metric!r} for this study (known: {', '.join(known)})", "metric")
 
-    # validate every case's config here, so a typo fails the study before anything runs
-    parsed, settled = st.observe, None
+
+def _check_cases(st: Study, fail) -> Optional[dict]:
+    """Validate every case's config and problem (and the quantity of interest in each); returns the quantity as
+    the cases settled it (observe.check), or None without one."""
+    where = "vary" if st.vary else "cases"
     try:
         cases = st.expand()
     except ConfigError as e:
-        fail(str(e), "vary" if st.vary else "cases")
+        fail(str(e), where)
+    settled = None
     for case in cases:
-        try:
-            why = problem_refused((case["problem"] or {}).get("type"), allow) if case["problem"] is not None else None
-            if why:   # e.g. a problem.type.x key that turned the type into a mapping
-                raise ConfigError(why)
-            problem, cfg = case_config(case)
-        except ConfigError as e:
-            fail(f"case {_repr.repr(case['params'])}: {e}", "vary" if st.vary else "cases")
-        except Exception as e:  # noqa: BLE001 - a project (or opted-in) problem refusing its parameters
-            fail(f"case {_repr.repr(case['params'])}: invalid problem {_repr.repr(case['problem'])}: "
-                 f"{type(e).__name__}: {e}", "problem")
+        cfg = _case_config_checked(case, st.allow_problems, fail, where)
         if st.observe is not None:   # the quantity exists in every case (its probe, its problem's metric)
             kind = (case["problem"] or {}).get("type") if case["problem"] is not None else None
             try:
-                spec = obs.check(parsed, cfg, known_metrics([kind]), allow)
+                spec = obs.check(st.observe, cfg, known_metrics([kind]), st.allow_problems)
             except obs.ObserveError as e:
                 fail(f"{e}" + (f" (case {_repr.repr(case['params'])})" if len(cases) > 1 else ""), "observe")
             if settled is not None and spec["kind"] != settled["kind"]:
-                fail(f"{parsed['text']} is a {settled['kind']} in one case and a {spec['kind']} in another", "observe")
+                fail(f"{st.observe['text']} is a {settled['kind']} in one case and a {spec['kind']} in another",
+                     "observe")
             settled = spec
-    if st.observe is not None:
-        st.observe = settled
-        try:
-            st.reference = obs.check_reference(data.get("reference", obs.default_reference(st.observe)), st.observe)
-        except obs.ObserveError as e:
-            fail(str(e), "reference")
-    return st
+    return settled
+
+
+def _case_config_checked(case: dict, allow, fail, where: str):
+    """A case's validated Config; a refused problem, a bad config or a problem refusing its parameters fails the
+    study naming the case."""
+    try:
+        why = problem_refused((case["problem"] or {}).get("type"), allow) if case["problem"] is not None else None
+        if why:   # e.g. a problem.type.x key that turned the type into a mapping
+            raise ConfigError(why)
+        _, cfg = case_config(case)
+    except ConfigError as e:
+        fail(f"case {_repr.repr(case['params'])}: {e}", where)
+    except Exception as e:  # noqa: BLE001 - a project (or opted-in) problem refusing its parameters
+        fail(f"case {_repr.repr(case['params'])}: invalid problem {_repr.repr(case['problem'])}: "
+             f"{type(e).__name__}: {e}", "problem")
+    return cfg
 
 
 def problem_refused(kind, allow=()) -> Optional[str]:
@@ -436,107 +496,137 @@ def resolve_problem(spec: dict, allow=()):
 
 def run_case_inline(case: dict) -> dict:
     """Run one case in this process and return its record (never raises)."""
-    from .errors import InstabilityError
-
-    rec: dict[str, Any] = dict(case=case["id"], repeat=case["repeat"], outcome="error", cause="", message="")
-    for k, v in case["params"].items():
-        rec[k] = v
-    t_start = time.perf_counter()
-    setup_time = compile_time = step_time = 0.0
-    sim, e_max, ref = None, float("nan"), 0.0
-    clock = {"t0": t_start, "compile": 0.0}  # start of the timed span; compile time of the first step
+    run = _CaseRun(case)
     try:
-        problem, cfg = case_config(case)
+        run.setup()
+        run.step()
+        run.finish()
+        run.rec["outcome"] = "ok"
+    except InstabilityError as e:
+        run.rec["energy_ratio_max"] = run.e_max if run.ref > 0 else float("nan")
+        run.rec.update(outcome="unstable", cause=e.cause, message=str(e), fail_step=e.step, fail_time=e.time)
+    except _Undetected as e:
+        run.rec["energy_ratio_max"] = run.e_max
+        run.rec.update(outcome="unstable", cause=f"undetected: {e}", message=str(e))
+    except Exception as e:  # noqa: BLE001 - every failure becomes the case's outcome
+        run.rec.update(outcome="error", message=f"{type(e).__name__}: {e}", traceback=traceback.format_exc()[-2000:])
+    return run.record()
+
+
+class _CaseRun:
+    """One case in this process: its setup, the timed stepping (energy and quantity sampled outside the timing),
+    the judgement of the end state, and the record. The clock's t0 is the start of the timed span; JIT compile
+    time is the first step's."""
+
+    def __init__(self, case: dict):
+        self.case = case
+        self.rec: dict[str, Any] = dict(case=case["id"], repeat=case["repeat"], outcome="error", cause="", message="")
+        self.rec.update(case["params"])
+        self.t_start = time.perf_counter()
+        self.setup_time = self.compile_time = self.step_time = 0.0
+        self.sim, self.e_max, self.ref, self.g0 = None, float("nan"), 0.0, None
+        self.clock = {"t0": self.t_start, "compile": 0.0}
+        self.problem = self.cfg = self.observe = self.sampler = self.state0 = None
+
+    def setup(self):
         from .solver import Simulation
-        sim = Simulation(cfg, body_force=getattr(problem, "body_force", None))
-        if problem is not None and hasattr(problem, "setup"):
-            problem.setup(sim)
-        rec["particles"] = sim.n
-        observe = getattr(problem, "observe", None)
-        sampler = None
+
+        case = self.case
+        self.problem, self.cfg = case_config(case)
+        sim = self.sim = Simulation(self.cfg, body_force=getattr(self.problem, "body_force", None))
+        if self.problem is not None and hasattr(self.problem, "setup"):
+            self.problem.setup(sim)
+        self.rec["particles"] = sim.n
+        self.observe = getattr(self.problem, "observe", None)
         if case.get("observe"):   # the study's quantity of interest (observe.py), sampled outside the timing
-            from .observe import Sampler
-            sampler = Sampler(case["observe"], sim, problem)
-            sampler.sample(sim)
-        state0 = sim.get_state() if (case.get("timing") or {}).get("runs", 0) > 0 else None
-        e0 = _mech_energy(sim)  # compiles the energy kernel outside the timed stepping
-        g0 = e0[1]
-        ref = e0[0]
-        e_max = 1.0
-        end = cfg.solver.end_time
-        marks = [end * (k + 1) / case.get("samples", 20) for k in range(case.get("samples", 20))]
-        setup_time = time.perf_counter() - t_start
-        clock["t0"] = time.perf_counter()
+            self.sampler = obs.Sampler(case["observe"], sim, self.problem)
+            self.sampler.sample(sim)
+        self.state0 = sim.get_state() if (case.get("timing") or {}).get("runs", 0) > 0 else None
+        self.ref, self.g0 = _mech_energy(sim)  # compiles the energy kernel outside the timed stepping
+        self.e_max = 1.0
+        self.setup_time = time.perf_counter() - self.t_start
+        self.clock["t0"] = time.perf_counter()
 
-        def after_step(s):
-            if s.n_steps == 1:  # the first step holds the JIT compile
-                clock["compile"] = time.perf_counter() - clock["t0"]
-                clock["t0"] = time.perf_counter()
-            if observe is not None:
-                t_obs = time.perf_counter()
-                observe(s)
-                if s.n_steps > 1:
-                    clock["t0"] += time.perf_counter() - t_obs  # observation is not stepping time
+    def _after_step(self, s):
+        clock = self.clock
+        if s.n_steps == 1:  # the first step holds the JIT compile
+            clock["compile"] = time.perf_counter() - clock["t0"]
+            clock["t0"] = time.perf_counter()
+        if self.observe is not None:
+            t_obs = time.perf_counter()
+            self.observe(s)
+            if s.n_steps > 1:
+                clock["t0"] += time.perf_counter() - t_obs  # observation is not stepping time
 
-        for mark in marks:
-            sim.advance_to(mark, on_step=after_step)
+    def step(self):
+        """Advance to the end time in `samples` pieces; between them, the energy bound and the quantity."""
+        sim, samples, end = self.sim, self.case.get("samples", 20), self.cfg.solver.end_time
+        for mark in [end * (k + 1) / samples for k in range(samples)]:
+            sim.advance_to(mark, on_step=self._after_step)
             if sim.time < mark:  # stopped by solver.max_steps
                 break
             t_sample = time.perf_counter()
-            e, _ = _mech_energy(sim, g0)
+            e, _ = _mech_energy(sim, self.g0)
             if not math.isfinite(e):
                 raise _Undetected("non-finite energy without a solver error")
-            if ref > 0:
-                e_max = max(e_max, e / ref)
-            if sampler is not None:
-                sampler.sample(sim)
-            clock["t0"] += time.perf_counter() - t_sample  # energy and observable sampling are not stepping time
-        compile_time = clock["compile"]
-        step_time = time.perf_counter() - clock["t0"]
-        p = sim.particles()
+            if self.ref > 0:
+                self.e_max = max(self.e_max, e / self.ref)
+            if self.sampler is not None:
+                self.sampler.sample(sim)
+            self.clock["t0"] += time.perf_counter() - t_sample  # energy and observable sampling are not stepping time
+        self.compile_time = self.clock["compile"]
+        self.step_time = time.perf_counter() - self.clock["t0"]
+
+    def finish(self):
+        """Judge the end state (garbage the solver did not report is `_Undetected`) and record the energies, the
+        problem's errors, the quantity and the timing reruns' median."""
         import numpy as np
+
+        sim, rec, case, ref = self.sim, self.rec, self.case, self.ref
+        p = sim.particles()
         if not (np.all(np.isfinite(p["x"])) and np.all(np.isfinite(p["v"]))):
             raise _Undetected("non-finite particle state without a solver error")
-        e_end, _ = _mech_energy(sim, g0)
+        e_end, _ = _mech_energy(sim, self.g0)
         limit = case.get("energy_limit")
-        if limit and ref > 0 and e_max > limit:  # judged at the end: a later solver error takes precedence
-            raise _Undetected(f"mechanical energy grew to {e_max:.3g} x its initial value without a solver error")
-        rec["energy_ratio_max"] = e_max if ref > 0 else float("nan")
+        if limit and ref > 0 and self.e_max > limit:  # judged at the end: a later solver error takes precedence
+            raise _Undetected(f"mechanical energy grew to {self.e_max:.3g} x its initial value without a solver error")
+        rec["energy_ratio_max"] = self.e_max if ref > 0 else float("nan")
         rec["energy_ratio_end"] = e_end / ref if ref > 0 else float("nan")
-        if problem is not None and hasattr(problem, "errors"):
-            for name, value in problem.errors(sim).items():
+        if self.problem is not None and hasattr(self.problem, "errors"):
+            for name, value in self.problem.errors(sim).items():
                 rec[name] = _plain(value)
-        if sampler is not None:
-            rec["observed"] = rec.get(case["observe"]["name"]) if case["observe"]["kind"] == "metric" else sampler.value()
-        if state0 is not None and sim.time >= end * (1 - 1e-12) and sim.n_steps > 1:
-            step_time = _timing_reruns(sim, state0, end, step_time, case["timing"], rec)
-        rec["outcome"] = "ok"
-    except InstabilityError as e:
-        rec["energy_ratio_max"] = e_max if ref > 0 else float("nan")
-        rec.update(outcome="unstable", cause=e.cause, message=str(e), fail_step=e.step, fail_time=e.time)
-    except _Undetected as e:
-        rec["energy_ratio_max"] = e_max
-        rec.update(outcome="unstable", cause=f"undetected: {e}", message=str(e))
-    except Exception as e:  # noqa: BLE001 - every failure becomes the case's outcome
-        rec.update(outcome="error", message=f"{type(e).__name__}: {e}", traceback=traceback.format_exc()[-2000:])
-    if rec["outcome"] != "ok" and sim is not None and setup_time > 0:  # stopped early: time up to the stop
-        compile_time = clock["compile"]
-        if compile_time == 0.0 and sim.n_steps >= 1:
-            compile_time = time.perf_counter() - clock["t0"]
-        elif step_time == 0.0 and sim.n_steps > 1:
-            step_time = time.perf_counter() - clock["t0"]
-    rec["setup_time"] = setup_time
-    rec["compile_time"] = compile_time
-    rec["step_time"] = step_time
-    rec["wall_time"] = time.perf_counter() - t_start if "timing_runs" not in rec else setup_time + compile_time + step_time
-    if sim is not None:
-        rec["steps"] = sim.n_steps
-        rec["sim_time"] = sim.time
-        timed_steps = sim.n_steps - 1 if step_time > 0 else sim.n_steps
-        timed = step_time if step_time > 0 else compile_time
-        rec["particle_steps_per_s"] = sim.n * timed_steps / timed if timed > 0 and timed_steps > 0 else float("nan")
-    rec["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
-    return rec
+        if self.sampler is not None:
+            quantity = case["observe"]
+            rec["observed"] = rec.get(quantity["name"]) if quantity["kind"] == "metric" else self.sampler.value()
+        end = self.cfg.solver.end_time
+        if self.state0 is not None and sim.time >= end * (1 - 1e-12) and sim.n_steps > 1:
+            self.step_time = _timing_reruns(sim, self.state0, end, self.step_time, case["timing"], rec)
+
+    def _times_of_a_stop(self):
+        """A case that stopped early: its compile and stepping time up to the stop."""
+        self.compile_time = self.clock["compile"]
+        if self.compile_time == 0.0 and self.sim.n_steps >= 1:
+            self.compile_time = time.perf_counter() - self.clock["t0"]
+        elif self.step_time == 0.0 and self.sim.n_steps > 1:
+            self.step_time = time.perf_counter() - self.clock["t0"]
+
+    def record(self) -> dict:
+        rec, sim = self.rec, self.sim
+        if rec["outcome"] != "ok" and sim is not None and self.setup_time > 0:
+            self._times_of_a_stop()
+        rec["setup_time"] = self.setup_time
+        rec["compile_time"] = self.compile_time
+        rec["step_time"] = self.step_time
+        rec["wall_time"] = (time.perf_counter() - self.t_start if "timing_runs" not in rec
+                            else self.setup_time + self.compile_time + self.step_time)
+        if sim is not None:
+            rec["steps"] = sim.n_steps
+            rec["sim_time"] = sim.time
+            timed_steps = sim.n_steps - 1 if self.step_time > 0 else sim.n_steps
+            timed = self.step_time if self.step_time > 0 else self.compile_time
+            rec["particle_steps_per_s"] = sim.n * timed_steps / timed if timed > 0 and timed_steps > 0 else float("nan")
+        rec["peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
+        return rec
 
 
 def _timing_reruns(sim, state0, end, step_time, timing, rec) -> float:
@@ -777,7 +867,6 @@ def write_reports(st: Study, out: Path) -> list[dict]:
     varied = st.varied
     reference = None
     if st.observe is not None:   # the reference (a number, or from the finished cases) and each case's error
-        from . import observe as obs
         if st.observe["kind"] != "metric":
             reference = obs.reference_value(records, st.reference, st.convergence_key, varied)
         obs.observed_errors(records, reference[0] if reference else math.nan, st.observe)
