@@ -5,7 +5,7 @@
     taichi-mpm demo [NAME] [--list] [run options]
     taichi-mpm render RUN_DIR [--color-by FIELD] [--size WxH] [--camera CAMERA] [--movie FILE|mp4|gif]
     taichi-mpm compare CONFIG --vary KEY=A,B[,C] [--set KEY=VALUE]... [--out DIR] [--overwrite] [--color-by FIELD]
-                    [--size WxH] [--camera CAMERA] [--no-movie] [--arch ARCH] [--quiet]
+                    [--size WxH] [--camera CAMERA] [--no-movie] [--arch ARCH] [--allow-large] [--quiet]
     taichi-mpm gui CONFIG [--set KEY=VALUE]... [--arch ARCH] [--max-frames N] [--screenshot PNG] [--view VIEW]
     taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume | --overwrite]
                     [--allow-problem MODULE:FACTORY]... [--dry-run]
@@ -146,6 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", metavar="CAMERA", help="3D camera (e.g. iso, xy, xz, yz)")
     p.add_argument("--no-movie", action="store_true", help="frames and curves only")
     p.add_argument("--arch", choices=["auto", "cpu", "cuda", "vulkan", "metal"], help="override the config's arch")
+    p.add_argument("--allow-large", dest="overrides", action="append_const", const="limits.allow_large=true",
+                   help="run even when the estimated work or size exceeds the limits")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
     p = sub.add_parser("gui", help="interactive window")
