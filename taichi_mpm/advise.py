@@ -295,7 +295,8 @@ def answer_line(result: dict) -> str:
         return (f"no setting reached the tolerance {result['tolerance']:.3g}; "
                 f"see {result['out'] / ADVICE}")
     r = c["record"]
-    return (f"cheapest setting with estimated error {c['error']:.3g} <= {result['tolerance']:.3g}: {_setting(c['params'])} "
+    return (f"cheapest setting with estimated error {c['error']:.3g} <= {result['tolerance']:.3g}: "
+            f"{_setting(c['params'])} "
             f"({_cost_text(result['cost'], c['cost'])}; stepping {float(r.get('step_time', math.nan)):.3g} s, "
             f"{int(r.get('particles', 0))} particles, {int(r.get('steps', 0))} steps); evidence in {result['out']}")
 
@@ -311,7 +312,8 @@ def _advice_markdown(st, rows, choice, ref, tolerance, cost, dxs) -> str:
     else:
         rec = choice["record"]
         lines.append(f"**Cheapest setting:** `{_setting(choice['params'])}`: estimated error {choice['error']:.3g}, "
-                     f"{_cost_text(cost, choice['cost'])} (measured: stepping {float(rec.get('step_time', math.nan)):.3g} s, "
+                     f"{_cost_text(cost, choice['cost'])} "
+                     f"(measured: stepping {float(rec.get('step_time', math.nan)):.3g} s, "
                      f"wall time {float(rec.get('wall_time', math.nan)):.3g} s with set-up and JIT compile).")
     lines += ["", ("Reference: the exact solution (the problem's own error metric)." if ref[0] is None else
                    f"Reference value {ref[0]:.6g}: {ref[1]}; error = |observed - reference| / |reference|."),
@@ -322,7 +324,8 @@ def _advice_markdown(st, rows, choice, ref, tolerance, cost, dxs) -> str:
     for r in sorted(rows, key=lambda r: (r["cost"] if math.isfinite(r["cost"]) else math.inf)):
         rec = r["record"]
         lines.append(f"| {_setting(r['params'])} | {rec.get('outcome')} | {_num(rec.get('observed'))} | "
-                     f"{_num(r['error'])} | {_num(r['cost'])} | {_num(rec.get('step_time'))} | {_num(rec.get('time_spread'))} | "
+                     f"{_num(r['error'])} | {_num(r['cost'])} | {_num(rec.get('step_time'))} | "
+                     f"{_num(rec.get('time_spread'))} | "
                      f"{r['status']} |")
     lines += ["", "Plots: `pareto.png` (error against time), `convergence.png`; all runs: `results.csv`, `summary.md`."]
     return "\n".join(lines) + "\n"

@@ -140,7 +140,8 @@ class FrameRenderer:
         o = options(render_cfg)
         self.lines = lines      # 2D: polylines (M, 2) drawn under the particles (a mapped grid's cells)
         self.color_by, self.size, self.camera = o["color_by"], o["size"], o["camera"]
-        self.point_size, self.cmap, self.scale, self.percentiles = o["point_size"], o["cmap"], o["scale"], o["percentiles"]
+        self.point_size, self.cmap = o["point_size"], o["cmap"]
+        self.scale, self.percentiles = o["scale"], o["percentiles"]
         self.dim = int(dim)
         self.lower = np.asarray(lower, float)
         self.upper = np.asarray(upper, float)
@@ -247,7 +248,8 @@ class FrameRenderer:
         else:
             self._mesh = pv.PolyData(self._points3(x))
         self._mesh["value"] = np.zeros(n)
-        bar = dict(title="", color="black", fmt="%.3g", n_labels=5 if self.size[0] >= 560 else 3, vertical=False, position_x=0.2, position_y=0.0,
+        bar = dict(title="", color="black", fmt="%.3g", n_labels=5 if self.size[0] >= 560 else 3, vertical=False,
+                   position_x=0.2, position_y=0.0,
                    width=0.6, height=0.085, label_font_size=14)
         if self.categorical:  # one tab10 colour per body, each labelled on the bar
             import matplotlib.colors
@@ -263,7 +265,8 @@ class FrameRenderer:
             self._actor = p.add_mesh(self._mesh, preference="cell", lighting=False, **common)
         else:
             self._place_camera(p, lo3, hi3)
-            # discs cover the square lattice's gaps (sqrt 2) so that a body reads as a continuum (2D); spheres touch (3D)
+            # discs cover the square lattice's gaps (sqrt 2) so that a body reads as a continuum (2D); spheres
+            # touch (3D)
             ps = self.point_size or max(2.0, (1.1 if self.dim == 3 else 1.45) * spacing * self._pixels_per_unit(p))
             # spheres (impostors: one shaded disc per particle, cheap) lit in 3D; flat discs in 2D, whose colour
             # must read exactly against the colour bar
@@ -272,7 +275,8 @@ class FrameRenderer:
                                      diffuse=0.75 if self.dim == 3 else 1.0, specular=0.25 if self.dim == 3 else 0.0,
                                      specular_power=20, **common)
         if self.dim == 3:
-            floor = pv.Plane(center=(0.5 * (lo3[0] + hi3[0]), lo3[1] - 1e-4 * (hi3[1] - lo3[1]), 0.5 * (lo3[2] + hi3[2])),
+            floor = pv.Plane(center=(0.5 * (lo3[0] + hi3[0]), lo3[1] - 1e-4 * (hi3[1] - lo3[1]),
+                                     0.5 * (lo3[2] + hi3[2])),
                              direction=(0, 1, 0), i_size=hi3[2] - lo3[2], j_size=hi3[0] - lo3[0])
             p.add_mesh(floor, color="#c9c9c4", ambient=0.5, diffuse=0.5, specular=0.0)
             p.add_mesh(pv.Box(bounds=(lo3[0], hi3[0], lo3[1], hi3[1], lo3[2], hi3[2])).outline(), color="#9aa3ad",

@@ -720,7 +720,8 @@ def run_study(study_path, out=None, jobs: Optional[int] = None, scheduler: Optio
     out = Path(out) if out is not None else Path("studies") / st.name
     if dry_run:
         for c in cases:
-            print(f"{c['id']}  {json.dumps(c['params'], default=str)}" + (f"  repeat {c['repeat']}" if st.repeats > 1 else ""))
+            repeat = f"  repeat {c['repeat']}" if st.repeats > 1 else ""
+            print(f"{c['id']}  {json.dumps(c['params'], default=str)}{repeat}")
         print(f"{len(cases)} cases; results would go to {out}")
         return None
     case_dir = prepare_out(st, out, named=out == Path("studies") / st.name, resume=resume, overwrite=overwrite)
@@ -802,8 +803,8 @@ def _run_dask(cases, scheduler, timeout, store):
         raise ConfigError("--scheduler needs dask.distributed: pip install 'taichi-mpm[study]'") from e
     client = Client(scheduler) if isinstance(scheduler, str) else Client(scheduler)
     try:
-        futures = {client.submit(execute_case, c, timeout, None, user_paths(), pure=False, key=f"case-{c['id']}-{c['digest']}"): c
-                   for c in cases}
+        futures = {client.submit(execute_case, c, timeout, None, user_paths(), pure=False,
+                                 key=f"case-{c['id']}-{c['digest']}"): c for c in cases}
         for fut in as_completed(list(futures)):
             case = futures[fut]
             try:
@@ -885,7 +886,8 @@ def write_reports(st: Study, out: Path) -> list[dict]:
             r["energy_drift"] = abs(float(r["energy_ratio_end"]) - 1.0)
     # the study's metric (checked against the known ones when it was loaded), else error_rms, another error
     # column, or the energy drift
-    metric = st.metric or ("error_rms" if "error_rms" in error_cols else error_cols[0] if error_cols else "energy_drift")
+    metric = st.metric or ("error_rms" if "error_rms" in error_cols else
+                           error_cols[0] if error_cols else "energy_drift")
     points = _aggregate(records, varied, metric, st.time_metric)
     group_keys = [k for k in varied if k != st.convergence_key]
     front = pareto_front(points)
@@ -950,7 +952,8 @@ def convergence_rates(points, group_keys, conv_key) -> dict:
         mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
         sxx = sum((x - mx) ** 2 for x in xs)
         slope = sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sxx
-        fits[label] = dict(rate=slope, intercept=my - slope * mx, points=sorted(pts, key=lambda p: -float(p["params"][conv_key])))
+        fits[label] = dict(rate=slope, intercept=my - slope * mx,
+                           points=sorted(pts, key=lambda p: -float(p["params"][conv_key])))
     return fits
 
 
@@ -1034,7 +1037,8 @@ def summary_markdown(st, records, varied, metric, front, fits, reference=None) -
     counts = {o: sum(r.get("outcome") == o for r in records) for o in OUTCOMES}
     lines = [f"# Study `{st.name}`", "",
              f"{len(records)} cases: " + ", ".join(f"{n} {o}" for o, n in counts.items()) + ".",
-             f"Error metric `{metric}`; time metric `{st.time_metric}` (median of up to {st.timing['runs']} timing reruns "
+             f"Error metric `{metric}`; time metric `{st.time_metric}` "
+             f"(median of up to {st.timing['runs']} timing reruns "
              f"per case, until their spread is at most {st.timing['spread']:g}: column time_spread)."]
     if st.observe is not None:
         lines.append(f"Quantity `{st.observe['text']}`; " + (
@@ -1054,12 +1058,15 @@ def summary_markdown(st, records, varied, metric, front, fits, reference=None) -
                   "| group | rate | " + " | ".join(f"{ck}={h:g}" for h in hs) + " |", "|---|---|" + "---|" * len(hs)]
         for label, fit in fits.items():
             err = {float(p["params"][ck]): p["error"] for p in fit["points"]}
-            lines.append(f"| {label} | {fit['rate']:.2f} | " + " | ".join(f"{err[h]:.3g}" if h in err else "-" for h in hs) + " |")
+            cells = " | ".join(f"{err[h]:.3g}" if h in err else "-" for h in hs)
+            lines.append(f"| {label} | {fit['rate']:.2f} | {cells} |")
     if front:
-        lines += ["", "## Pareto front (fastest first)", "", "| " + " | ".join(varied) + f" | {st.time_metric} | {metric} |",
+        lines += ["", "## Pareto front (fastest first)", "",
+                  "| " + " | ".join(varied) + f" | {st.time_metric} | {metric} |",
                   "|" + "---|" * (len(varied) + 2)]
         for p in front:
-            lines.append("| " + " | ".join(_md(p["params"].get(k)) for k in varied) + f" | {p['time']:.3g} | {p['error']:.3g} |")
+            cells = " | ".join(_md(p["params"].get(k)) for k in varied)
+            lines.append(f"| {cells} | {p['time']:.3g} | {p['error']:.3g} |")
     return "\n".join(lines) + "\n"
 
 

@@ -222,8 +222,9 @@ def _fake_records(observed):
     def run_cases(cases, jobs, scheduler, timeout, store):
         for c in cases:
             dx = float(c["params"]["domain.dx"])
-            store(c, dict(case=c["id"], repeat=c["repeat"], **c["params"], outcome="ok", cause="", observed=observed(dx),
-                          step_time=1.0 / dx, wall_time=2.0 / dx, particles=int(100 / dx), steps=int(10 / dx)))
+            store(c, dict(case=c["id"], repeat=c["repeat"], **c["params"], outcome="ok", cause="",
+                          observed=observed(dx), step_time=1.0 / dx, wall_time=2.0 / dx, particles=int(100 / dx),
+                          steps=int(10 / dx)))
     return run_cases
 
 

@@ -1,13 +1,15 @@
 """The package's shape (docs/architecture.md, "Layers and who may import whom"): no import cycle among the modules
 of taichi_mpm/ (imports inside functions included: a lazy import is still a dependency), the physics core imports
-no tool, I/O or window module, and no function is longer than the limit (tools/function_lengths.py, also run by
-.ci/run)."""
+no tool, I/O or window module, and no function is longer or more complex than the limits (tools/function_size.py,
+also run by .ci/run)."""
 from __future__ import annotations
 
 import ast
 import importlib.util
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "taichi_mpm"
@@ -209,36 +211,48 @@ def test_imports_without_a_cycle_pass(tmp_path):
     assert import_graph(pkg)["pkg.a"] == {"pkg.b", "pkg.c"}
 
 
-# ---------------------------------------------------------------- function lengths
-def _lengths_tool():
-    spec = importlib.util.spec_from_file_location("function_lengths", ROOT / "tools" / "function_lengths.py")
+# ---------------------------------------------------------------- function size
+def _size_tool():
+    spec = importlib.util.spec_from_file_location("function_size", ROOT / "tools" / "function_size.py")
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod   # (its dataclass looks its module up there)
     spec.loader.exec_module(mod)
     return mod
 
 
-def test_no_function_is_longer_than_the_limit():
-    tool = _lengths_tool()
-    assert tool.problems(PACKAGE) == []
+def test_no_function_is_longer_or_more_complex_than_the_limits():
+    assert _size_tool().problems(PACKAGE) == []
 
 
 def test_the_length_check_counts_nested_functions_in_their_enclosing_one(tmp_path):
-    tool = _lengths_tool()
+    tool = _size_tool()
     body = "\n".join(f"        x{i} = {i}" for i in range(tool.MAX_LINES))
     (tmp_path / "m.py").write_text(f"@decorator\ndef outer():\n    def inner():\n{body}\n    return inner\n")
-    found = tool.long_functions(tmp_path)
-    assert [(f.name, f.lines) for f in found] == [("outer", tool.MAX_LINES + 4)]
-    assert tool.problems(tmp_path, allowed={}) != []
+    assert [(f.name, f.lines) for f in tool.long_functions(tmp_path)] == [("outer", tool.MAX_LINES + 4)]
+    assert tool.problems(tmp_path, allowed_lines={}, allowed_complexity={}) != []
 
 
-def test_the_allow_list_holds_exactly_the_current_figures(tmp_path):
+def test_the_allow_lists_hold_exactly_the_current_figures(tmp_path):
     """An allowed function must match its figure: one that grew is reported, and so is one that got shorter (its
-    entry must then go), so the list only shrinks."""
-    tool = _lengths_tool()
+    entry must then go), so the lists only shrink."""
+    tool = _size_tool()
     body = "\n".join(f"    x{i} = {i}" for i in range(tool.MAX_LINES + 10))
-    (tmp_path / "m.py").write_text(f"def big():\n{body}\n\ndef small():\n    return 1\n")
-    assert tool.problems(tmp_path, allowed={"m.py:big": tool.MAX_LINES + 11}) == []
-    assert tool.problems(tmp_path, allowed={"m.py:big": tool.MAX_LINES + 10}) != []    # grew
-    assert tool.problems(tmp_path, allowed={"m.py:big": tool.MAX_LINES + 11, "m.py:small": 200}) != []   # shrank
-    assert tool.problems(tmp_path, allowed={"m.py:big": tool.MAX_LINES + 11, "m.py:gone": 200}) != []
+    (tmp_path / "m.py").write_text(f"def big():\n{body}\n\n\ndef small():\n    return 1\n")
+    fits = {"m.py:big": tool.MAX_LINES + 11}
+    assert tool.problems(tmp_path, fits, {}) == []
+    assert tool.problems(tmp_path, {"m.py:big": tool.MAX_LINES + 10}, {}) != []          # grew
+    assert tool.problems(tmp_path, {**fits, "m.py:small": 200}, {}) != []                 # shrank
+    assert tool.problems(tmp_path, {**fits, "m.py:gone": 200}, {}) != []                  # gone
+
+
+def test_the_complexity_check_finds_a_new_offender_and_holds_the_figures(tmp_path):
+    tool = _size_tool()
+    if tool.complexities(tmp_path) is None:
+        pytest.skip("ruff is not installed (pip install -e '.[test]')")
+    branches = "".join(f"        if x == {i}:\n            return {i}\n" for i in range(tool.MAX_COMPLEXITY + 1))
+    (tmp_path / "m.py").write_text(f"class A:\n    def f(self, x):\n{branches}        return -1\n")
+    figure = tool.MAX_COMPLEXITY + 2
+    assert tool.complexities(tmp_path) == {"m.py:A.f": figure}
+    assert tool.problems(tmp_path, {}, {}) != []
+    assert tool.problems(tmp_path, {}, {"m.py:A.f": figure}) == []
+    assert tool.problems(tmp_path, {}, {"m.py:A.f": figure + 1}) != []

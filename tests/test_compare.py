@@ -176,7 +176,8 @@ def test_the_work_is_estimated_before_any_variant_runs(tmp_path, monkeypatch):
     est = budget.estimate(tm.load_config(spinning_block()))
     first = lines[0]
     assert first.startswith("compare: 2 variants") and f"{2 * est.particles * est.steps:.3g} particle-steps" in first
-    assert lines[1] == "ran transfer = pic" and res["work"]["particle_steps"] == pytest.approx(2 * est.particles * est.steps)
+    assert lines[1] == "ran transfer = pic"
+    assert res["work"]["particle_steps"] == pytest.approx(2 * est.particles * est.steps)
     monkeypatch.setattr(compare_mod, "MAX_WORK", est.particles * est.steps)   # one variant's work: two exceed it
     with pytest.raises(ConfigError, match="--vary") as e:
         compare(spinning_block(), "solver.transfer=pic,apic", out=tmp_path / "cmp2", log=lines.append)
