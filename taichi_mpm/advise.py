@@ -4,7 +4,7 @@ whose estimated error in one quantity is below a tolerance, found by a small ada
     taichi-mpm advise CONFIG --observe disk0.vx --tolerance 1%
     taichi-mpm advise --problem "{type: vibrating_bar, end_time: 2.0}" --observe error_rel --tolerance 1%
 
-The sweep is a study (study.py: same case processes, records, reports, output-folder rules) run in rounds:
+The sweep is a study (study/: same case processes, records, reports, output-folder rules) run in rounds:
 
 1. Reference. With `reference: richardson` (the default for a probe or a function) or `finest`, the most
    accurate candidate (the highest-order basis, APIC before FLIP before PIC, most particles per cell) runs at every

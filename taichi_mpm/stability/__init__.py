@@ -17,7 +17,7 @@ Scenarios (2D by default, `dim` 1-3 where it makes sense; unit square domain, `c
 
 A case is *stable* when it reaches its end time with finite state and mechanical energy at most
 `energy_limit` x its initial value; otherwise it must have stopped with `InstabilityError` (cause in
-the record). A finished case that breaks the energy bound is "undetected" garbage (see study.py).
+the record). A finished case that breaks the energy bound is "undetected" garbage (see study/case.py).
 
 `python -m taichi_mpm.stability cfl` measures the largest stable CFL number per basis and transfer by
 bisection, each trial in its own process (stability/cfl.py, which runs the trials as study cases: the scenarios

@@ -14,7 +14,7 @@ def is_stable(rec: dict, energy_limit: float) -> bool:
 
 def cfl_case(basis: str, transfer: str, cfl: float, spec: dict, samples: int = 20, energy_limit: float = 1.1,
              extra: Optional[dict] = None) -> dict:
-    """A study case (see study.py) of `spec` at one CFL number."""
+    """A study case (study/case.py) of `spec` at one CFL number."""
     params = {"solver.basis": basis, "solver.transfer": transfer, "solver.cfl": cfl, **(extra or {})}
     return dict(id=f"cfl_{basis}_{transfer}_{cfl:.4f}", digest="", index=0, repeat=0, params=params,
                 problem=dict(spec), base=None, base_data=None, overrides=params, energy_limit=energy_limit,
