@@ -90,8 +90,10 @@ def advise(config=None, *, problem: Optional[dict] = None, observe, tolerance: f
     feasible = [r for r in rows if r["status"].startswith("feasible") and math.isfinite(r["cost"])]
     choice = min(feasible, key=lambda r: r["cost"]) if feasible else None   # 3. the cheapest feasible run
     write_reports(sweep.st, sweep.out)
-    (sweep.out / ADVICE).write_text(_advice_markdown(sweep.st, rows, choice, ref, tolerance, cost, sweep.dxs))
-    return dict(choice=choice, rows=rows, reference=ref, out=sweep.out, tolerance=tolerance, cost=cost)
+    (sweep.out / ADVICE).write_text(_advice_markdown(sweep.st, rows, choice, ref, tolerance, cost, sweep.dxs,
+                                                     sweep.unestimated))
+    return dict(choice=choice, rows=rows, reference=ref, out=sweep.out, tolerance=tolerance, cost=cost,
+                unestimated=sweep.unestimated)
 
 
 def _check_arguments(config, problem, cost, levels, bases, transfers, ppc):
@@ -292,8 +294,8 @@ def _setting(p: dict) -> str:
 def answer_line(result: dict) -> str:
     c = result["choice"]
     if c is None:
-        return (f"no setting reached the tolerance {result['tolerance']:.3g}; "
-                f"see {result['out'] / ADVICE}")
+        note = _unestimated_note(result.get("unestimated"))
+        return f"no setting reached the tolerance {result['tolerance']:.3g}{note}; see {result['out'] / ADVICE}"
     r = c["record"]
     return (f"cheapest setting with estimated error {c['error']:.3g} <= {result['tolerance']:.3g}: "
             f"{_setting(c['params'])} "
@@ -305,10 +307,19 @@ def _cost_text(cost: str, value: float) -> str:
     return f"work {value:.3g} particle-steps x stencil nodes" if cost == "work" else f"{cost} {value:.3g} s"
 
 
-def _advice_markdown(st, rows, choice, ref, tolerance, cost, dxs) -> str:
+def _unestimated_note(dx) -> str:
+    """Why the finest level has no error estimate, when it has none."""
+    if dx is None:
+        return ""
+    return (f" (the finest level, domain.dx={dx:g}, gives the reference itself, so its runs have no error estimate "
+            f"of their own)")
+
+
+def _advice_markdown(st, rows, choice, ref, tolerance, cost, dxs, unestimated=None) -> str:
     lines = [f"# Advice for `{st.observe['text']}` within {tolerance:.3g}", ""]
     if choice is None:
-        lines.append("No setting reached the tolerance: refine further (--levels) or widen it.")
+        lines.append(f"No setting reached the tolerance{_unestimated_note(unestimated)}: refine further (--levels) "
+                     f"or widen it.")
     else:
         rec = choice["record"]
         lines.append(f"**Cheapest setting:** `{_setting(choice['params'])}`: estimated error {choice['error']:.3g}, "

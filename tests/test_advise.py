@@ -240,6 +240,8 @@ def test_an_impossible_tolerance_has_no_feasible_candidate(tmp_path, monkeypatch
     assert result["choice"] is None
     assert not [r for r in result["rows"] if r["status"].startswith("feasible")], result["rows"]
     assert "no setting reached the tolerance" in advise_mod.answer_line(result)
+    finest = 3.125 / 2 ** (levels - 1)
+    assert (f"domain.dx={finest:g}, gives the reference itself" in advise_mod.answer_line(result)) == (levels < 3)
     assert "No setting reached the tolerance" in (tmp_path / "advice" / "advice.md").read_text()
 
 
