@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import scatter
+from .archs import resolve_arch
 from .basis import make_basis
 from .crack import grid_fields as crack_grid_fields
 from .crack import particle_bytes as crack_particle_bytes
@@ -132,8 +133,6 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
 
 def _coloured_scatter(cfg: Config) -> bool:
     """Whether the solver bins particles for P2G's coloured scatter, on the arch a run gets."""
-    from .solver import resolve_arch   # the solver imports this module
-
     return scatter.coloured(cfg, gpu=resolve_arch(cfg.arch) != "cpu")
 
 

@@ -5,7 +5,7 @@
     taichi-mpm demo [NAME] [--list] [run options]
     taichi-mpm render RUN_DIR [--color-by FIELD] [--size WxH] [--camera CAMERA] [--movie FILE|mp4|gif]
     taichi-mpm compare CONFIG --vary KEY=A,B[,C] [--set KEY=VALUE]... [--out DIR] [--overwrite] [--color-by FIELD]
-                    [--size WxH] [--camera CAMERA] [--no-movie] [--arch ARCH] [--quiet]
+                    [--size WxH] [--camera CAMERA] [--no-movie] [--arch ARCH] [--allow-large] [--quiet]
     taichi-mpm gui CONFIG [--set KEY=VALUE]... [--arch ARCH] [--max-frames N] [--screenshot PNG] [--view VIEW]
     taichi-mpm study STUDY.yaml [--jobs N] [--scheduler ADDRESS] [--out DIR] [--resume | --overwrite]
                     [--allow-problem MODULE:FACTORY]... [--dry-run]
@@ -146,6 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--camera", metavar="CAMERA", help="3D camera (e.g. iso, xy, xz, yz)")
     p.add_argument("--no-movie", action="store_true", help="frames and curves only")
     p.add_argument("--arch", choices=["auto", "cpu", "cuda", "vulkan", "metal"], help="override the config's arch")
+    p.add_argument("--allow-large", dest="overrides", action="append_const", const="limits.allow_large=true",
+                   help="run even when the estimated work or size exceeds the limits")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
     p = sub.add_parser("gui", help="interactive window")
@@ -158,21 +160,25 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("study", help="speed/accuracy sweep (docs/study.md)")
     p.add_argument("study", metavar="STUDY.yaml")
-    p.add_argument("--jobs", type=_positive_int, metavar="N", help="cases run in parallel (default: the study's jobs, 1)")
+    p.add_argument("--jobs", type=_positive_int, metavar="N",
+                   help="cases run in parallel (default: the study's jobs, 1)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask scheduler address")
     p.add_argument("--out", metavar="DIR", help="output directory (default: studies/NAME)")
     again = p.add_mutually_exclusive_group()
-    again.add_argument("--resume", action="store_true", help="keep the finished cases in the output directory, run the rest")
+    again.add_argument("--resume", action="store_true",
+                       help="keep the finished cases in the output directory, run the rest")
     again.add_argument("--overwrite", action="store_true", help="replace the results already in the output directory")
     p.add_argument("--allow-problem", dest="allow_problems", action="append", default=[], metavar="MODULE:FACTORY",
                    help="let the study run this problem factory (Python code outside the project), repeatable")
     p.add_argument("--dry-run", action="store_true", help="check the study and list its cases; run and write nothing")
 
-    p = sub.add_parser("advise", help="cheapest basis/transfer/resolution for a tolerance on one quantity (docs/study.md)")
+    p = sub.add_parser("advise",
+                       help="cheapest basis/transfer/resolution for a tolerance on one quantity (docs/study.md)")
     p.add_argument("config", nargs="?", metavar="CONFIG", help="a config file (or give --problem)")
     p.add_argument("--problem", metavar="SPEC", help="an analytic problem instead: NAME or '{type: NAME, key: value}'")
     p.add_argument("--observe", required=True, metavar="Q",
-                   help="PROBE.COLUMN[@end|max|min|mean|maxabs], a function (kinetic_energy, ...) or a problem's error metric")
+                   help="PROBE.COLUMN[@end|max|min|mean|maxabs], a function (kinetic_energy, ...) "
+                        "or a problem's error metric")
     p.add_argument("--tolerance", required=True, metavar="TOL", help="the error allowed: 1%% or 0.01")
     p.add_argument("--reference", metavar="REF", help="a number, exact, finest or richardson (default: richardson, "
                    "or exact for a problem's error metric)")

@@ -19,6 +19,8 @@ import numpy as np
 from .config import ConfigError, apply_overrides, load_config, parse_value
 
 MEMORY_LIMIT = 2 * 1024**3   # bytes of frame data kept for all variants together
+MAX_VARIANTS = 8             # values of --vary: the panels of a frame, side by side (a longer sweep is a study)
+MAX_WORK = 1e11              # particle-steps of all variants together (~1 h on a CPU at 3e7 particle-steps/s)
 WRITTEN = ("frames/frame_*.png", "movie.mp4", "curves.png", "summary.csv")
 
 
@@ -45,6 +47,9 @@ def parse_vary(text: str) -> tuple[str, list[str]]:
     if not key or any(not part for part in key.split(".")) or len(vals) < 2 or any(v == "" for v in vals):
         raise ConfigError(f"--vary expects KEY=A,B[,C...] with a dotted KEY and at least two values "
                           f"(e.g. solver.basis=linear,cubic), got {text!r}")
+    if len(vals) > MAX_VARIANTS:   # before any value is parsed or any config loaded
+        raise ConfigError(f"--vary {key}: {len(vals)} values, at most {MAX_VARIANTS} (one panel each, side by side); "
+                          f"compare fewer, or sweep them in a study (taichi-mpm study, docs/study.md)")
     if len(set(vals)) != len(vals):
         raise ConfigError(f"--vary {key}: the values repeat ({', '.join(vals)})", key=key)
     return key, vals
@@ -111,45 +116,18 @@ def compare(config, vary: str, overrides: dict | None = None, out=None, overwrit
             log=None) -> dict:
     """Run the variants of `config` (path, dict or Config) over `vary` ('KEY=A,B,...') and write the side-by-side
     frames, movie, curves and summary. Returns {"out", "frames", "movie", "curves", "summary", "variants",
-    "render_seconds"}."""
-    from .render import FrameRenderer, _options, _write_png, color_fields, field_values, grid_lines, make_movie, \
-        sequence_bounds, sequence_limits
-
+    "render_seconds", "work"}."""
     key, values = parse_vary(vary)
     base = load_config(config, overrides or {})
-    variants = []
-    for value in values:  # every variant is validated before anything runs
-        data = apply_overrides(base.to_dict(), {key: value})
-        try:
-            cfg = load_config(data)
-        except ConfigError as e:
-            raise ConfigError(f"--vary {key}={value}: {e}", key=key) from None
-        variants.append(Variant(key, parse_value(value) if isinstance(value, str) else value, cfg))
-    rc = base.output.render.model_dump()
-    if color_by and color_by != rc["color_by"]:
-        rc["color_by"], rc["clim"] = color_by, None
-    if camera:
-        rc["camera"] = camera
-    w, h = size or rc["size"]
-    rc["size"] = [max(64, int(w) // len(variants)), int(h)]
-    field = _options(rc)["color_by"]
-    try:  # an unknown field or camera: an input error before any run (a field the scene lacks: at its first frame)
-        if field not in color_fields():
-            field_values({"x": np.zeros((0, base.dim))}, field, base.dim)
-        FrameRenderer(rc, base.dim, base.domain.lower, base.domain.upper)
-    except ValueError as e:
-        raise ConfigError(str(e), key="output.render") from None
+    variants = _variants(base, key, values)
+    rc, field = _render_settings(base, len(variants), color_by, size, camera)
     out = _out_dir(base, key, out)
     held = [p for p in WRITTEN if next(out.glob(p), None) is not None] if out.is_dir() else []
     if held and not overwrite:
         raise ConfigError(f"{out} already holds a comparison ({', '.join(held)}): add --overwrite to replace it")
-    from .budget import check
-
-    n_outputs = int(base.solver.end_time / base.output.every) + 2
-    need = sum(check(v.cfg).particles for v in variants) * n_outputs * 16
-    if need > MEMORY_LIMIT:
-        raise ConfigError(f"the comparison would keep {need / 1024**3:.1f} GB of frame data; raise output.every "
-                          f"(now {base.output.every:g} s) or coarsen the scene", key="output.every")
+    work = estimate_work(base, key, variants)
+    if log:
+        log(work["summary"])
     for v in variants:
         try:
             run_variant(v, field, log)
@@ -161,54 +139,123 @@ def compare(config, vary: str, overrides: dict | None = None, out=None, overwrit
         for f in out.glob(pattern):
             f.unlink()
     (out / "frames").mkdir(parents=True, exist_ok=True)
-
-    # one colour range and one camera for every panel
     t0 = time.perf_counter()
-    limits = sequence_limits(rc, [a for v in variants for a in v.values])
-    spacing = float(np.nanmedian([v.spacing for v in variants]))
-    bounds = sequence_bounds([a for v in variants for a in v.x], spacing, base.dim) if base.dim == 3 else None
-    renderers = [FrameRenderer(rc, base.dim, base.domain.lower, base.domain.upper, limits=limits, bounds=bounds,
-                               title=v.label, lines=grid_lines(v.cfg)) for v in variants]
-    n_frames = max(len(v.times) for v in variants)
-    frames = []
-    try:
-        for k in range(n_frames):
-            panels = []
-            for v, r in zip(variants, renderers):
-                j = min(k, len(v.times) - 1)   # a variant that stopped early keeps showing its last good frame
-                if j < 0:
-                    panels.append(np.full((rc["size"][1], rc["size"][0], 3), 255, np.uint8))
-                    continue
-                img = r.image(v.x[j], v.values[j], v.times[j], spacing=spacing)
-                if j < k:                       # stopped: a red frame around the panel
-                    img = img.copy()
-                    img[:6], img[-6:], img[:, :6], img[:, -6:] = (200, 30, 30), (200, 30, 30), (200, 30, 30), (200, 30, 30)
-                panels.append(img)
-            sep = np.full((rc["size"][1], 2, 3), 160, np.uint8)
-            row = [panels[0]]
-            for pnl in panels[1:]:
-                row += [sep, pnl]
-            path = out / "frames" / f"frame_{k:06d}.png"
-            _write_png(path, np.hstack(row))
-            frames.append(path)
-    finally:
-        for r in renderers:
-            r.close()
-    movie_path = make_movie(frames, out / "movie.mp4") if movie and frames else None
+    frames = render_frames(variants, rc, base, out / "frames")
+    movie_path = None
+    if movie and frames:
+        from .render import make_movie
+
+        movie_path = make_movie(frames, out / "movie.mp4")
     render_seconds = time.perf_counter() - t0
     curves = plot_curves(variants, out / "curves.png", base.dim)
     summary = write_summary(variants, out / "summary.csv")
     if log:
         log(f"rendered {len(frames)} frames ({len(variants)} panels each) in {render_seconds:.1f} s")
     return dict(out=out, frames=frames, movie=movie_path, curves=curves, summary=summary, variants=variants,
-                render_seconds=render_seconds)
+                render_seconds=render_seconds, work=work)
+
+
+def _variants(base, key: str, values: list) -> list[Variant]:
+    """One validated config per value: every variant is checked before anything runs."""
+    variants = []
+    for value in values:
+        data = apply_overrides(base.to_dict(), {key: value})
+        try:
+            cfg = load_config(data)
+        except ConfigError as e:
+            raise ConfigError(f"--vary {key}={value}: {e}", key=key) from None
+        variants.append(Variant(key, parse_value(value) if isinstance(value, str) else value, cfg))
+    return variants
+
+
+def _render_settings(base, n_panels: int, color_by, size, camera) -> tuple[dict, str]:
+    """The render section every panel shares (a panel's width: the frame's split n ways) and the colour field;
+    an unknown field or camera is an input error before any run (a field the scene lacks: at its first frame)."""
+    from .render import FrameRenderer, color_fields, field_values
+    from .render_options import options
+
+    rc = base.output.render.model_dump()
+    if color_by and color_by != rc["color_by"]:
+        rc["color_by"], rc["clim"] = color_by, None
+    if camera:
+        rc["camera"] = camera
+    w, h = size or rc["size"]
+    rc["size"] = [max(64, int(w) // n_panels), int(h)]
+    field = options(rc)["color_by"]
+    try:
+        if field not in color_fields():
+            field_values({"x": np.zeros((0, base.dim))}, field, base.dim)
+        FrameRenderer(rc, base.dim, base.domain.lower, base.domain.upper)
+    except ValueError as e:
+        raise ConfigError(str(e), key="output.render") from None
+    return rc, field
+
+
+def estimate_work(base, key: str, variants: list[Variant]) -> dict:
+    """What the comparison will do, from the size estimate alone (budget.check, which also refuses a variant too
+    big to run): particle-steps over all variants, frames, and the frame data kept in memory. Refused (ConfigError)
+    beyond MEMORY_LIMIT of frame data or MAX_WORK particle-steps (the latter unless limits.allow_large)."""
+    from .budget import check
+
+    estimates = [check(v.cfg) for v in variants]
+    n_outputs = int(base.solver.end_time / base.output.every) + 2
+    need = sum(e.particles for e in estimates) * n_outputs * 16
+    if need > MEMORY_LIMIT:
+        raise ConfigError(f"the comparison would keep {need / 1024**3:.1f} GB of frame data; raise output.every "
+                          f"(now {base.output.every:g} s) or coarsen the scene", key="output.every")
+    particle_steps = float(sum(e.particles * e.steps for e in estimates))
+    summary = (f"compare: {len(variants)} variants of {key}, about {particle_steps:.3g} particle-steps in all "
+               f"({', '.join(f'{e.particles:,} particles x {e.steps:.3g} steps' for e in estimates)}), "
+               f"{n_outputs - 1} frames")
+    if particle_steps > MAX_WORK and not base.limits.allow_large:
+        raise ConfigError(f"--vary {key}: {summary[len('compare: '):]}: more than {MAX_WORK:.3g} particle-steps; "
+                          f"compare fewer values, coarsen the scene, or pass --allow-large (limits.allow_large: true)")
+    return dict(particle_steps=particle_steps, frames=n_outputs - 1, frame_bytes=need, summary=summary)
+
+
+def render_frames(variants, rc: dict, base, folder: Path) -> list[Path]:
+    """Side-by-side frames, one panel per variant, with one colour range and one camera for every panel; a variant
+    that stopped early keeps its last good frame, framed in red."""
+    from .render import FrameRenderer, grid_lines, sequence_bounds, sequence_limits, write_png
+
+    limits = sequence_limits(rc, [a for v in variants for a in v.values])
+    spacing = float(np.nanmedian([v.spacing for v in variants]))
+    bounds = sequence_bounds([a for v in variants for a in v.x], spacing, base.dim) if base.dim == 3 else None
+    renderers = [FrameRenderer(rc, base.dim, base.domain.lower, base.domain.upper, limits=limits, bounds=bounds,
+                               title=v.label, lines=grid_lines(v.cfg)) for v in variants]
+    frames = []
+    try:
+        for k in range(max(len(v.times) for v in variants)):
+            panels = [_panel(v, r, k, rc, spacing) for v, r in zip(variants, renderers)]
+            sep = np.full((rc["size"][1], 2, 3), 160, np.uint8)
+            row = [panels[0]]
+            for pnl in panels[1:]:
+                row += [sep, pnl]
+            path = folder / f"frame_{k:06d}.png"
+            write_png(path, np.hstack(row))
+            frames.append(path)
+    finally:
+        for r in renderers:
+            r.close()
+    return frames
+
+
+def _panel(v: Variant, renderer, k: int, rc: dict, spacing: float) -> np.ndarray:
+    j = min(k, len(v.times) - 1)   # a variant that stopped early keeps showing its last good frame
+    if j < 0:
+        return np.full((rc["size"][1], rc["size"][0], 3), 255, np.uint8)
+    img = renderer.image(v.x[j], v.values[j], v.times[j], spacing=spacing)
+    if j < k:                       # stopped: a red frame around the panel
+        img = img.copy()
+        img[:6], img[-6:], img[:, :6], img[:, -6:] = (200, 30, 30), (200, 30, 30), (200, 30, 30), (200, 30, 30)
+    return img
 
 
 def plot_curves(variants, path, dim) -> Path:
     """Energies, momentum and the energy-balance error of every variant over time, one colour per variant."""
-    from .plots import _pyplot
+    from .plots import pyplot
 
-    plt = _pyplot()
+    plt = pyplot()
     panels = (("kinetic", "kinetic energy"), ("strain", "strain energy"), ("total", "total energy (kinetic + "
               "strain + gravity)"), ("momentum", "|linear momentum|"), ("energy_error", "energy-balance error "
               "(fraction of the largest kinetic + strain)"))

@@ -404,7 +404,7 @@ class Render(Strict):
 
     @model_validator(mode="after")
     def _lengths(self):
-        from .render import CAMERAS, color_fields  # (light: numpy and the field registry)
+        from .render_options import CAMERAS, color_fields  # (light: the field registry, no pyvista)
 
         if self.camera not in CAMERAS:
             raise _Located("camera", f"unknown camera {self.camera!r} (choose from {', '.join(CAMERAS)}; "

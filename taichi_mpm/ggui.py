@@ -13,14 +13,14 @@ import math
 
 import numpy as np
 
+from .window_layout import CHART, CHART_COLOURS, CHART_LENGTH, HELP, SLIDER_TOLERANCE
+
 FOV = 40.0            # vertical field of view, degrees
 PANEL = (0.01, 0.01, 0.30, 0.42)   # the ImGui panel: x, y (from the top-left), width, height in window units
 SWITCH_KEYS = ("b", "basis", "t", "transfer")   # keys and button events that restart Taichi (a new Simulation)
 
 
 def _chart_capacity() -> int:
-    from .gui import CHART_LENGTH
-
     return 8 + 3 * 2 * (CHART_LENGTH - 1)   # the frame's 4 segments, 3 series of CHART_LENGTH - 1 segments
 
 
@@ -73,8 +73,6 @@ def box_vertices(lower, upper) -> np.ndarray:
 def chart_vertices(session):
     """The strip chart's segments as (vertices (M, 2), colours (M, 3)) in GGUI canvas units (y up), padded to
     CHART_VERTICES with segments outside the window (so the fields keep one size)."""
-    from .gui import CHART, CHART_COLOURS
-
     x0, y0, x1, y1 = CHART
     frame = np.array([[x0, y0], [x1, y0], [x1, y0], [x1, y1], [x1, y1], [x0, y1], [x0, y1], [x0, y0]])
     verts, cols = [frame], [np.full((8, 3), 0.73)]
@@ -114,8 +112,6 @@ def run_ggui(session, title, max_frames=None, screenshot=None, show=True, script
     """The GGUI window's loop over a gui.Session (see gui.run_gui for the arguments); returns the last simulation."""
     import taichi as ti
 
-    from .gui import HELP, SLIDER_TOLERANCE
-
     res = tuple(int(r) for r in session.res)
     window = buffers = shown = None
     frames, prev_cursor = 0, None
@@ -131,26 +127,9 @@ def run_ggui(session, title, max_frames=None, screenshot=None, show=True, script
                 camera = ti.ui.Camera()
             if not window.running:
                 break
-            keys = [e.key for e in window.get_events(ti.ui.PRESS)]
-            for action in (script or {}).get(frames, []):
-                if action[0] == "slider":   # what dragging that ImGui slider does
-                    next(s for s in session.sliders() if s[0] == action[1])[5](action[2])
-                else:
-                    keys.append(action[1])
+            keys = _frame_keys(ti, window, session, (script or {}).get(frames, []))
             gui = window.get_gui()
-            with gui.sub_window("controls", *PANEL) as w:
-                for label, lo, hi, _, attr, setter in session.sliders():
-                    value = w.slider_float(label, float(getattr(session, attr)), float(lo), float(hi))
-                    if abs(value - getattr(session, attr)) > SLIDER_TOLERANCE:
-                        setter(value)
-                if w.button("next basis"):
-                    keys.append("basis")
-                if w.button("next transfer"):
-                    keys.append("transfer")
-                if session.show_help:
-                    w.text(HELP)
-                if session.message:
-                    w.text(session.message, color=(0.8, 0.0, 0.0))
+            _control_panel(gui, session, keys)
             if any(k in SWITCH_KEYS for k in keys):   # close the window before the switch restarts Taichi
                 window.destroy()
                 window = shown = None
@@ -165,27 +144,7 @@ def run_ggui(session, title, max_frames=None, screenshot=None, show=True, script
                 session.drag(prev_cursor, cursor, view=view)
             prev_cursor = cursor if held else None
             session.advance()
-            centres, colours, status = particle_data(session, session.sim.particles())
-            buffers.centers.from_numpy(centres)
-            buffers.colours.from_numpy(colours)
-            with gui.sub_window("status", 0.32, 0.01, 0.67, 0.05) as w:
-                w.text(status)
-            camera.position(*map(float, view.eye))
-            camera.lookat(*map(float, view.center))
-            camera.up(*map(float, view.up))
-            camera.fov(float(view.fov))
-            scene = window.get_scene()
-            scene.set_camera(camera)
-            scene.ambient_light((0.35, 0.35, 0.35))
-            scene.point_light(pos=tuple(map(float, view.light())), color=(0.9, 0.9, 0.9))
-            scene.particles(buffers.centers, radius=session.sphere_radius, per_vertex_color=buffers.colours)
-            scene.lines(buffers.box, width=1.0, color=(0.6, 0.6, 0.6))
-            canvas = window.get_canvas()
-            canvas.set_background_color((1.0, 1.0, 1.0))
-            canvas.scene(scene)
-            verts, cols = chart_vertices(session)
-            buffers.set_chart(verts, cols)
-            canvas.lines(buffers.chart, width=0.002, per_vertex_color=buffers.chart_colours)
+            _draw(window, gui, session, buffers, camera, view)
             frames += 1
             last = max_frames is not None and frames >= max_frames
             if last and screenshot:
@@ -197,6 +156,60 @@ def run_ggui(session, title, max_frames=None, screenshot=None, show=True, script
         if window is not None:
             window.destroy()
     return session.sim
+
+
+def _frame_keys(ti, window, session, actions) -> list:
+    """This frame's key events and scripted actions (a scripted slider move acts as dragging that slider does)."""
+    keys = [e.key for e in window.get_events(ti.ui.PRESS)]
+    for action in actions:
+        if action[0] == "slider":
+            next(s for s in session.sliders() if s[0] == action[1])[5](action[2])
+        else:
+            keys.append(action[1])
+    return keys
+
+
+def _control_panel(gui, session, keys: list):
+    """The ImGui panel: sliders (applied when moved), the switch buttons (their events appended to keys), help and
+    the session's message."""
+    with gui.sub_window("controls", *PANEL) as w:
+        for label, lo, hi, _, attr, setter in session.sliders():
+            value = w.slider_float(label, float(getattr(session, attr)), float(lo), float(hi))
+            if abs(value - getattr(session, attr)) > SLIDER_TOLERANCE:
+                setter(value)
+        if w.button("next basis"):
+            keys.append("basis")
+        if w.button("next transfer"):
+            keys.append("transfer")
+        if session.show_help:
+            w.text(HELP)
+        if session.message:
+            w.text(session.message, color=(0.8, 0.0, 0.0))
+
+
+def _draw(window, gui, session, buffers, camera, view):
+    """The status line, the lit particles and the domain box through the camera, and the energy chart."""
+    centres, colours, status = particle_data(session, session.sim.particles())
+    buffers.centers.from_numpy(centres)
+    buffers.colours.from_numpy(colours)
+    with gui.sub_window("status", 0.32, 0.01, 0.67, 0.05) as w:
+        w.text(status)
+    camera.position(*map(float, view.eye))
+    camera.lookat(*map(float, view.center))
+    camera.up(*map(float, view.up))
+    camera.fov(float(view.fov))
+    scene = window.get_scene()
+    scene.set_camera(camera)
+    scene.ambient_light((0.35, 0.35, 0.35))
+    scene.point_light(pos=tuple(map(float, view.light())), color=(0.9, 0.9, 0.9))
+    scene.particles(buffers.centers, radius=session.sphere_radius, per_vertex_color=buffers.colours)
+    scene.lines(buffers.box, width=1.0, color=(0.6, 0.6, 0.6))
+    canvas = window.get_canvas()
+    canvas.set_background_color((1.0, 1.0, 1.0))
+    canvas.scene(scene)
+    verts, cols = chart_vertices(session)
+    buffers.set_chart(verts, cols)
+    canvas.lines(buffers.chart, width=0.002, per_vertex_color=buffers.chart_colours)
 
 
 def _over_panel(cursor) -> bool:

@@ -27,13 +27,10 @@ import numpy as np
 
 from .colour_range import LiveLimits
 from .render import available_fields, field_values
+from .window_layout import CHART, CHART_COLOURS, CHART_LENGTH, HELP, SLIDER_TOLERANCE
 
-HELP = "space: pause  s: step  r: reset  c: colour  b: basis  t: transfer  drag: push  arrows: turn (3D)  esc: quit"
 BASES = ("linear", "gimp", "quadratic", "cubic")
 TRANSFERS = ("pic", "flip", "apic")
-CHART = (0.62, 0.06, 0.99, 0.24)   # the energy strip chart's box in window units: x0, y0, x1, y1
-CHART_LENGTH = 200                 # frames the chart keeps
-CHART_COLOURS = {"kinetic": 0xD62728, "strain": 0x1F77B4, "total": 0x222222}
 
 
 class View:
@@ -179,9 +176,6 @@ def window_title(cfg, kind: str | None = None, support: tuple[bool, bool] | None
 
 GRAVITY_MAX = 20.0                 # m/s^2: the gravity slider's range (at least the config's |g|)
 STIFFNESS_RANGE = (0.1, 4.0)       # the stiffness-scale slider's range
-# a slider "moved" when it differs from the session's value by more than this: the widgets hold float32, so the
-# config's 0.99 comes back as 0.99000001 and would otherwise count as a move every frame
-SLIDER_TOLERANCE = 1e-6
 
 
 def down_direction(cfg) -> np.ndarray:
@@ -447,11 +441,11 @@ class Session:
 def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None, view: str | None = None):
     """Open the interactive window for a config (path, dict or Config); returns the simulation shown last (a basis
     or transfer switch replaces it). A 3D scene opens Taichi's GGUI scene where a Vulkan device exists (ggui.py),
-    else the ti.GUI projection; `view` ('ggui' or 'projection') overrides the choice, and the title says which. With `max_frames` the window closes by itself after that many frames; `screenshot` saves the last frame as a PNG. `script` (for tests and
-    demos): {frame: [action, ...]} applied before that frame's events, an action being ("slider", label, value)
-    (moves a slider widget, read back like a hand's move) or ("event", name) (a key or a button's event name)."""
-    import taichi as ti
-
+    else the ti.GUI projection; `view` ('ggui' or 'projection') overrides the choice, and the title says which.
+    With `max_frames` the window closes by itself after that many frames; `screenshot` saves the last frame as a
+    PNG. `script` (for tests and demos): {frame: [action, ...]} applied before that frame's events, an action being
+    ("slider", label, value) (moves a slider widget, read back like a hand's move) or ("event", name) (a key or a
+    button's event name)."""
     from .config import load_config
     from .runner import Simulation  # resolves arch auto without Taichi's crashing OpenGL probe
 
@@ -465,48 +459,16 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None, view:
         from .ggui import run_ggui
 
         return run_ggui(session, title, max_frames, screenshot, show, script)
-    gui = ti.GUI(title, res=res, background_color=0xFFFFFF, show_gui=show)
-    sliders = {}
-    for label, lo, hi, step, attr, _ in session.sliders():
-        sliders[label] = gui.slider(label, lo, hi, step)
-        sliders[label].value = getattr(session, attr)
-    gui.button("next basis", "basis")
-    gui.button("next transfer", "transfer")
+    gui, sliders = _open_window(session, title, res, show)
     prev_cursor = None
     frames = 0
     try:
         while gui.running:
-            injected = []
-            for action in (script or {}).get(frames, []):
-                if action[0] == "slider":
-                    sliders[action[1]].value = action[2]
-                else:
-                    injected.append(action[1])
-            keys = [e.key for e in gui.get_events(ti.GUI.PRESS)] + injected
-            if not all([session.press(k) for k in keys]):
+            go, prev_cursor = _handle_input(gui, session, sliders, (script or {}).get(frames, []), prev_cursor)
+            if not go:
                 break
-            for label, _, _, _, attr, setter in session.sliders():
-                if abs(sliders[label].value - getattr(session, attr)) > SLIDER_TOLERANCE:
-                    setter(sliders[label].value)
-            cursor = np.asarray(gui.get_cursor_pos(), float)
-            held = gui.is_pressed(ti.GUI.LMB)
-            if held and prev_cursor is not None:
-                session.drag(prev_cursor, cursor)
-            prev_cursor = cursor if held else None
             stepped = session.advance()
-            pos, colours, status = session.picture()
-            begin, end = session.view.box_edges()
-            gui.lines(begin, end, radius=1, color=0x999999)
-            if session.grid_segments is not None:
-                gui.lines(*session.grid_segments, radius=1, color=0xCCCCCC)
-            gui.circles(pos, radius=session.radius_px, color=colours)
-            _draw_chart(gui, session)
-            gui.text(status, pos=(0.01, 0.99), font_size=16, color=0x000000)
-            if session.show_help:
-                gui.text(HELP if res[0] >= 900 else "space s r c b t drag arrows esc", pos=(0.01, 0.05),
-                         font_size=14, color=0x444444)
-            if session.message:
-                gui.text(session.message, pos=(0.01, 0.94), font_size=16, color=0xCC0000)
+            _draw(gui, session, res)
             frames += 1
             last = max_frames is not None and frames >= max_frames
             gui.show(str(screenshot) if (last and screenshot) else None)
@@ -517,6 +479,61 @@ def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None, view:
     finally:
         gui.close()
     return session.sim
+
+
+def _open_window(session, title, res, show):
+    """The ti.GUI window with the session's sliders (at their current values) and the switch buttons."""
+    import taichi as ti
+
+    gui = ti.GUI(title, res=res, background_color=0xFFFFFF, show_gui=show)
+    sliders = {}
+    for label, lo, hi, step, attr, _ in session.sliders():
+        sliders[label] = gui.slider(label, lo, hi, step)
+        sliders[label].value = getattr(session, attr)
+    gui.button("next basis", "basis")
+    gui.button("next transfer", "transfer")
+    return gui, sliders
+
+
+def _handle_input(gui, session, sliders, actions, prev_cursor):
+    """One frame's input: scripted actions, key and button events, moved sliders and the mouse drag. Returns
+    (whether the window stays open, the cursor while the button is held)."""
+    import taichi as ti
+
+    injected = []
+    for action in actions:
+        if action[0] == "slider":
+            sliders[action[1]].value = action[2]
+        else:
+            injected.append(action[1])
+    keys = [e.key for e in gui.get_events(ti.GUI.PRESS)] + injected
+    if not all([session.press(k) for k in keys]):
+        return False, prev_cursor
+    for label, _, _, _, attr, setter in session.sliders():
+        if abs(sliders[label].value - getattr(session, attr)) > SLIDER_TOLERANCE:
+            setter(sliders[label].value)
+    cursor = np.asarray(gui.get_cursor_pos(), float)
+    held = gui.is_pressed(ti.GUI.LMB)
+    if held and prev_cursor is not None:
+        session.drag(prev_cursor, cursor)
+    return True, cursor if held else None
+
+
+def _draw(gui, session, res):
+    """The domain box, a mapped grid's cells, the particles, the chart and the text lines."""
+    pos, colours, status = session.picture()
+    begin, end = session.view.box_edges()
+    gui.lines(begin, end, radius=1, color=0x999999)
+    if session.grid_segments is not None:
+        gui.lines(*session.grid_segments, radius=1, color=0xCCCCCC)
+    gui.circles(pos, radius=session.radius_px, color=colours)
+    _draw_chart(gui, session)
+    gui.text(status, pos=(0.01, 0.99), font_size=16, color=0x000000)
+    if session.show_help:
+        gui.text(HELP if res[0] >= 900 else "space s r c b t drag arrows esc", pos=(0.01, 0.05),
+                 font_size=14, color=0x444444)
+    if session.message:
+        gui.text(session.message, pos=(0.01, 0.94), font_size=16, color=0xCC0000)
 
 
 def _draw_chart(gui, session):

@@ -7,7 +7,8 @@ A particle's stencil is the rational basis R_i at xi_p, with physical gradients 
 and node offsets P_i - x_p (control points are the nodes: sum R_i P_i = x_p and sum P_i (x) grad_x R_i = I, so
 APIC, linear reproduction and the F update hold as on the Cartesian grid). After every position update xi_p is
 found again by Newton's method on x(xi) = x_p from the old xi_p (`locate`); a particle that leaves the mapped
-region or whose iteration fails stops the run (InstabilityError, cause "particle left the mapped grid").
+region or whose iteration fails stops the run (InstabilityError, cause "particle left the mapped grid"). The
+stencil itself is built in stencils.py (kind `mapped`); this module holds the grid, xi_p and `locate`.
 
 The map is the built-in annulus or a `nurbs` patch given as data (`build_map`; host geometry in mapgeom.py). A
 full ring (or a `periodic` patch) wraps in its first parameter: its last control-point column coincides with the
@@ -118,62 +119,6 @@ class MappedGrid:
             d = ((x[mine, None, :] - pts[None, near]) ** 2).sum(-1)
             out[mine] = xi[near[d.argmin(axis=1)]]
         return out
-
-
-def make_stencil(ctx, mapped: MappedGrid):
-    """The mapped grid's contributions (stencils.Stencil): 3 x 3 control points per particle."""
-    from .stencils import Stencil, _flat_index, _loops
-
-    mp, xi, x = mapped.map, mapped.xi, ctx.x
-    periodic, n_seam = mapped.periodic, mapped.shape[0]
-    d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * mapped.h_min ** 2
-    span = [3, 3]
-
-    @ti.func
-    def at(p):
-        ctrl = ti.static(mp.ctrl)
-        b, R, R0, R1 = mp.rational(xi[p])
-        J = ti.Matrix.zero(float, 2, 2)
-        for i, j in ti.static(ti.ndrange(3, 3)):
-            Pij = ctrl[b[0] + i, b[1] + j]
-            for c in ti.static(range(2)):
-                J[c, 0] += R0[i, j] * Pij[c]
-                J[c, 1] += R1[i, j] * Pij[c]
-        return b, R, R0, R1, J.inverse().transpose(), x[p]
-
-    @ti.func
-    def node(st, off):
-        ctrl = ti.static(mp.ctrl)
-        b, R, R0, R1, JiT, xp = st
-        I = b + off
-        r = ctrl[I] - xp
-        grad = JiT @ ti.Vector([R0[off[0], off[1]], R1[off[0], off[1]]])
-        if ti.static(periodic):
-            if I[0] >= n_seam:
-                I[0] -= n_seam
-        return I, R[off[0], off[1]], grad, r
-
-    @ti.func
-    def inertia(st):
-        ctrl = ti.static(mp.ctrl)
-        b, R, R0, R1, JiT, xp = st
-        D = ti.Matrix.zero(float, 2, 2)
-        for i, j in ti.static(ti.ndrange(3, 3)):
-            r = ctrl[b[0] + i, b[1] + j] - xp
-            D += R[i, j] * r.outer_product(r)
-        return D
-
-    @ti.func
-    def inertia_inverse(st):
-        """D_p^-1, regularised by d_min where D_p is (nearly) singular: a particle on a wall circle weighs only
-        the wall's row of nodes, D_p has no radial extent there, and B_p none either."""
-        D = inertia(st)
-        if D.determinant() < d_min * (D.trace() + d_min):
-            D += ti.Matrix.identity(float, 2) * d_min
-        return D.inverse()
-
-    outer, inner = _loops(span, ctx.unroll)
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 9)
 
 
 def make_locate(ctx, mapped: MappedGrid, fail, n_codes: int, code: int):

@@ -15,7 +15,7 @@ GROUPS = (("position", r"^[xyz] "), ("displacement", r"^u[xyz] "), ("velocity", 
           ("stress", r"^s[xyz]{2} "), ("kinetic energy", r"^kinetic "), ("force", r"^f[xyz] "))
 
 
-def _pyplot():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -25,7 +25,7 @@ def _pyplot():
 
 
 def plot_probe(csv_path, png_path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     data = read_probe(csv_path)
     t = data.pop("time [s]")
     data.pop("step", None)
@@ -47,7 +47,7 @@ def plot_probe(csv_path, png_path) -> Path:
 
 
 def plot_energy(csv_path, png_path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     d = io.read_diagnostics(csv_path)
     fig, ax = plt.subplots(figsize=(7, 3.5))
     for c in ("kinetic", "strain", "gravity", "total"):

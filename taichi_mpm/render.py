@@ -21,19 +21,8 @@ from . import colour_range
 from . import fields as registry
 from .fields import von_mises  # noqa: F401 (the one implementation, in fields.py)
 
-# Scalar fields a frame can be coloured by: the registry's scalar and label fields, velocity components vx, vy, vz
-# and the components sxx, sxy, ..., szz of the full 3x3 stress.
-FIELDS = tuple(n for n, f in registry.REGISTRY.items() if f.kind in ("scalar", "label")) + ("vx", "vy", "vz")
-_ALIASES = {"velocity": "speed", "velocity_x": "vx", "velocity_y": "vy", "velocity_z": "vz", "mises": "von_mises",
-            "stress": "von_mises"}
-_CAMERAS_3D = ("iso", "xy", "xz", "yz", "front", "side", "top")
-CAMERAS = _CAMERAS_3D  # the names output.render.camera and --camera accept (2D and 1D frames ignore the camera)
-
-
-def color_fields() -> list[str]:
-    """Every name output.render.color_by and --color-by accept: the scalar fields, aliases, vx/vy/vz, sxx ... szz."""
-    return list(FIELDS) + list(_ALIASES) + [f"s{a}{b}" for a in "xyz" for b in "xyz"]
-
+from .render_options import ALIASES as _ALIASES
+from .render_options import CAMERAS, FIELDS, color_fields, options  # noqa: F401 (CAMERAS, color_fields re-exported)
 
 _BACKEND: dict = {}
 
@@ -132,16 +121,6 @@ _VIEWS = {"iso": (1.0, 0.75, 1.5), "front": (0, 0, 1), "xy": (0, 0, 1), "xz": (0
           "yz": (1, 0, 0), "side": (1, 0, 0)}
 
 
-def _options(render_cfg) -> dict:
-    rc = render_cfg.model_dump() if hasattr(render_cfg, "model_dump") else dict(render_cfg or {})
-    name = rc.get("color_by") or "speed"
-    return dict(color_by=_ALIASES.get(name, name), size=tuple(int(s) for s in (rc.get("size") or (960, 720))),
-                camera=rc.get("camera") or "iso", point_size=rc.get("point_size"),
-                cmap=rc.get("colormap") or "viridis", clim=list(rc["clim"]) if rc.get("clim") else None,
-                scale=rc.get("scale") or "linear",
-                percentiles=tuple(rc.get("percentiles") or colour_range.DEFAULT_PERCENTILES))
-
-
 class FrameRenderer:
     """Renders particle states of one scene to PNG files with one camera and one colour scale.
 
@@ -158,15 +137,16 @@ class FrameRenderer:
 
     def __init__(self, render_cfg, dim: int, lower, upper, limits=None, bounds=None, title: str | None = None,
                  lines=None):
-        o = _options(render_cfg)
+        o = options(render_cfg)
         self.lines = lines      # 2D: polylines (M, 2) drawn under the particles (a mapped grid's cells)
         self.color_by, self.size, self.camera = o["color_by"], o["size"], o["camera"]
-        self.point_size, self.cmap, self.scale, self.percentiles = o["point_size"], o["cmap"], o["scale"], o["percentiles"]
+        self.point_size, self.cmap = o["point_size"], o["cmap"]
+        self.scale, self.percentiles = o["scale"], o["percentiles"]
         self.dim = int(dim)
         self.lower = np.asarray(lower, float)
         self.upper = np.asarray(upper, float)
-        if self.dim == 3 and self.camera not in _CAMERAS_3D:
-            raise ValueError(f"unknown camera '{self.camera}' (choose from {', '.join(_CAMERAS_3D)})")
+        if self.dim == 3 and self.camera not in CAMERAS:
+            raise ValueError(f"unknown camera '{self.camera}' (choose from {', '.join(CAMERAS)})")
         self.categorical = self.color_by in CATEGORICAL
         if self.categorical:
             self.scale = "linear"
@@ -189,7 +169,7 @@ class FrameRenderer:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         img = self.image(particles["x"], values, time, spacing=self._spacing(particles), volume=particles.get("volume"))
-        _write_png(path, img)
+        write_png(path, img)
         self.seconds += _time.perf_counter() - t0
         self.frames += 1
         return path
@@ -268,7 +248,8 @@ class FrameRenderer:
         else:
             self._mesh = pv.PolyData(self._points3(x))
         self._mesh["value"] = np.zeros(n)
-        bar = dict(title="", color="black", fmt="%.3g", n_labels=5 if self.size[0] >= 560 else 3, vertical=False, position_x=0.2, position_y=0.0,
+        bar = dict(title="", color="black", fmt="%.3g", n_labels=5 if self.size[0] >= 560 else 3, vertical=False,
+                   position_x=0.2, position_y=0.0,
                    width=0.6, height=0.085, label_font_size=14)
         if self.categorical:  # one tab10 colour per body, each labelled on the bar
             import matplotlib.colors
@@ -284,7 +265,8 @@ class FrameRenderer:
             self._actor = p.add_mesh(self._mesh, preference="cell", lighting=False, **common)
         else:
             self._place_camera(p, lo3, hi3)
-            # discs cover the square lattice's gaps (sqrt 2) so that a body reads as a continuum (2D); spheres touch (3D)
+            # discs cover the square lattice's gaps (sqrt 2) so that a body reads as a continuum (2D); spheres
+            # touch (3D)
             ps = self.point_size or max(2.0, (1.1 if self.dim == 3 else 1.45) * spacing * self._pixels_per_unit(p))
             # spheres (impostors: one shaded disc per particle, cheap) lit in 3D; flat discs in 2D, whose colour
             # must read exactly against the colour bar
@@ -293,7 +275,8 @@ class FrameRenderer:
                                      diffuse=0.75 if self.dim == 3 else 1.0, specular=0.25 if self.dim == 3 else 0.0,
                                      specular_power=20, **common)
         if self.dim == 3:
-            floor = pv.Plane(center=(0.5 * (lo3[0] + hi3[0]), lo3[1] - 1e-4 * (hi3[1] - lo3[1]), 0.5 * (lo3[2] + hi3[2])),
+            floor = pv.Plane(center=(0.5 * (lo3[0] + hi3[0]), lo3[1] - 1e-4 * (hi3[1] - lo3[1]),
+                                     0.5 * (lo3[2] + hi3[2])),
                              direction=(0, 1, 0), i_size=hi3[2] - lo3[2], j_size=hi3[0] - lo3[0])
             p.add_mesh(floor, color="#c9c9c4", ambient=0.5, diffuse=0.5, specular=0.0)
             p.add_mesh(pv.Box(bounds=(lo3[0], hi3[0], lo3[1], hi3[1], lo3[2], hi3[2])).outline(), color="#9aa3ad",
@@ -479,7 +462,7 @@ def sequence_bounds(positions, spacing: float, dim: int):
 
 def sequence_limits(render_cfg, values) -> list[float] | None:
     """The colour range of a sequence: the config's clim, else robust percentiles of every frame's values."""
-    o = _options(render_cfg)
+    o = options(render_cfg)
     if o["clim"]:
         return o["clim"]
     categorical = o["color_by"] in CATEGORICAL
@@ -502,9 +485,9 @@ class FrameRecorder:
         self.dir = Path(frames_dir)
         self.lines = lines
         self.render_cfg, self.dim, self.lower, self.upper, self.title = render_cfg, dim, lower, upper, title
-        self.color_by = _options(render_cfg)["color_by"]
-        if dim == 3 and _options(render_cfg)["camera"] not in _CAMERAS_3D:
-            raise ValueError(f"unknown camera '{_options(render_cfg)['camera']}' (choose from {', '.join(_CAMERAS_3D)})")
+        self.color_by = options(render_cfg)["color_by"]
+        if dim == 3 and options(render_cfg)["camera"] not in CAMERAS:
+            raise ValueError(f"unknown camera '{options(render_cfg)['camera']}' (choose from {', '.join(CAMERAS)})")
         self.seconds = 0.0
 
     def record(self, particles: dict, time: float, index: int):
@@ -547,7 +530,7 @@ class FrameRecorder:
                 out = self.dir / r.name.replace(".record_", "frame_").replace(".npz", ".png")
                 img = renderer.image(d["x"], d["values"], float(d["time"]), spacing=spacing,
                                      volume=d["volume"] if len(d["volume"]) else None)
-                _write_png(out, img)
+                write_png(out, img)
                 frames.append(out)
         finally:
             renderer.close()
@@ -577,7 +560,7 @@ def grid_lines(cfg, per_cell: int = 12):
     return lines
 
 
-def _write_png(path, img):
+def write_png(path, img):
     import imageio.v2 as imageio
 
     path = Path(path)

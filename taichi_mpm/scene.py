@@ -591,11 +591,9 @@ def base_dir_of(cfg: Config):
 
 
 def build_scene(cfg: Config, seed: int = 0) -> Scene:
-    """Particles of all bodies, in body order. The size is checked first (budget.check), so an absurd
-    resolution is refused before any particle is generated."""
-    from .budget import check
-
-    check(cfg, warn=False)
+    """Particles of all bodies, in body order. Callers check the size first (budget.check: the solver and
+    `validate` do), so an absurd resolution is refused before any particle is generated; budget reads this
+    module's shapes, so the check cannot live here."""
     base_dir = base_dir_of(cfg)
     rng = np.random.default_rng(seed)
     mat_names = list(dict.fromkeys(b.material for b in cfg.bodies))

@@ -38,6 +38,7 @@ from .loads import Loads
 from . import materials as material_models
 from .materials import MODELS, embed3, wave_speed
 from .scene import Scene, build_scene
+from .archs import GPU_ARCHS, available_archs, resolve_arch  # noqa: F401 (GPU_ARCHS, available_archs re-exported)
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                2: "non-finite value (NaN or infinity) in velocity or deformation",
@@ -64,32 +65,6 @@ class StabilityWarning(UserWarning):
     """A scene that is likely to go wrong numerically (e.g. a weakly compressible fluid that is too soft)."""
 
 _live = {"id": 0, "key": None}
-
-
-GPU_ARCHS = ("cuda", "vulkan", "metal")
-
-
-def available_archs() -> list[str]:
-    """cpu and the GPU backends Taichi finds. Taichi's own `ti.gpu` list also probes OpenGL/GLES, which crashes
-    the process (segmentation fault) on headless machines without a GL driver, so those are never probed."""
-    from taichi.lang.misc import is_arch_supported
-
-    ti.set_logging_level(ti.ERROR)  # no "libcuda.so not found" warning on machines without CUDA
-    return [name for name in GPU_ARCHS if is_arch_supported(getattr(ti, name))] + ["cpu"]
-
-
-def resolve_arch(arch: str) -> str:
-    """`auto` -> the first of cuda, vulkan, metal that Taichi finds, else cpu. An arch named explicitly that
-    this machine lacks is a ConfigError (Taichi itself would fall back to the CPU without a word)."""
-    if arch == "cpu":
-        return arch
-    found = available_archs()
-    if arch == "auto":
-        return found[0]
-    if arch not in found:
-        raise ConfigError(f"arch {arch} is not available on this machine (available: {', '.join(found)}); "
-                          "use arch: auto or cpu", key="arch")
-    return arch
 
 
 def init_taichi(arch: str, precision: str, deterministic: bool = False, order_free: bool = False):

@@ -27,6 +27,8 @@ contributions (CPDI: once per corner that reaches it); sums over contributions a
   The contribution index is (corner bits, node offset bits): 4^d contributions. While the corners are inside the
   grid, sum S = 1, sum S x_i = x_p, sum grad S = 0 and sum x_i (x) grad S = I exactly (tests/test_cpdi.py), and
   APIC's D_p = 2^-d sum_c diag(t (1 - t)) dx^2 + A A^T (t: corner's position in its cell) is never singular.
+- mapped (domain.map): the rational basis R_i at the particle's parametric coordinates, 3 x 3 control points, with
+  physical gradients J^-T grad_xi R_i (the grid itself, xi_p and its Newton search are in mapped.py).
 
 Physics code only: no CLI, rendering or file I/O here.
 """
@@ -114,10 +116,7 @@ class Stencil:
 
 
 def make_stencil(ctx: KernelContext) -> Stencil:
-    if ctx.basis.kind == "mapped":   # domain.map: the NURBS map's control points (mapped.py)
-        from .mapped import make_stencil as mapped_stencil
-        return mapped_stencil(ctx, ctx.extra["mapped"])
-    build = {"tensor": _tensor_stencil, "cpdi": _cpdi_stencil}[ctx.basis.kind]
+    build = {"tensor": _tensor_stencil, "cpdi": _cpdi_stencil, "mapped": _mapped_stencil}[ctx.basis.kind]
     return build(ctx)
 
 
@@ -415,6 +414,62 @@ def _cpdi_stencil(ctx: KernelContext) -> Stencil:
     span = [2] * (2 * dim)
     outer, inner = _loops(span, ctx.unroll)
     return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 4 ** dim)
+
+
+def _mapped_stencil(ctx: KernelContext) -> Stencil:
+    """domain.map: the mapped grid's contributions, 3 x 3 control points per particle (mapped.MappedGrid, given
+    as ctx.extra["mapped"]: its map, the particles' xi and the smallest cell)."""
+    mapped = ctx.extra["mapped"]
+    mp, xi, x = mapped.map, mapped.xi, ctx.x
+    periodic, n_seam = mapped.periodic, mapped.shape[0]
+    d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * mapped.h_min ** 2
+    span = [3, 3]
+
+    @ti.func
+    def at(p):
+        ctrl = ti.static(mp.ctrl)
+        b, R, R0, R1 = mp.rational(xi[p])
+        J = ti.Matrix.zero(float, 2, 2)
+        for i, j in ti.static(ti.ndrange(3, 3)):
+            Pij = ctrl[b[0] + i, b[1] + j]
+            for c in ti.static(range(2)):
+                J[c, 0] += R0[i, j] * Pij[c]
+                J[c, 1] += R1[i, j] * Pij[c]
+        return b, R, R0, R1, J.inverse().transpose(), x[p]
+
+    @ti.func
+    def node(st, off):
+        ctrl = ti.static(mp.ctrl)
+        b, R, R0, R1, JiT, xp = st
+        I = b + off
+        r = ctrl[I] - xp
+        grad = JiT @ ti.Vector([R0[off[0], off[1]], R1[off[0], off[1]]])
+        if ti.static(periodic):
+            if I[0] >= n_seam:
+                I[0] -= n_seam
+        return I, R[off[0], off[1]], grad, r
+
+    @ti.func
+    def inertia(st):
+        ctrl = ti.static(mp.ctrl)
+        b, R, R0, R1, JiT, xp = st
+        D = ti.Matrix.zero(float, 2, 2)
+        for i, j in ti.static(ti.ndrange(3, 3)):
+            r = ctrl[b[0] + i, b[1] + j] - xp
+            D += R[i, j] * r.outer_product(r)
+        return D
+
+    @ti.func
+    def inertia_inverse(st):
+        """D_p^-1, regularised by d_min where D_p is (nearly) singular: a particle on a wall circle weighs only
+        the wall's row of nodes, D_p has no radial extent there, and B_p none either."""
+        D = inertia(st)
+        if D.determinant() < d_min * (D.trace() + d_min):
+            D += ti.Matrix.identity(float, 2) * d_min
+        return D.inverse()
+
+    outer, inner = _loops(span, ctx.unroll)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 9)
 
 
 def make_corner_check(ctx: KernelContext):

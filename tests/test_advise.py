@@ -214,3 +214,44 @@ def test_advise_colliding_disks_rebound_velocity(tmp_path, capsys):
     chosen = [r for r in rows.values() if r["outcome"] == "ok" and "solver.basis=" + r["solver.basis"] in captured.out
               and f"domain.dx={float(r['domain.dx']):g}" in captured.out and r["solver.transfer"] == "apic"]
     assert chosen and all(-0.1 < float(r["observed"]) < 0 for r in chosen)
+
+
+# ---------------------------------------------------------------- an impossible tolerance (issue 30)
+def _fake_records(observed):
+    """A stand-in for run_cases that 'runs' each case instantly: outcome ok, observed = observed(dx)."""
+    def run_cases(cases, jobs, scheduler, timeout, store):
+        for c in cases:
+            dx = float(c["params"]["domain.dx"])
+            store(c, dict(case=c["id"], repeat=c["repeat"], **c["params"], outcome="ok", cause="",
+                          observed=observed(dx), step_time=1.0 / dx, wall_time=2.0 / dx, particles=int(100 / dx),
+                          steps=int(10 / dx)))
+    return run_cases
+
+
+@pytest.mark.parametrize("levels", [1, 2, 3])
+def test_an_impossible_tolerance_has_no_feasible_candidate(tmp_path, monkeypatch, capsys, levels):
+    """1e-30 is below any run's error. With fewer than three levels Richardson cannot extrapolate and the
+    reference is the finest run's own value: that run (error 0 by construction) must not count as meeting it."""
+    import taichi_mpm.advise as advise_mod
+    monkeypatch.setattr(advise_mod, "run_cases", _fake_records(lambda dx: 1.0 + 0.01 * dx**2))
+    result = advise(problem={"type": "vibrating_bar", "cells": 8}, observe="bar.vx", tolerance=1e-30,
+                    bases=("linear", "quadratic"), transfers=("apic",), levels=levels, overrides=BAR_PROBE,
+                    timing={"runs": 0}, out=tmp_path / "advice", jobs=1, progress=None)
+    assert result["choice"] is None
+    assert not [r for r in result["rows"] if r["status"].startswith("feasible")], result["rows"]
+    assert "no setting reached the tolerance" in advise_mod.answer_line(result)
+    finest = 3.125 / 2 ** (levels - 1)
+    assert (f"domain.dx={finest:g}, gives the reference itself" in advise_mod.answer_line(result)) == (levels < 3)
+    assert "No setting reached the tolerance" in (tmp_path / "advice" / "advice.md").read_text()
+
+
+def test_a_reachable_tolerance_is_still_met(tmp_path, monkeypatch):
+    """The same fake runs at 1 %: the coarse linear run's error against the Richardson limit 1.0 is 0.01 * 3.125^2
+    / 1 > 1 %, the next level's 0.024 > 1 %, the finest 0.006: the cheapest candidate at the finest level wins."""
+    import taichi_mpm.advise as advise_mod
+    monkeypatch.setattr(advise_mod, "run_cases", _fake_records(lambda dx: 1.0 + 0.001 * dx**2))
+    result = advise(problem={"type": "vibrating_bar", "cells": 8}, observe="bar.vx", tolerance=0.01,
+                    bases=("linear", "quadratic"), transfers=("apic",), levels=3, overrides=BAR_PROBE,
+                    timing={"runs": 0}, out=tmp_path / "advice", jobs=1, progress=None)
+    assert result["reference"][0] == pytest.approx(1.0)
+    assert result["choice"] is not None and result["choice"]["error"] <= 0.01

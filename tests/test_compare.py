@@ -139,3 +139,48 @@ def test_cli_compare_on_the_round_tank(tmp_path):
     assert len(frames) == 3 and h == 240 and 640 <= w <= 644      # two panels (widths rounded) and a separator
     p = [float(r["momentum_end"]) for r in rows]
     assert p[0] > 0 and abs(p[1] - p[0]) < 0.05 * p[0]
+
+
+def test_vary_takes_a_bounded_number_of_values(tmp_path, monkeypatch, capsys):
+    """1000 values are refused up front (exit 2, naming --vary and the cap), before any config is loaded or run."""
+    from taichi_mpm import compare as compare_mod
+    from taichi_mpm.cli import main
+
+    many = "solver.cfl=" + ",".join(f"{0.1 + 1e-4 * i:.4f}" for i in range(1000))
+    with pytest.raises(ConfigError, match=f"--vary.*1000 values.*at most {compare_mod.MAX_VARIANTS}"):
+        parse_vary(many)
+    assert len(parse_vary("solver.cfl=" + ",".join(str(0.1 * (i + 1)) for i in range(compare_mod.MAX_VARIANTS)))[1]) \
+        == compare_mod.MAX_VARIANTS
+    ran = []
+    monkeypatch.setattr(compare_mod, "run_variant", lambda *a, **k: ran.append(a))
+    monkeypatch.setattr(compare_mod, "load_config", lambda *a, **k: ran.append(a))
+    cfg = tmp_path / "c.yaml"
+    import yaml
+
+    cfg.write_text(yaml.safe_dump(spinning_block()))
+    assert main(["compare", str(cfg), "--vary", many, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "--vary" in err and "1000 values" in err and err.count("taichi-mpm: error:") == 1
+    assert ran == [] and not (tmp_path / "o").exists()
+
+
+def test_the_work_is_estimated_before_any_variant_runs(tmp_path, monkeypatch):
+    """The log's first line says how much will run (variants, particles x steps, frames), from the size estimate,
+    before the first variant starts; a comparison estimated beyond the work limit is refused naming --vary."""
+    from taichi_mpm import budget
+    from taichi_mpm import compare as compare_mod
+
+    lines = []
+    monkeypatch.setattr(compare_mod, "run_variant", lambda v, field, log=None: lines.append(f"ran {v.label}"))
+    res = compare(spinning_block(), "solver.transfer=pic,apic", out=tmp_path / "cmp", log=lines.append)
+    est = budget.estimate(tm.load_config(spinning_block()))
+    first = lines[0]
+    assert first.startswith("compare: 2 variants") and f"{2 * est.particles * est.steps:.3g} particle-steps" in first
+    assert lines[1] == "ran transfer = pic"
+    assert res["work"]["particle_steps"] == pytest.approx(2 * est.particles * est.steps)
+    monkeypatch.setattr(compare_mod, "MAX_WORK", est.particles * est.steps)   # one variant's work: two exceed it
+    with pytest.raises(ConfigError, match="--vary") as e:
+        compare(spinning_block(), "solver.transfer=pic,apic", out=tmp_path / "cmp2", log=lines.append)
+    assert "particle-steps" in str(e.value) and "--allow-large" in str(e.value)
+    res = compare(spinning_block(), "solver.transfer=pic,apic", {"limits.allow_large": True}, out=tmp_path / "cmp3")
+    assert res["work"]["particle_steps"] > compare_mod.MAX_WORK   # opted in: it runs

@@ -289,7 +289,8 @@ def test_metric_known_for_the_problem(tmp_path):
     assert load_study(_write(tmp_path, dict(study="m", problem=MMS_1D, vary={"domain.dx": [0.0625]},
                                             metric="error_max"))).metric == "error_max"
     with pytest.raises(ConfigError, match="known: energy_drift, energy_ratio_max, energy_ratio_end, error_rms"):
-        load_study(_write(tmp_path, dict(study="m", problem=MMS_1D, vary={"domain.dx": [0.0625]}, metric="error_energy")))
+        load_study(_write(tmp_path, dict(study="m", problem=MMS_1D, vary={"domain.dx": [0.0625]},
+                                         metric="error_energy")))
 
 
 def test_too_many_cases_is_refused_before_expanding(tmp_path):

@@ -129,7 +129,7 @@ def use_taichi(namespace: dict):
     validation Taichi-free."""
     import taichi
 
-    from . import tensor
+    import taichi_mpm.materials.tensor as tensor   # the submodule alone (`from . import` names the package)
 
     namespace["ti"] = taichi
     for name in TENSOR_NAMES:
