@@ -25,7 +25,7 @@ import taichi as ti
 from . import budget
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
-from .mapped import MappedGrid, make_locate
+from .mapped import MappedGrid
 from .stencils import make_stencil
 from .sums import ChunkSums, Slots
 from . import jit, scatter
@@ -40,6 +40,7 @@ from .materials import MODELS, wave_speed
 from .scene import Scene, build_scene
 from . import step as step_kernels
 from .step import Features, StepContext
+from .step.extensions import ColouredScatter, DualDomainFill, MappedCoordinates, VolumeAverage
 from .step.transfers import FLUID_J_MIN
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
@@ -241,6 +242,17 @@ class Simulation:
         self.bins = scatter.BlockBins(d, self.grid, n) if coloured else None  # atomic-free P2G (scatter.py)
         self.crack = crack_finder.CrackFinder(self) if self.cfg.crack is not None else None
         self.fbar = fbar.create(self)  # solver.volumetric: fbar (fbar.py), else None
+        self.extensions = self._extensions()
+        self._p2g_passes = max([e.p2g_passes for e in self.extensions], default=1)
+
+    def _extensions(self) -> list:
+        """The parts of the step that plug in at its moments (step/extensions.py), in the order they run."""
+        out = [DualDomainFill()] if self.basis.kind == "tensor" and self.basis.smooth_1d is not None else []
+        out += [ColouredScatter(self.bins)] if self.bins is not None else []
+        # the new positions' parametric coordinates first: F-bar's average reads the mapped stencil
+        out += [MappedCoordinates(self.mapped, self.x, self.n, self.cfg.precision)] if self.mapped is not None else []
+        out += [VolumeAverage(self.fbar)] if self.fbar is not None else []
+        return out
 
     def _allocate_globals(self):
         """Flags, runtime parameters, accumulators and diagnostics sums."""
@@ -278,12 +290,9 @@ class Simulation:
         floats += d if self.load is not None else 0
         floats += d * d if self.stress0 is not None else 0
         floats += self.n_state
-        floats += MappedGrid.PARTICLE_FLOATS if self.mapped is not None else 0   # the parametric coordinates xi_p
         out = floats * size + (1 if self.mat is not None else 0)
-        out += self.bins.bytes_per_particle if self.bins is not None else 0
         out += self.crack.bytes_per_particle() if self.crack is not None else 0
-        out += self.fbar.bytes_per_particle() if self.fbar is not None else 0
-        return out
+        return out + sum(e.bytes_per_particle() for e in self.extensions)
 
     def _block_order(self) -> np.ndarray:
         """Solver slot -> creation index, sorting particles by grid block then cell, so that particles that
@@ -309,7 +318,8 @@ class Simulation:
         self.v.from_numpy(self._to_solver(s.v).astype(np.float64))
         self.F.from_numpy(np.broadcast_to(np.eye(d), (self.n, d, d)).copy())
         self.vol0.from_numpy(self._to_solver(s.volume).astype(np.float64))
-        self._place_on_map()
+        for e in self.extensions:
+            e.particles_set({"x", "v", "F"})
         if self.C is not None:
             self.C.fill(0)
         if self.mat is not None:
@@ -344,13 +354,9 @@ class Simulation:
         F-bar and the crack finder, which read them, and the solver's own kernels with the crack finder's hooks."""
         ctx = self.ctx = self._step_context()
         ctx.stencil = make_stencil(ctx)
-        if self.mapped is not None:
-            self._locate, self._locate_from = make_locate(ctx, self.mapped, self.fail, _CODES, 6)
-        if self.bins is not None:
-            self.bins.build(ctx.stencil.origin)
-        funcs = step_kernels.make_funcs(ctx)   # sets ctx.density, ctx.kirchhoff, ctx.add
-        if self.fbar is not None:
-            self.fbar.build(ctx)
+        funcs = step_kernels.make_funcs(ctx)   # sets ctx.density, ctx.kirchhoff, ctx.project, ctx.add
+        for e in self.extensions:
+            e.build(ctx)
         ctx.crack = self.crack.build(ctx) if self.crack is not None else None   # its hooks (crack.CrackHooks)
         self._k = step_kernels.make_kernels(ctx, funcs)
         if ctx.crack is not None:
@@ -457,14 +463,9 @@ class Simulation:
         self._k["set_motion"](ti.Matrix(rows.tolist()))
         self._motion_time = t
 
-    def _scatter(self, kernel: str, *args, moved: bool = True):
-        """Run a P2G kernel: once, or once per colour, binning the particles first if they `moved` (scatter.py)."""
-        if self.bins is None:
-            self._k[kernel](*args, 0)
-            return
-        if moved:
-            self.bins.bin()
-        for colour in range(self.bins.colours):
+    def _scatter(self, kernel: str, *args):
+        """Run a P2G kernel: once, or once per colour of the coloured scatter (scatter.py)."""
+        for colour in range(self._p2g_passes):
             self._k[kernel](*args, colour)
 
     def step(self, dt: Optional[float] = None) -> float:
@@ -490,8 +491,8 @@ class Simulation:
         kick = kick_before + kick_after
         self._prescribe(dt)
         self.grid.clear()
-        if self.ctx.stencil.prepare is not None:
-            self.ctx.stencil.prepare()   # stencils that read grid state (ddmp's nodal volumes)
+        for e in self.extensions:
+            e.before_p2g()   # ddmp's nodal volumes (a stencil that reads grid state), the coloured scatter's bins
         if self.crack is not None:
             self.crack.update()
         self._scatter("p2g", kick)
@@ -504,18 +505,13 @@ class Simulation:
         self.vmax2[None] = 0.0
         if self.feat.musl:
             k["g2p"](dt, kick, velocity=True, deform=False)
-            self._scatter("p2g_momentum", moved=False)  # the first g2p pass left the positions
+            self._scatter("p2g_momentum")  # the first g2p pass left the positions: the same bins
             k["grid_remap_tensor" if tensor else "grid_remap"]()
             k["g2p"](dt, kick, velocity=False, deform=True)
         else:
             k["g2p"](dt, kick, velocity=True, deform=True)
-        if self.mapped is not None:
-            self._locate()   # the new positions' parametric coordinates
-        if self.fbar is not None:
-            self.fbar.apply()  # F-bar: the step's volume change averaged over the grid
-            if self.feat.plastic:
-                k["project_all"]()  # return mappings after the average, and F-bar's J^n from the projected F
-                self.fbar.sync()
+        for e in self.extensions:
+            e.after_g2p()   # the mapped grid's xi_p, F-bar's volume average
         self.dt, self._half_dt = dt, 0.5 * dt
         if not np.array_equal(self._gravity_before, self._gravity):  # the gravity of this step, for the next kick
             self._gravity_before = self._gravity.copy()
@@ -849,26 +845,13 @@ class Simulation:
             fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
         self._balance = self._shape_ref = None  # a new state: the balance and body shapes are measured afresh
         self._potentials = {}
-        if "x" in checked:
-            self._place_on_map()
-            if self.crack is not None:
-                self.crack.invalidate()   # its normals kept between steps belong to the old positions
-        if self.fbar is not None and "F" in checked:
-            self.fbar.sync()  # F-bar's start-of-step J follows the new F
+        for e in self.extensions:
+            e.particles_set(set(checked))   # the mapped grid's xi_p, F-bar's start-of-step J
+        if "x" in checked and self.crack is not None:
+            self.crack.invalidate()   # its normals kept between steps belong to the old positions
         if "v" in checked:
             self._vmax = _max_speed(checked["v"])
             self._half_dt = 0.0  # velocities given at the clock's time: the next step kicks over half a step
-
-    def _place_on_map(self):
-        """domain.map: every particle's parametric coordinates, by Newton from the nearest sample of the map; a
-        particle outside the mapped region is a config error."""
-        if self.mapped is None or self.n == 0:
-            return
-        x = self.x.to_numpy().astype(np.float64)
-        missed = self._locate_from(self.mapped.initial_guess(x))
-        if missed:
-            raise ConfigError(f"{missed} particles lie outside the mapped grid (domain.map): bodies must lie inside "
-                              "the annulus", key="domain.map")
 
     def _validated_particles(self, arrays: dict) -> dict:
         fields = self._state_fields()

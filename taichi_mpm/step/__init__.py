@@ -7,8 +7,10 @@
     transfers.py     P2G, G2P, MUSL's momentum remap; the F update and the particle checks
     grid_update.py   gravity, walls and grips on the grid; tractions' forces, grip and wall velocities
     diagnostics.py   energies, momenta, body moments, stresses, volume ratios
+    extensions.py    Extension: the moments of a step; the ddmp pre-pass, the coloured scatter, the mapped grid's
+                     coordinates and F-bar as extensions
 
-`make_funcs` builds the funcs the other kernel builders (F-bar, the crack finder) read from the context;
+`make_funcs` builds the funcs the other kernel builders (the extensions, the crack finder) read from the context;
 `make_kernels` the solver's kernels, once the crack finder's hooks are in the context (ctx.crack).
 
 Physics code only: no CLI, rendering or file I/O here.
@@ -34,15 +36,16 @@ class StepFuncs:
 
 
 def make_funcs(ctx: StepContext) -> StepFuncs:
-    """The affine and material funcs; sets the context's density, kirchhoff and add (stencils.KernelContext)."""
+    """The affine and material funcs; sets the context's density, kirchhoff, project and add."""
     af = make_affine(ctx)
     mf = make_material_funcs(ctx, af.velocity_gradient)
     ctx.density, ctx.kirchhoff, ctx.add = mf.density, mf.kirchhoff, make_add(ctx.bins is not None)
+    ctx.project = mf.project
     return StepFuncs(af, mf)
 
 
 def make_kernels(ctx: StepContext, funcs: StepFuncs) -> dict:
-    """name -> kernel: p2g, p2g_momentum, grid_update, grid_remap, g2p, project_all, apply_loads, set_motion,
+    """name -> kernel: p2g, p2g_momentum, grid_update, grid_remap, g2p, apply_loads, set_motion,
     flag_grip_nodes, energies, momenta, body_moments, cauchy_stress, volume_ratios."""
     af, mf = funcs.affine, funcs.materials
     external_force = make_external_force(ctx, mf)

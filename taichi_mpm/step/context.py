@@ -47,3 +47,4 @@ class StepContext(KernelContext):
     bins: Any = None                 # scatter.BlockBins: the coloured P2G, or None
     fbar: bool = False               # solver.volumetric fbar: return mappings wait for F-bar's average
     crack: Optional[Any] = None      # the crack finder's hooks (crack.CrackHooks), or None
+    project: Any = None              # @ti.func (p, F) -> F after the return mapping (step.materials)

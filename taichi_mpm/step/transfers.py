@@ -136,7 +136,7 @@ def make_p2g(ctx, mf, af, external_force):
 
 
 def make_g2p(ctx, mf, af, external_force):
-    """Kernels g2p(dt, kick, velocity, deform) and project_all()."""
+    """Kernel g2p(dt, kick, velocity, deform)."""
     dim, basis = ctx.dim, ctx.basis
     x, v, F, C = ctx.x, ctx.v, ctx.F, ctx.C
     sten, crk = ctx.stencil, ctx.crack
@@ -254,10 +254,4 @@ def make_g2p(ctx, mf, af, external_force):
             if ti.static(deform):
                 deform_particle(p, dt, v_pic, G)
 
-    @ti.kernel
-    def project_all():
-        """The return mappings after F-bar's volume average (solver.volumetric: fbar)."""
-        for p in x:
-            F[p] = project(p, F[p])
-
-    return dict(g2p=g2p, project_all=project_all)
+    return dict(g2p=g2p)
