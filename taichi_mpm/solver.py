@@ -1,4 +1,4 @@
-"""The MPM solver: particle fields, and one kernel per phase (P2G, grid update, G2P).
+"""The MPM solver: particle fields, and the order of one step's kernels (P2G, grid update, G2P; built in step/).
 
 Every option a scene does not use is left out when the kernels are built: the dimension, basis,
 transfer, update scheme, material models and features (body force, viscosity, crack finder) are
@@ -25,8 +25,8 @@ import taichi as ti
 from . import budget
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
-from .mapped import MappedGrid, make_locate
-from .stencils import KernelContext, make_corner_check, make_stencil
+from .mapped import MappedGrid
+from .stencils import make_stencil
 from .sums import ChunkSums, Slots
 from . import jit, scatter
 from .config import Config, ConfigError, load_config
@@ -36,9 +36,13 @@ from .errors import InstabilityError
 from .grid import Grid, make_wall_condition
 from .loads import Loads
 from . import materials as material_models
-from .materials import MODELS, embed3, wave_speed
+from .materials import MODELS, wave_speed
 from .scene import Scene, build_scene
 from .archs import GPU_ARCHS, available_archs, resolve_arch  # noqa: F401 (GPU_ARCHS, available_archs re-exported)
+from . import step as step_kernels
+from .step import Features, StepContext
+from .step.extensions import ColouredScatter, DualDomainFill, MappedCoordinates, VolumeAverage
+from .step.transfers import FLUID_J_MIN
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                2: "non-finite value (NaN or infinity) in velocity or deformation",
@@ -53,7 +57,6 @@ _NO_FAIL = 2**31 - 1
 _CODES = 8  # fail flag = solver slot * _CODES + code
 DT_LIMITS = ("elastic", "speed", "gravity", "body_force", "viscosity", "fixed")  # Simulation.dt_limit
 ENERGY_CHECK_EVERY = 4      # steps between energy-balance checks (every step while the energy is above the balance)
-FLUID_J_MIN = 0.2           # a weakly compressible fluid squeezed below this volume ratio has collapsed
 FRACTURE_SPREAD = 1.3       # body spread / spread its particles' F accounts for, past which the body tore on the grid
 # explicit viscous diffusion: dt <= cfl rho dx^2 / (VISCOUS_DIFFUSION d mu), the finite-difference bound
 # dx^2 / (2 d nu). Measured (2D, dx 0.05, APIC, fixed dt, 100 steps): blow-up above 0.25-0.35 rho dx^2 / mu
@@ -154,56 +157,54 @@ class Simulation:
         self._warn_weak_fluids()
 
     # ------------------------------------------------------------------ fields
-    def _features(self):
-        c, s = self.cfg, self.scene
-        uses_viscosity = any(getattr(m, "viscosity", 0.0) > 0 for m in self._materials)
-        spacing = np.unique(s.spacing)
-        return dict(
-            apic=c.solver.transfer == "apic",
-            flip=c.solver.transfer == "flip",
-            musl=c.solver.update == "musl",
-            store_grad_v=c.solver.transfer == "apic" or uses_viscosity,  # C: APIC B_p or C_p, or grad v
-            multi_material=len(self._materials) > 1,
-            body_force=self.body_force is not None,
-            # particle domains of more than one size (gimp, cpdi) keep a per-particle half-width
-            domain_per_particle=c.solver.basis in ("gimp", "cpdi") and len(spacing) > 1,
-            viscosity=uses_viscosity,
-            tractions=bool(s.loads),             # particle forces of bodies[].tractions
-            grips=bool(s.grips),                 # bodies[].prescribed_velocity on the nodes the grip touches
-            initial_stress=s.stress is not None,  # bodies[].stress, a stored stress added to the model's
-            moving_walls=bool(self.loads.walls),  # domain.boundaries faces of type velocity
-            plastic=any(MODELS[m.model].plastic for m in self._materials),  # a return mapping after the F update
-        )
+    def _features(self) -> Features:
+        return Features.of(self.cfg, self.scene, self._materials, body_force=self.body_force is not None,
+                           moving_walls=bool(self.loads.walls))
 
     def _allocate(self):
+        self.feat = self._features()
+        self._allocate_particles(self.feat)
+        self._allocate_loads(self.feat)
+        self._allocate_grid(self.feat)
+        self._allocate_globals()
+        self.bytes_per_particle = self._bytes_per_particle()
+
+    def _allocate_particles(self, f: Features):
         d, n = self.dim, self.n
-        self.feat = f = self._features()
         self.x = ti.Vector.field(d, float, n)
         self.v = ti.Vector.field(d, float, n)
         self.F = ti.Matrix.field(d, d, float, n)
         self.vol0 = ti.field(float, n)
-        self.C = ti.Matrix.field(d, d, float, n) if f["store_grad_v"] else None
-        self.mat = ti.field(ti.u8, n) if f["multi_material"] else None
-        self.body_acc = ti.Vector.field(d, float, n) if f["body_force"] else None
-        self.half_width = ti.field(float, n) if f["domain_per_particle"] else None
-        self.load = ti.Vector.field(d, float, n) if f["tractions"] else None
-        n_loaded = sum(len(l.particles) for l in self.scene.loads)
-        self.load_slot = ti.field(ti.i32, n_loaded) if f["tractions"] else None      # solver slot of each loaded
-        self.load_index = ti.field(ti.i32, n_loaded) if f["tractions"] else None     # particle, its traction
-        self.load_force = ti.Vector.field(d, float, n_loaded) if f["tractions"] else None  # and force at ramp 1
-        self.stress0 = ti.Matrix.field(d, d, float, n) if f["initial_stress"] else None
-        n_grips, n_gripped = len(self.scene.grips), sum(len(g.particles) for g in self.scene.grips)
-        self.grip_slot = ti.field(ti.i32, n_gripped) if f["grips"] else None    # solver slot of each gripped particle
-        self.grip_index = ti.field(ti.i32, n_gripped) if f["grips"] else None   # its grip, from 1
-        self.grip_v = ti.Vector.field(d, float, n_grips) if f["grips"] else None
-        self.grip_impulse = ti.Vector.field(d, ti.f64, n_grips) if f["grips"] else None
-        self.wall_v = ti.Vector.field(d, float, 2 * d) if f["moving_walls"] else None
+        self.C = ti.Matrix.field(d, d, float, n) if f.store_grad_v else None
+        self.mat = ti.field(ti.u8, n) if f.multi_material else None
+        self.body_acc = ti.Vector.field(d, float, n) if f.body_force else None
+        self.half_width = ti.field(float, n) if f.domain_per_particle else None
+        self.stress0 = ti.Matrix.field(d, d, float, n) if f.initial_stress else None
         # per-particle material state (plastic strain, J_p, ...): only when a model of the scene has any (materials/)
         self.state_layout = material_models.state_layout(self._materials, d)
         self.n_state = material_models.state_size(self._materials, d)
         self.state = ti.Vector.field(self.n_state, float, n) if self.n_state else None
-        vec = ["v"] + (["v_old"] if f["flip"] else []) + (["v2"] if f["musl"] else [])
-        vec += ["grip"] if f["grips"] else []  # component 0: the grip (from 1) whose particles touch the node
+
+    def _allocate_loads(self, f: Features):
+        """Tractions' particle forces, grips and velocity walls (their values: loads.py, set per step)."""
+        d, n = self.dim, self.n
+        self.load = ti.Vector.field(d, float, n) if f.tractions else None
+        n_loaded = sum(len(l.particles) for l in self.scene.loads)
+        self.load_slot = ti.field(ti.i32, n_loaded) if f.tractions else None      # solver slot of each loaded
+        self.load_index = ti.field(ti.i32, n_loaded) if f.tractions else None     # particle, its traction
+        self.load_force = ti.Vector.field(d, float, n_loaded) if f.tractions else None  # and force at ramp 1
+        n_grips, n_gripped = len(self.scene.grips), sum(len(g.particles) for g in self.scene.grips)
+        self.grip_slot = ti.field(ti.i32, n_gripped) if f.grips else None    # solver slot of each gripped particle
+        self.grip_index = ti.field(ti.i32, n_gripped) if f.grips else None   # its grip, from 1
+        self.grip_v = ti.Vector.field(d, float, n_grips) if f.grips else None
+        self.grip_impulse = ti.Vector.field(d, ti.f64, n_grips) if f.grips else None
+        self.wall_v = ti.Vector.field(d, float, 2 * d) if f.moving_walls else None
+
+    def _allocate_grid(self, f: Features):
+        """The grid, and what shares its nodes: the coloured scatter's bins, the crack finder, F-bar."""
+        d, n = self.dim, self.n
+        vec = ["v"] + (["v_old"] if f.flip else []) + (["v2"] if f.musl else [])
+        vec += ["grip"] if f.grips else []  # component 0: the grip (from 1) whose particles touch the node
         shape = [self.basis.axis(a).nodes(nc) for a, nc in enumerate(self.n_cells)]
         if self.mapped is not None:
             shape = self.mapped.shape    # control points of the map, in parameter space
@@ -216,6 +217,21 @@ class Simulation:
         self.bins = scatter.BlockBins(d, self.grid, n) if coloured else None  # atomic-free P2G (scatter.py)
         self.crack = crack_finder.CrackFinder(self) if self.cfg.crack is not None else None
         self.fbar = fbar.create(self)  # solver.volumetric: fbar (fbar.py), else None
+        self.extensions = self._extensions()
+        self._p2g_passes = max([e.p2g_passes for e in self.extensions], default=1)
+
+    def _extensions(self) -> list:
+        """The parts of the step that plug in at its moments (step/extensions.py), in the order they run."""
+        out = [DualDomainFill()] if self.basis.kind == "tensor" and self.basis.smooth_1d is not None else []
+        out += [ColouredScatter(self.bins)] if self.bins is not None else []
+        # the new positions' parametric coordinates first: F-bar's average reads the mapped stencil
+        out += [MappedCoordinates(self.mapped, self.x, self.n, self.cfg.precision)] if self.mapped is not None else []
+        out += [VolumeAverage(self.fbar)] if self.fbar is not None else []
+        return out
+
+    def _allocate_globals(self):
+        """Flags, runtime parameters, accumulators and diagnostics sums."""
+        d, n = self.dim, self.n
         self.fail = ti.field(ti.i32, ())
         self.vmax2 = ti.field(float, ())
         # runtime parameters (set_gravity, set_stiffness_scale, set_flip_blend): read by the kernels, no recompile
@@ -238,13 +254,6 @@ class Simulation:
         # wall impulses per face (x_min, x_max, y_min, ...), summed by the grid update; only for wall probes
         wall_probes = any(p.type == "wall" for p in self.cfg.output.probes)
         self.wall_reaction = ti.Vector.field(d, ti.f64, 2 * d) if wall_probes else None
-        self.bytes_per_particle = self._bytes_per_particle()
-        self.bytes_per_particle += self.bins.bytes_per_particle if self.bins is not None else 0
-        if self.crack is not None:
-            self.bytes_per_particle += self.crack.bytes_per_particle()
-        self.bytes_per_particle += self.fbar.bytes_per_particle() if self.fbar is not None else 0
-        if self.mapped is not None:   # the parametric coordinates xi_p
-            self.bytes_per_particle += MappedGrid.PARTICLE_FLOATS * (8 if self.cfg.precision == "f64" else 4)
 
     def _bytes_per_particle(self) -> int:
         size = 8 if self.cfg.precision == "f64" else 4
@@ -256,7 +265,9 @@ class Simulation:
         floats += d if self.load is not None else 0
         floats += d * d if self.stress0 is not None else 0
         floats += self.n_state
-        return floats * size + (1 if self.mat is not None else 0)
+        out = floats * size + (1 if self.mat is not None else 0)
+        out += self.crack.bytes_per_particle() if self.crack is not None else 0
+        return out + sum(e.bytes_per_particle() for e in self.extensions)
 
     def _block_order(self) -> np.ndarray:
         """Solver slot -> creation index, sorting particles by grid block then cell, so that particles that
@@ -282,7 +293,8 @@ class Simulation:
         self.v.from_numpy(self._to_solver(s.v).astype(np.float64))
         self.F.from_numpy(np.broadcast_to(np.eye(d), (self.n, d, d)).copy())
         self.vol0.from_numpy(self._to_solver(s.volume).astype(np.float64))
-        self._place_on_map()
+        for e in self.extensions:
+            e.particles_set({"x", "v", "F"})
         if self.C is not None:
             self.C.fill(0)
         if self.mat is not None:
@@ -313,599 +325,45 @@ class Simulation:
 
     # ------------------------------------------------------------------ kernels
     def _build_kernels(self):
-        dim, dx, inv_dx = self.dim, self.dx, 1.0 / self.dx
-        basis, f = self.basis, self.feat
-        n_cells = self.n_cells
-        lower = ti.Vector(self.lower.tolist())
-        upper = ti.Vector(self.upper.tolist())
-        gravity, stiff = self.gravity_field, self.stiffness_field  # runtime values (set_gravity, ...)
-        gravity_before = self.gravity_before_field
-        # each material's Taichi funcs, its parameters compile-time constants (materials/: the model registry)
-        nq = max(1, self.n_state)
-        mats = [MODELS[m.model].build(m, dim, nq) for m in self._materials]
-        projects = [m.project is not None for m in mats]       # which materials have a return mapping
-        viscous = [m.viscous_power is not None for m in mats]
-        state, has_state = self.state, self.state is not None
-        has_fbar = self.fbar is not None
-        alpha = self.flip_blend_field  # set_flip_blend
-        x, v, F, C, vol0, mat = self.x, self.v, self.F, self.C, self.vol0, self.mat
-        body_acc = self.body_acc
-        has_C, has_body_acc = C is not None, body_acc is not None
-        load, stress0, has_load, has_stress0 = self.load, self.stress0, f["tractions"], f["initial_stress"]
-        load_slot, load_index, load_force = self.load_slot, self.load_index, self.load_force
-        grip_slot, grip_index, grip_v, grip_impulse = self.grip_slot, self.grip_index, self.grip_v, self.grip_impulse
-        has_grips = f["grips"]
-        grip_given = self.loads.grip_given()
-        store_B = f["apic"] and not basis.apic_gradient  # the C field holds APIC's B_p (see affine())
-        grid = self.grid
-        gm, gv = grid.m, grid.vec["v"]
-        gv_old = grid.vec.get("v_old")
-        gv2 = grid.vec.get("v2")
-        fail, vmax2 = self.fail, self.vmax2
-        work, body_id, moments = self.work, self.body_id, self.moments
-        has_body_id = body_id is not None
-        n_codes = _CODES
-        out_tol = 1e-6 * dx  # a particle on a wall that round-off moves a hair beyond it has not left the domain
-        fluid_j_min = FLUID_J_MIN
-        walls = self.cfg.domain.boundaries
+        """The step's kernels (step/): the context, the stencil, the material funcs, then the kernel builders of
+        F-bar and the crack finder, which read them, and the solver's own kernels with the crack finder's hooks."""
+        ctx = self.ctx = self._step_context()
+        ctx.stencil = make_stencil(ctx)
+        funcs = step_kernels.make_funcs(ctx)   # sets ctx.density, ctx.kirchhoff, ctx.project, ctx.add
+        for e in self.extensions:
+            e.build(ctx)
+        ctx.crack = self.crack.build(ctx) if self.crack is not None else None   # its hooks (crack.CrackHooks)
+        self._k = step_kernels.make_kernels(ctx, funcs)
+        if ctx.crack is not None:
+            self._k.update(ctx.crack.kernels)   # the grid update and remap where the node mass is a tensor
+
+    def _step_context(self) -> StepContext:
+        dim, dx, c = self.dim, self.dx, self.cfg
+        walls = c.domain.boundaries
         faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(dim)]
         friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
-        moving = (self.loads.wall_given(), self.wall_v, self.work) if f["moving_walls"] else None
+        moving = (self.loads.wall_given(), self.wall_v, self.work) if self.feat.moving_walls else None
         # a mapped grid's walls act on its parameter faces, along their normals
-        wall = make_wall_condition(dim, n_cells, faces, basis, friction, self.wall_reaction, moving, self.mapped)
-        # The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))`
-        # with off = o + inner[k]; solver.unroll chooses the split (stencils._loops; costs in docs/performance.md).
-        @ti.func
-        def gravity_kick(kick_before, kick_after):
-            """The velocity gravity adds over a kick: the gravity of the last step over its half, the current one
-            over this step's half, so a set_gravity between steps acts from that instant (exact for a piecewise
-            constant g)."""
-            return kick_before * gravity_before[None] + kick_after * gravity[None]
-
-        ctx = self.ctx = KernelContext(
-            dim=dim, dx=dx, lower=lower, upper=upper, n_cells=n_cells, basis=basis, feat=f,
-            precision=self.cfg.precision, x=x, v=v, F=F, C=C, vol0=vol0, mat=mat, half_width=self.half_width,
+        wall = make_wall_condition(dim, self.n_cells, faces, self.basis, friction, self.wall_reaction, moving,
+                                   self.mapped)
+        nq = max(1, self.n_state)
+        return StepContext(
+            dim=dim, dx=dx, lower=ti.Vector(self.lower.tolist()), upper=ti.Vector(self.upper.tolist()),
+            n_cells=self.n_cells, basis=self.basis, feat=self.feat, precision=c.precision,
+            x=self.x, v=self.v, F=self.F, C=self.C, vol0=self.vol0, mat=self.mat, half_width=self.half_width,
             domain_lp0=0.5 * float(self.scene.spacing[0]) / dx if self.n else 0.5,
-            gimp_deforming=self.cfg.solver.gimp_domain == "deforming", unroll=self.cfg.solver.unroll, grid=self.grid,
-            wall=wall, gravity_kick=gravity_kick, extra=dict(mapped=self.mapped))
-        sten = ctx.stencil = make_stencil(ctx)
-        if self.mapped is not None:
-            self._locate, self._locate_from = make_locate(ctx, self.mapped, self.fail, _CODES, 6)
-        outer, inner = sten.outer, sten.inner
-        corner_outside = make_corner_check(ctx)
-
-        @ti.func
-        def density(p):
-            rho = ti.cast(mats[0].density, float)
-            if ti.static(len(mats) > 1):
-                for k in ti.static(range(1, len(mats))):
-                    if mat[p] == k:
-                        rho = mats[k].density
-            return rho
-
-        # Material dispatch: a single-material scene compiles one model and stores no material index.
-        @ti.func
-        def state_of(p):
-            """The particle's material state vector (a dummy when no model of the scene has state)."""
-            q = ti.Vector.zero(float, nq)
-            if ti.static(has_state):
-                q = state[p]
-            return q
-
-        @ti.func
-        def kirchhoff(p, Fp):
-            Lp = ti.Matrix.zero(float, dim, dim)
-            if ti.static(f["viscosity"]):
-                Lp = velocity_gradient(p)
-            return model_kirchhoff(p, Fp, Lp) + initial_kirchhoff(p, Fp)
-
-        @ti.func
-        def kirchhoff3(p):
-            """The full 3x3 Kirchhoff stress: the 3D model at F with the missing axes held fixed (materials.embed3)."""
-            Lp = ti.Matrix.zero(float, dim, dim)
-            if ti.static(f["viscosity"]):
-                Lp = velocity_gradient(p)
-            tau = ti.Matrix.zero(float, 3, 3)
-            q = state_of(p)
-            if ti.static(len(mats) == 1):
-                tau = stiff[0] * mats[0].kirchhoff3(F[p], Lp, q)
-            else:
-                for k in ti.static(range(len(mats))):
-                    if mat[p] == k:
-                        tau = stiff[k] * mats[k].kirchhoff3(F[p], Lp, q)
-            return tau + embed3(initial_kirchhoff(p, F[p]), 0.0)
-
-        @ti.func
-        def initial_kirchhoff(p, Fp):
-            """bodies[].stress: a stored 2nd Piola-Kirchhoff stress S0 (the initial Cauchy stress, F = I at t = 0)
-            added to the model's: tau = F S0 F^T, objective, with energy S0 : E (initial_energy). Zero without."""
-            tau = ti.Matrix.zero(float, dim, dim)
-            if ti.static(has_stress0):
-                tau = Fp @ stress0[p] @ Fp.transpose()
-            return tau
-
-        @ti.func
-        def initial_energy(p, Fp):
-            """S0 : E with the Green-Lagrange strain E = (F^T F - I) / 2: the work of the stored stress."""
-            psi = 0.0
-            if ti.static(has_stress0):
-                E = 0.5 * (Fp.transpose() @ Fp - ti.Matrix.identity(float, dim))
-                psi = (stress0[p] * E).sum()
-            return psi
-
-        @ti.func
-        def model_kirchhoff(p, Fp, Lp):
-            """The material model's stress times its stiffness scale (set_stiffness_scale: every stress parameter,
-            moduli, yield stress, viscosity, scaled alike; 1 leaves it bit for bit as it was)."""
-            tau = ti.Matrix.zero(float, Fp.n, Fp.n)
-            q = state_of(p)
-            if ti.static(len(mats) == 1):
-                tau = stiff[0] * mats[0].kirchhoff(Fp, Lp, q)
-            else:
-                for k in ti.static(range(len(mats))):
-                    if mat[p] == k:
-                        tau = stiff[k] * mats[k].kirchhoff(Fp, Lp, q)
-            return tau
-
-        @ti.func
-        def strain_energy(p, Fp):
-            psi = 0.0
-            q = state_of(p)
-            if ti.static(len(mats) == 1):
-                psi = stiff[0] * mats[0].energy(Fp, q)
-            else:
-                for k in ti.static(range(len(mats))):
-                    if mat[p] == k:
-                        psi = stiff[k] * mats[k].energy(Fp, q)
-            return psi
-
-        @ti.func
-        def volume_ratio(p):
-            """Current / initial volume: det F, times J_p where the return mapping changes volume (materials/)."""
-            J = F[p].determinant()
-            if ti.static(has_state):
-                q = state_of(p)
-                if ti.static(len(mats) == 1):
-                    J = mats[0].volume_ratio(F[p], q)
-                else:
-                    for k in ti.static(range(len(mats))):
-                        if mat[p] == k:
-                            J = mats[k].volume_ratio(F[p], q)
-            return J
-
-        @ti.func
-        def viscous_power(p, Fp):
-            """Viscous dissipation per reference volume and time (the models' viscous_power, e.g. the fluid's)."""
-            Lp = velocity_gradient(p)
-            P = 0.0
-            for k in ti.static(range(len(mats))):
-                if ti.static(viscous[k]):
-                    if ti.static(len(mats) == 1):
-                        P = stiff[k] * mats[k].viscous_power(Fp, Lp)
-                    elif mat[p] == k:
-                        P = stiff[k] * mats[k].viscous_power(Fp, Lp)
-            return P
-
-        @ti.func
-        def project(p, Fp):
-            """After the F update: the model's return mapping (plastic models); writes the particle's state and adds
-            its dissipation (the plastic work of the returned stress) to the plastic dissipation (work[2])."""
-            q = state_of(p)
-            diss = 0.0
-            for k in ti.static(range(len(mats))):
-                if ti.static(projects[k]):
-                    # the return mapping is the same in strain space at any stiffness scale (yield stress and
-                    # moduli scale alike); the dissipated energy scales with the stress
-                    if ti.static(len(mats) == 1):
-                        Fp, q, diss = mats[k].project(Fp, q)
-                        diss *= stiff[k]
-                    elif mat[p] == k:
-                        Fp, q, diss = mats[k].project(Fp, q)
-                        diss *= stiff[k]
-            if ti.static(has_state):
-                state[p] = q
-            work[2][None] += vol0[p] * diss
-            return Fp
-
-        @ti.func
-        def is_fluid(p):
-            # an int, set inside static branches: `res = False; res = ti.static(True)` stays False in Taichi 1.7,
-            # which had left fluids keeping their shear F
-            res = 0
-            if ti.static(len(mats) == 1):
-                if ti.static(mats[0].fluid):
-                    res = 1
-            else:
-                for k in ti.static(range(len(mats))):
-                    if ti.static(mats[k].fluid):
-                        if mat[p] == k:
-                            res = 1
-            return res
-
-        @ti.func
-        def affine(p, st):
-            """APIC's C_p at the particle's current position. Where D_p varies with position (GIMP, B-splines
-            next to walls) the field stores B_p and C_p = B_p D_p^-1 uses the current D_p: the affine part's
-            angular momentum, eps : B_p, is then carried exactly when the particle moves (Jiang et al. 2015)."""
-            A = ti.Matrix.zero(float, dim, dim)
-            if ti.static(store_B):
-                A = C[p] @ sten.inertia_inverse(st)
-            elif ti.static(f["apic"]):
-                A = C[p]
-            return A
-
-        @ti.func
-        def node_momentum(vp, Ap, r):
-            """Particle velocity seen by a node at r = x_i - x_p: v_p, plus C_p r with APIC."""
-            mom = vp
-            if ti.static(f["apic"]):
-                mom += Ap @ r
-            return mom
-
-        @ti.func
-        def velocity_gradient(p):
-            """grad v of the last step (viscosity reads it)."""
-            L = C[p]
-            if ti.static(store_B):
-                L = affine(p, sten.at(p))
-            return L
-
-        bins = self.bins
-        coloured = bins is not None
-        if coloured:
-            bins.build(sten.origin)
-
-        @ti.func
-        def add(g: ti.template(), I, value):
-            """g[I] += value: a plain add when P2G scatters by colours (no other thread touches the node, see
-            scatter.py), else an atomic one."""
-            if ti.static(coloured):
-                g[I] = g[I] + value
-            else:
-                g[I] += value
-
-        ctx.density, ctx.kirchhoff, ctx.add = density, kirchhoff, add
-        if self.fbar is not None:
-            self.fbar.build(ctx)
-        crack = self.crack is not None  # crack finder (crack.py): modified shape functions near discontinuities
-        crk = self.crack.build(ctx) if crack else None  # its hooks (crack.CrackHooks)
-
-        @ti.func
-        def external_force(p):
-            """Body force and traction on the particle (N); gravity is a potential (see energy_balance)."""
-            force = ti.Vector.zero(float, dim)
-            if ti.static(has_body_acc):
-                force += density(p) * vol0[p] * body_acc[p]
-            if ti.static(has_load):
-                force += load[p]
-            return force
-
-        @ti.func
-        def p2g_particle(p, kick):
-            st = sten.at(p)
-            Fp = F[p]
-            mp = density(p) * vol0[p]
-            stress = -vol0[p] * kirchhoff(p, Fp)
-            if ti.static(crack):
-                stress = -crk.degrade(p, -stress)
-            vp = v[p]
-            Ap = affine(p, st)
-            force_density = external_force(p)  # body force + tractions (loads.py: traction x area x ramp)
-            if ti.static(f["viscosity"]):
-                work[1][None] += kick * vol0[p] * viscous_power(p, Fp)
-            modified = False
-            if ti.static(crack):
-                modified = crk.modified(p)
-                if modified:
-                    crk.p2g(p, st, mp, stress, vp, Ap, force_density, kick)
-            if not modified:
-                for o in ti.grouped(ti.ndrange(*outer)):
-                  for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
-                    I, w, gw, r = sten.node(st, o + inner[k])
-                    add(gm, I, w * mp)
-                    mom = node_momentum(vp, Ap, r)
-                    add(gv, I, w * mp * mom + kick * (stress @ gw + w * force_density))
-                    if ti.static(f["flip"]):
-                        add(gv_old, I, w * mp * vp)
-
-        p2g_coloured = bins.colour_loop(p2g_particle) if coloured else None
-
-        @ti.kernel
-        def p2g(kick: float, colour: int):
-            """Particles to grid: mass, momentum, and the impulse of the forces over `kick` (the leapfrog kick: the
-            mean of the previous and this step's dt, half the step on the first one; see Simulation.step).
-            Coloured scatter: the blocks of one colour (scatter.BlockBins), one call per colour."""
-            if ti.static(coloured):
-                p2g_coloured(colour, kick)
-            else:
-                for p in x:
-                    p2g_particle(p, kick)
-
-        @ti.kernel
-        def grid_update(kick_before: float, kick_after: float):
-            for I in ti.grouped(gm):
-                m = gm[I]
-                if m > 0:
-                    # always compiled, so that set_gravity can switch gravity on (adding 0 changes nothing)
-                    vel = gv[I] / m + gravity_kick(kick_before, kick_after)
-                    vel = wall.measured(I, vel, m)  # adds m dv per face to wall_reaction (wall probes only)
-                    gv[I] = grip_condition(I, vel, m, True)
-                    if ti.static(f["flip"]):
-                        gv_old[I] = gv_old[I] / m
-
-        @ti.func
-        def grip_condition(I, vel, m, measure: ti.template()):
-            """bodies[].prescribed_velocity: a node touched by a gripped particle (flag_grip_nodes) takes the grip's
-            prescribed components; measured: the impulse m dv goes to grip_impulse and m dv . v to the work."""
-            if ti.static(has_grips):
-                g = ti.cast(grid.vec["grip"][I][0], ti.i32)
-                if g > 0:
-                    before = vel
-                    for k in ti.static(range(len(grip_given))):
-                        if g == k + 1:
-                            for c in ti.static(range(dim)):
-                                if ti.static(grip_given[k][c]):
-                                    vel[c] = grip_v[k][c]
-                            if ti.static(measure):
-                                grip_impulse[k] += m * (vel - before)
-                    if ti.static(measure):
-                        work[0][None] += m * (vel - before).dot(vel)
-            return vel
-
-        n_loads, n_grip_rows = len(self.scene.loads), len(grip_given)
-        wall_v = self.wall_v
-
-        @ti.kernel
-        def apply_loads(ramps: ti.types.vector(max(n_loads, 1), float)):
-            """Particle forces of the tractions: the sum of ramp x force at ramp 1 (one launch: the loops run in
-            order)."""
-            for p in load:
-                load[p] = ti.Vector.zero(float, dim)
-            for e in load_slot:
-                load[load_slot[e]] += ramps[load_index[e]] * load_force[e]
-
-        @ti.kernel
-        def set_motion(values: ti.types.matrix(max(n_grip_rows + 2 * dim, 1), dim, float)):
-            """This step's grip velocities (rows 0..K-1) and velocity-wall velocities (rows K.., per face slot)."""
-            for _ in range(1):
-                if ti.static(has_grips):
-                    for k in ti.static(range(n_grip_rows)):
-                        for c in ti.static(range(dim)):
-                            grip_v[k][c] = values[k, c]
-                if ti.static(f["moving_walls"]):
-                    for slot in ti.static(range(2 * dim)):
-                        for c in ti.static(range(dim)):
-                            wall_v[slot][c] = values[n_grip_rows + slot, c]
-
-        @ti.kernel
-        def flag_grip_nodes():
-            """Mark every node in the support (w > 0) of a gripped particle with its grip (the largest wins)."""
-            for e in grip_slot:
-                p = grip_slot[e]
-                st = sten.at(p)
-                for o in ti.grouped(ti.ndrange(*outer)):
-                  for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
-                    I, w, gw, r = sten.node(st, o + inner[k])
-                    if w > 0:
-                        ti.atomic_max(grid.vec["grip"][I][0], ti.cast(grip_index[e], float))
-
-        @ti.func
-        def p2g_momentum_particle(p, unused):
-            st = sten.at(p)
-            mp = density(p) * vol0[p]
-            vp = v[p]
-            Ap = affine(p, st)
-            modified = False
-            if ti.static(crack):
-                modified = crk.modified(p)
-                if modified:
-                    crk.p2g_momentum(p, st, mp, vp, Ap)
-            if not modified:
-                for o in ti.grouped(ti.ndrange(*outer)):
-                  for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
-                    I, w, gw, r = sten.node(st, o + inner[k])
-                    add(gv2, I, w * mp * node_momentum(vp, Ap, r))
-
-        momentum_coloured = bins.colour_loop(p2g_momentum_particle) if coloured else None
-
-        @ti.kernel
-        def p2g_momentum(colour: int):
-            """MUSL: map the updated particle momentum back to the grid (same weights as the first P2G)."""
-            if ti.static(coloured):
-                momentum_coloured(colour, 0.0)
-            else:
-                for p in x:
-                    p2g_momentum_particle(p, 0.0)
-
-        @ti.kernel
-        def grid_remap():
-            for I in ti.grouped(gm):
-                m = gm[I]
-                if m > 0:
-                    gv2[I] = grip_condition(I, wall(I, gv2[I] / m), m, False)
-
-        vgrad = gv2 if f["musl"] else gv  # MUSL takes grad v from the remapped velocities
-
-        @ti.func
-        def g2p_sums(p, st, velocity: ti.template(), deform: ti.template()):
-            """A particle's G2P sums over its stencil: (v_pic, FLIP increment, APIC B, velocity gradient G)."""
-            v_pic = ti.Vector.zero(float, dim)
-            dv = ti.Vector.zero(float, dim)
-            B = ti.Matrix.zero(float, dim, dim)
-            G = ti.Matrix.zero(float, dim, dim)
-            for o in ti.grouped(ti.ndrange(*outer)):
-              for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
-                I, w, gw, r = sten.node(st, o + inner[k])
-                vi = gv[I]
-                v_pic += w * vi
-                if ti.static(velocity and f["flip"]):
-                    dv += w * (vi - gv_old[I])
-                if ti.static(velocity and f["apic"] and not basis.apic_gradient):
-                    B += w * vi.outer_product(r)
-                if ti.static(deform):
-                    G += vgrad[I].outer_product(gw)
-                elif ti.static(f["apic"] and basis.apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
-                    G += vi.outer_product(gw)
-            return v_pic, dv, B, G
-
-        @ti.kernel
-        def g2p(dt: float, kick: float, velocity: ti.template(), deform: ti.template()):
-            """Grid to particles. velocity: new v (PIC, FLIP or APIC) and APIC's C, and the work of body forces
-            and tractions over the kick, by the trapezoid of the old and new velocities (exact for a uniform force:
-            the kinetic energy's change). deform: positions x += dt v_grid, F = (I + dt grad v) F, and checks.
-            USL does both in one pass; MUSL does them in two passes around the momentum remap."""
-            for p in x:
-                st = sten.at(p)
-                v_pic = ti.Vector.zero(float, dim)
-                dv = ti.Vector.zero(float, dim)
-                B = ti.Matrix.zero(float, dim, dim)
-                G = ti.Matrix.zero(float, dim, dim)
-                modified = False
-                if ti.static(crack):   # near a discontinuity: the modified functions instead
-                    modified = crk.modified(p)
-                    if modified:
-                        v_pic, dv, B, G = crk.g2p(p, st, deform)
-                if not modified:
-                    v_pic, dv, B, G = g2p_sums(p, st, velocity, deform)
-                if ti.static(velocity):
-                    v_old = v[p]
-                    if ti.static(f["flip"]):
-                        a = alpha[None]
-                        v[p] = a * (v_old + dv) + (1.0 - a) * v_pic
-                    else:
-                        v[p] = v_pic
-                    if ti.static(has_body_acc or has_load):
-                        work[0][None] += 0.5 * kick * external_force(p).dot(v_old + v[p])
-                    if ti.static(f["apic"]):
-                        if ti.static(basis.apic_gradient):
-                            C[p] = G
-                        else:
-                            C[p] = B  # store_B
-                if ti.static(deform):
-                    xp = x[p] + dt * v_pic
-                    Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
-                    J = Fp.determinant()
-                    if is_fluid(p):
-                        Fp = ti.Matrix.identity(float, dim) * ti.pow(ti.abs(J), 1.0 / dim)
-                    if ti.static(f["plastic"] and not has_fbar):  # with F-bar: after its average (project_all)
-                        Fp = project(p, Fp)
-                    x[p] = xp
-                    F[p] = Fp
-                    if ti.static(has_C and not f["apic"]):
-                        C[p] = G
-                    speed2 = v[p].norm_sqr()
-                    ti.atomic_max(vmax2[None], speed2)
-                    code = 0
-                    if not (ti.abs(J) < 1e30 and speed2 < 1e60 and xp.norm_sqr() < 1e60):  # false for NaN too
-                        code = 2
-                    elif J <= 0:
-                        code = 1
-                    elif (xp < lower - out_tol).any() or (xp > upper + out_tol).any():
-                        code = 3
-                    elif corner_outside(p, xp, Fp):
-                        code = 5
-                    elif J < fluid_j_min:
-                        if is_fluid(p):
-                            code = 4
-                    if code != 0:
-                        ti.atomic_min(fail[None], p * n_codes + code)
-
-        # diagnostics ----------------------------------------------------
-        # sums.ChunkSums: each chunk of particles summed in order into its own row, no atomics (see sums.py)
-        acc, n_moments = self.diag, self.moments.shape[1]
-
-        @ti.kernel
-        def energies():
-            """Kinetic, strain (degraded where damaged), gravity potential; slot 3: sum m |g| |x| (the
-            potential's round-off scale); slot 4: the initial stress's energy."""
-            for c in range(acc.chunks):
-                acc.clear(c)
-                for p in range(acc.begin(c), acc.end(c)):
-                    mp = density(p) * vol0[p]
-                    psi = strain_energy(p, F[p])
-                    if ti.static(has_stress0):
-                        acc.add(c, 4, vol0[p] * initial_energy(p, F[p]))  # apart: it can be negative
-                    if ti.static(crack):
-                        psi = crk.degrade_energy(p, F[p], psi, kirchhoff(p, F[p]))
-                    acc.add(c, 0, 0.5 * mp * v[p].norm_sqr())
-                    acc.add(c, 1, vol0[p] * psi)
-                    acc.add(c, 2, -mp * gravity[None].dot(x[p]))
-                    acc.add(c, 3, mp * gravity[None].norm() * x[p].norm())
-
-        @ti.kernel
-        def body_moments():
-            """Per body: mass, first and second moments of position, mass-weighted F (the fracture check)."""
-            for c in range(moments.chunks):
-                moments.clear(c)
-                for p in range(moments.begin(c), moments.end(c)):
-                    b = 0
-                    if ti.static(has_body_id):
-                        b = body_id[p]
-                    row = b * n_moments
-                    mp = density(p) * vol0[p]
-                    moments.add(c, row, mp)
-                    for a in ti.static(range(dim)):
-                        moments.add(c, row + 1 + a, mp * x[p][a])
-                        for e in ti.static(range(dim)):
-                            moments.add(c, row + 1 + dim + a * dim + e, mp * x[p][a] * x[p][e])
-                            moments.add(c, row + 1 + dim + dim * dim + a * dim + e, mp * F[p][a, e])
-
-        @ti.kernel
-        def momenta():
-            """Linear momentum (dim) and angular momentum about the origin (3), APIC's affine part included."""
-            for c in range(acc.chunks):
-                acc.clear(c)
-                for p in range(acc.begin(c), acc.end(c)):
-                    mp = density(p) * vol0[p]
-                    for a in ti.static(range(dim)):
-                        acc.add(c, a, mp * v[p][a])
-                    if ti.static(dim > 1):
-                        x3 = ti.Vector.zero(float, 3)
-                        v3 = ti.Vector.zero(float, 3)
-                        for a in ti.static(range(dim)):
-                            x3[a] = x[p][a]
-                            v3[a] = v[p][a]
-                        Lp = mp * x3.cross(v3)
-                        if ti.static(f["apic"]):
-                            B = C[p]  # store_B: the affine part's angular momentum is eps : B
-                            if ti.static(not store_B):
-                                # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
-                                B = C[p] @ sten.inertia(sten.at(p))
-                            B3 = ti.Matrix.zero(float, 3, 3)
-                            for a, b in ti.static(ti.ndrange(dim, dim)):
-                                B3[a, b] = B[a, b]
-                            Lp += mp * ti.Vector([B3[2, 1] - B3[1, 2], B3[0, 2] - B3[2, 0], B3[1, 0] - B3[0, 1]])
-                        for a in ti.static(range(3)):
-                            acc.add(c, dim + a, Lp[a])
-
-        @ti.kernel
-        def cauchy_stress(out: ti.types.ndarray()):
-            """(N, 3, 3) Cauchy stress, out-of-plane normal stresses included (plane strain in 2D, uniaxial strain
-            in 1D); the upper-left d x d block is the stress the step uses."""
-            for p in x:
-                tau = kirchhoff3(p) / volume_ratio(p)
-                if ti.static(crack):
-                    tau = crk.degrade(p, tau)
-                for a, b in ti.static(ti.ndrange(3, 3)):
-                    out[p, a, b] = tau[a, b]
-
-        @ti.kernel
-        def volume_ratios(out: ti.types.ndarray()):
-            for p in x:
-                out[p] = volume_ratio(p)
-
-        @ti.kernel
-        def project_all():
-            """The return mappings after F-bar's volume average (solver.volumetric: fbar)."""
-            for p in x:
-                F[p] = project(p, F[p])
-
-        self._k = dict(p2g=p2g, grid_update=grid_update, g2p=g2p, p2g_momentum=p2g_momentum, grid_remap=grid_remap,
-                       energies=energies, momenta=momenta, cauchy_stress=cauchy_stress, body_moments=body_moments,
-                       flag_grip_nodes=flag_grip_nodes, apply_loads=apply_loads, set_motion=set_motion,
-                       volume_ratios=volume_ratios, project_all=project_all)
-        if crack:
-            self._k.update(crk.kernels)
+            gimp_deforming=c.solver.gimp_domain == "deforming", unroll=c.solver.unroll, grid=self.grid, wall=wall,
+            gravity_kick=step_kernels.make_gravity_kick(self.gravity_field, self.gravity_before_field),
+            extra=dict(mapped=self.mapped),
+            # each material's Taichi funcs, its parameters compile-time constants (materials/: the model registry)
+            materials=[MODELS[m.model].build(m, dim, nq) for m in self._materials], n_state=nq,
+            state=self.state, stress0=self.stress0, body_acc=self.body_acc,
+            gravity=self.gravity_field, gravity_before=self.gravity_before_field, stiffness=self.stiffness_field,
+            flip_blend=self.flip_blend_field, work=self.work, fail=self.fail, vmax2=self.vmax2, fail_codes=_CODES,
+            load=self.load, load_slot=self.load_slot, load_index=self.load_index, load_force=self.load_force,
+            n_loads=len(self.scene.loads), grip_slot=self.grip_slot, grip_index=self.grip_index, grip_v=self.grip_v,
+            grip_impulse=self.grip_impulse, grip_given=self.loads.grip_given(), wall_v=self.wall_v,
+            diag=self.diag, moments=self.moments, body_id=self.body_id, bins=self.bins, fbar=self.fbar is not None)
 
     # ------------------------------------------------------------------ stepping
     def _check_live(self):
@@ -980,14 +438,9 @@ class Simulation:
         self._k["set_motion"](ti.Matrix(rows.tolist()))
         self._motion_time = t
 
-    def _scatter(self, kernel: str, *args, moved: bool = True):
-        """Run a P2G kernel: once, or once per colour, binning the particles first if they `moved` (scatter.py)."""
-        if self.bins is None:
-            self._k[kernel](*args, 0)
-            return
-        if moved:
-            self.bins.bin()
-        for colour in range(self.bins.colours):
+    def _scatter(self, kernel: str, *args):
+        """Run a P2G kernel: once, or once per colour of the coloured scatter (scatter.py)."""
+        for colour in range(self._p2g_passes):
             self._k[kernel](*args, colour)
 
     def step(self, dt: Optional[float] = None) -> float:
@@ -1013,32 +466,27 @@ class Simulation:
         kick = kick_before + kick_after
         self._prescribe(dt)
         self.grid.clear()
-        if self.ctx.stencil.prepare is not None:
-            self.ctx.stencil.prepare()   # stencils that read grid state (ddmp's nodal volumes)
+        for e in self.extensions:
+            e.before_p2g()   # ddmp's nodal volumes (a stencil that reads grid state), the coloured scatter's bins
         if self.crack is not None:
             self.crack.update()
         self._scatter("p2g", kick)
-        if self.feat["grips"]:
+        if self.feat.grips:
             k["flag_grip_nodes"]()
         # the node mass is a tensor only at nodes of particles in contact (crack.py); without any, the plain update
         tensor = self.crack is not None and self.crack.in_contact()
         k["grid_update_tensor" if tensor else "grid_update"](kick_before, kick_after)
         self.fail[None] = _NO_FAIL
         self.vmax2[None] = 0.0
-        if self.feat["musl"]:
-            k["g2p"](dt, kick, True, False)
-            self._scatter("p2g_momentum", moved=False)  # the first g2p pass left the positions
+        if self.feat.musl:
+            k["g2p"](dt, kick, velocity=True, deform=False)
+            self._scatter("p2g_momentum")  # the first g2p pass left the positions: the same bins
             k["grid_remap_tensor" if tensor else "grid_remap"]()
-            k["g2p"](dt, kick, False, True)
+            k["g2p"](dt, kick, velocity=False, deform=True)
         else:
-            k["g2p"](dt, kick, True, True)
-        if self.mapped is not None:
-            self._locate()   # the new positions' parametric coordinates
-        if self.fbar is not None:
-            self.fbar.apply()  # F-bar: the step's volume change averaged over the grid
-            if self.feat["plastic"]:
-                k["project_all"]()  # return mappings after the average, and F-bar's J^n from the projected F
-                self.fbar.sync()
+            k["g2p"](dt, kick, velocity=True, deform=True)
+        for e in self.extensions:
+            e.after_g2p()   # the mapped grid's xi_p, F-bar's volume average
         self.dt, self._half_dt = dt, 0.5 * dt
         if not np.array_equal(self._gravity_before, self._gravity):  # the gravity of this step, for the next kick
             self._gravity_before = self._gravity.copy()
@@ -1158,8 +606,8 @@ class Simulation:
             terms += ["body forces"] if self.body_acc is not None else []
             terms += ["tractions"] if self.load is not None else []
             terms += ["prescribed velocities"] if self.grip_v is not None or self.wall_v is not None else []
-            terms += ["viscous dissipation"] if self.feat["viscosity"] else []
-            terms += ["plastic dissipation"] if self.feat["plastic"] else []
+            terms += ["viscous dissipation"] if self.feat.viscosity else []
+            terms += ["plastic dissipation"] if self.feat.plastic else []
             raise InstabilityError(
                 ENERGY_GROWTH, self.n_steps, self.time, particle=int(np.argmax(speed)),
                 detail=(f"total energy {bal['total']:.4g} exceeds initial {bal['initial']:.4g} + work "
@@ -1372,26 +820,13 @@ class Simulation:
             fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
         self._balance = self._shape_ref = None  # a new state: the balance and body shapes are measured afresh
         self._potentials = {}
-        if "x" in checked:
-            self._place_on_map()
-            if self.crack is not None:
-                self.crack.invalidate()   # its normals kept between steps belong to the old positions
-        if self.fbar is not None and "F" in checked:
-            self.fbar.sync()  # F-bar's start-of-step J follows the new F
+        for e in self.extensions:
+            e.particles_set(set(checked))   # the mapped grid's xi_p, F-bar's start-of-step J
+        if "x" in checked and self.crack is not None:
+            self.crack.invalidate()   # its normals kept between steps belong to the old positions
         if "v" in checked:
             self._vmax = _max_speed(checked["v"])
             self._half_dt = 0.0  # velocities given at the clock's time: the next step kicks over half a step
-
-    def _place_on_map(self):
-        """domain.map: every particle's parametric coordinates, by Newton from the nearest sample of the map; a
-        particle outside the mapped region is a config error."""
-        if self.mapped is None or self.n == 0:
-            return
-        x = self.x.to_numpy().astype(np.float64)
-        missed = self._locate_from(self.mapped.initial_guess(x))
-        if missed:
-            raise ConfigError(f"{missed} particles lie outside the mapped grid (domain.map): bodies must lie inside "
-                              "the annulus", key="domain.map")
 
     def _validated_particles(self, arrays: dict) -> dict:
         fields = self._state_fields()

@@ -54,7 +54,7 @@ class KernelContext:
     upper: Any
     n_cells: list
     basis: Any                       # basis.Basis
-    feat: dict                       # Simulation._features()
+    feat: Any                        # step.Features: the scene's compile-time switches
     precision: str
     # particle fields
     x: Any
@@ -97,7 +97,7 @@ class KernelContext:
     @property
     def vgrad(self):
         """The grid velocity F's update reads: MUSL's remapped one, else the updated one."""
-        return self.gv2 if self.feat["musl"] else self.gv
+        return self.gv2 if self.feat.musl else self.gv
 
 
 @dataclass

@@ -1,0 +1,50 @@
+"""What the step's kernel builders receive: the shared kernel context (stencils.KernelContext: constants, particle
+and grid fields, the stencil) plus the fields only the solver's own kernels touch (material state, runtime
+parameters, loads and grips, accumulators, diagnostics sums). Built once by `Simulation._build_kernels`.
+
+Physics code only: no CLI, rendering or file I/O here.
+"""
+
+from dataclasses import dataclass
+from typing import Any, Optional
+
+from ..stencils import KernelContext
+
+
+@dataclass
+class StepContext(KernelContext):
+    materials: list = None           # each material slot's Taichi funcs (materials.base.Funcs), parameters baked in
+    n_state: int = 1                 # length of a particle's material state vector (>= 1: a dummy without state)
+    state: Any = None                # per-particle material state (plastic strain, J_p, ...) or None
+    stress0: Any = None              # bodies[].stress: the stored 2nd Piola-Kirchhoff stress, or None
+    body_acc: Any = None             # Simulation(body_force=...): per-particle body acceleration, or None
+    # runtime parameters, read by the kernels (set_gravity, set_stiffness_scale, set_flip_blend)
+    gravity: Any = None
+    gravity_before: Any = None       # the last step's gravity (see gravity_kick)
+    stiffness: Any = None            # per material slot
+    flip_blend: Any = None
+    # accumulators: work[0] external work, work[1] viscous, work[2] plastic dissipation (sums.Slots)
+    work: Any = None
+    fail: Any = None                 # smallest solver slot * codes + cause of a failed particle
+    vmax2: Any = None                # largest squared particle speed of the step
+    fail_codes: int = 8
+    # tractions, grips, velocity walls (loads.py gives their time values)
+    load: Any = None
+    load_slot: Any = None
+    load_index: Any = None
+    load_force: Any = None
+    n_loads: int = 0
+    grip_slot: Any = None
+    grip_index: Any = None
+    grip_v: Any = None
+    grip_impulse: Any = None
+    grip_given: list = None          # per grip: which velocity components it prescribes (static)
+    wall_v: Any = None
+    # diagnostics
+    diag: Any = None                 # sums.ChunkSums for energies and momenta
+    moments: Any = None              # sums.ChunkSums per body (fracture check)
+    body_id: Any = None
+    bins: Any = None                 # scatter.BlockBins: the coloured P2G, or None
+    fbar: bool = False               # solver.volumetric fbar: return mappings wait for F-bar's average
+    crack: Optional[Any] = None      # the crack finder's hooks (crack.CrackHooks), or None
+    project: Any = None              # @ti.func (p, F) -> F after the return mapping (step.materials)

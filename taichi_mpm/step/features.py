@@ -1,0 +1,58 @@
+"""The features a scene uses, decided once from its config: the compile-time switches of the step's kernels.
+
+Every kernel builder reads these attributes (tested with `ti.static`), so an option the scene does not use is not
+compiled at all. Physics code only: no CLI, rendering or file I/O here.
+"""
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ..materials import MODELS
+
+
+@dataclass(frozen=True)
+class Features:
+    apic: bool                  # solver.transfer apic: the C field holds APIC's B_p or C_p
+    flip: bool                  # solver.transfer flip: the grid keeps v before forces (v_old)
+    musl: bool                  # solver.update musl: a second P2G of the new momentum (grid v2)
+    store_grad_v: bool          # a C field: APIC's B_p or C_p, or grad v (viscosity)
+    multi_material: bool        # a per-particle material index
+    body_force: bool            # Simulation(body_force=...): a per-particle body acceleration
+    domain_per_particle: bool   # particle domains of more than one size (gimp, cpdi): a per-particle half-width
+    viscosity: bool             # a material with viscosity > 0 (its stress reads grad v)
+    tractions: bool             # particle forces of bodies[].tractions
+    grips: bool                 # bodies[].prescribed_velocity on the nodes the grip touches
+    initial_stress: bool        # bodies[].stress, a stored stress added to the model's
+    moving_walls: bool          # domain.boundaries faces of type velocity
+    plastic: bool               # a return mapping after the F update
+
+    @classmethod
+    def of(cls, cfg, scene, materials: list, body_force: bool, moving_walls: bool) -> "Features":
+        """The features of a scene: its config, particles (scene.Scene), material configs in slot order."""
+        transfer = cfg.solver.transfer
+        viscosity = any(getattr(m, "viscosity", 0.0) > 0 for m in materials)
+        return cls(
+            apic=transfer == "apic",
+            flip=transfer == "flip",
+            musl=cfg.solver.update == "musl",
+            store_grad_v=transfer == "apic" or viscosity,
+            multi_material=len(materials) > 1,
+            body_force=body_force,
+            domain_per_particle=cfg.solver.basis in ("gimp", "cpdi") and len(np.unique(scene.spacing)) > 1,
+            viscosity=viscosity,
+            tractions=bool(scene.loads),
+            grips=bool(scene.grips),
+            initial_stress=scene.stress is not None,
+            moving_walls=moving_walls,
+            plastic=any(MODELS[m.model].plastic for m in materials),
+        )
+
+    def __getitem__(self, name: str) -> bool:
+        """feat["apic"]: the former dict's lookup, kept for the crack finder (crack.py reads features by name)."""
+        if name not in _NAMES:
+            raise KeyError(name)
+        return getattr(self, name)
+
+
+_NAMES = frozenset(f.name for f in fields(Features))

@@ -1,0 +1,257 @@
+"""The transfers between particles and grid: P2G (mass, momentum, force impulse), G2P (velocity by PIC, FLIP or
+APIC; positions, F, checks) and MUSL's second P2G of the updated momentum. Near a discontinuity the crack
+finder's hooks (crack.CrackHooks) take a particle's transfer over.
+
+The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))` with
+off = o + inner[k]; solver.unroll chooses the split (stencils._loops; costs in docs/performance.md).
+
+Physics code only: no CLI, rendering or file I/O here.
+"""
+
+import taichi as ti
+
+from ..stencils import make_corner_check
+
+FLUID_J_MIN = 0.2           # a weakly compressible fluid squeezed below this volume ratio has collapsed
+
+
+def make_add(coloured: bool):
+    """@ti.func (g, I, value): g[I] += value."""
+    @ti.func
+    def add(g: ti.template(), I, value):
+        """g[I] += value: a plain add when P2G scatters by colours (no other thread touches the node, see
+        scatter.py), else an atomic one."""
+        if ti.static(coloured):
+            g[I] = g[I] + value
+        else:
+            g[I] += value
+    return add
+
+
+def make_external_force(ctx, mf):
+    """@ti.func (p) -> body force and traction on the particle (N); gravity is a potential (see energy_balance)."""
+    dim, vol0, body_acc, load = ctx.dim, ctx.vol0, ctx.body_acc, ctx.load
+    has_body_acc, has_load = body_acc is not None, ctx.feat.tractions
+    density = mf.density
+
+    @ti.func
+    def external_force(p):
+        force = ti.Vector.zero(float, dim)
+        if ti.static(has_body_acc):
+            force += density(p) * vol0[p] * body_acc[p]
+        if ti.static(has_load):
+            force += load[p]
+        return force
+    return external_force
+
+
+def _colour_loop(ctx, particle):
+    """@ti.func (colour, arg) -> particle(p, arg) for every particle: of the blocks of `colour` with the coloured
+    scatter (scatter.BlockBins, one kernel call per colour), else all of them (the colour is then unused)."""
+    x, bins = ctx.x, ctx.bins
+    coloured = bins is not None
+    by_colour = bins.colour_loop(particle) if coloured else None
+
+    @ti.func
+    def loop(colour, arg):
+        if ti.static(coloured):
+            by_colour(colour, arg)
+        else:
+            for p in x:
+                particle(p, arg)
+    return loop
+
+
+def make_p2g(ctx, mf, af, external_force):
+    """Kernels p2g(kick, colour) and, for MUSL, p2g_momentum(colour)."""
+    v, F, vol0, work = ctx.v, ctx.F, ctx.vol0, ctx.work
+    sten, add, crk = ctx.stencil, ctx.add, ctx.crack
+    outer, inner = sten.outer, sten.inner
+    gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
+    flip, viscosity, crack = ctx.feat.flip, ctx.feat.viscosity, crk is not None
+    density, kirchhoff, viscous_power = mf.density, mf.kirchhoff, mf.viscous_power
+    affine, node_momentum = af.affine, af.node_momentum
+
+    @ti.func
+    def p2g_particle(p, kick):
+        st = sten.at(p)
+        Fp = F[p]
+        mp = density(p) * vol0[p]
+        stress = -vol0[p] * kirchhoff(p, Fp)
+        if ti.static(crack):
+            stress = -crk.degrade(p, -stress)
+        vp = v[p]
+        Ap = affine(p, st)
+        force_density = external_force(p)  # body force + tractions (loads.py: traction x area x ramp)
+        if ti.static(viscosity):
+            work[1][None] += kick * vol0[p] * viscous_power(p, Fp)
+        modified = False
+        if ti.static(crack):
+            modified = crk.modified(p)
+            if modified:
+                crk.p2g(p, st, mp, stress, vp, Ap, force_density, kick)
+        if not modified:
+            for o in ti.grouped(ti.ndrange(*outer)):
+              for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
+                I, w, gw, r = sten.node(st, o + inner[k])
+                add(gm, I, w * mp)
+                mom = node_momentum(vp, Ap, r)
+                add(gv, I, w * mp * mom + kick * (stress @ gw + w * force_density))
+                if ti.static(flip):
+                    add(gv_old, I, w * mp * vp)
+
+    @ti.func
+    def p2g_momentum_particle(p, unused):
+        st = sten.at(p)
+        mp = density(p) * vol0[p]
+        vp = v[p]
+        Ap = affine(p, st)
+        modified = False
+        if ti.static(crack):
+            modified = crk.modified(p)
+            if modified:
+                crk.p2g_momentum(p, st, mp, vp, Ap)
+        if not modified:
+            for o in ti.grouped(ti.ndrange(*outer)):
+              for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
+                I, w, gw, r = sten.node(st, o + inner[k])
+                add(gv2, I, w * mp * node_momentum(vp, Ap, r))
+
+    p2g_loop = _colour_loop(ctx, p2g_particle)
+    momentum_loop = _colour_loop(ctx, p2g_momentum_particle)
+
+    @ti.kernel
+    def p2g(kick: float, colour: int):
+        """Particles to grid: mass, momentum, and the impulse of the forces over `kick` (the leapfrog kick: the
+        mean of the previous and this step's dt, half the step on the first one; see Simulation.step).
+        Coloured scatter: the blocks of one colour (scatter.BlockBins), one call per colour."""
+        p2g_loop(colour, kick)
+
+    @ti.kernel
+    def p2g_momentum(colour: int):
+        """MUSL: map the updated particle momentum back to the grid (same weights as the first P2G)."""
+        momentum_loop(colour, 0.0)
+
+    return dict(p2g=p2g, p2g_momentum=p2g_momentum)
+
+
+def make_g2p(ctx, mf, af, external_force):
+    """Kernel g2p(dt, kick, velocity, deform)."""
+    dim, basis = ctx.dim, ctx.basis
+    x, v, F, C = ctx.x, ctx.v, ctx.F, ctx.C
+    sten, crk = ctx.stencil, ctx.crack
+    outer, inner = sten.outer, sten.inner
+    gv, gv_old, vgrad = ctx.gv, ctx.gv_old, ctx.vgrad   # MUSL takes grad v from the remapped velocities
+    f = ctx.feat
+    flip, apic, crack, has_C = f.flip, f.apic, crk is not None, C is not None
+    apic_gradient = basis.apic_gradient
+    works = ctx.body_acc is not None or f.tractions
+    project_here = f.plastic and not ctx.fbar   # with F-bar: after its average (project_all)
+    alpha, work, fail, vmax2, n_codes = ctx.flip_blend, ctx.work, ctx.fail, ctx.vmax2, ctx.fail_codes
+    lower, upper = ctx.lower, ctx.upper
+    out_tol = 1e-6 * ctx.dx  # a particle on a wall that round-off moves a hair beyond it has not left the domain
+    fluid_j_min = FLUID_J_MIN
+    corner_outside = make_corner_check(ctx)
+    is_fluid, project = mf.is_fluid, mf.project
+
+    @ti.func
+    def g2p_sums(p, st, velocity: ti.template(), deform: ti.template()):
+        """A particle's G2P sums over its stencil: (v_pic, FLIP increment, APIC B, velocity gradient G)."""
+        v_pic = ti.Vector.zero(float, dim)
+        dv = ti.Vector.zero(float, dim)
+        B = ti.Matrix.zero(float, dim, dim)
+        G = ti.Matrix.zero(float, dim, dim)
+        for o in ti.grouped(ti.ndrange(*outer)):
+          for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
+            I, w, gw, r = sten.node(st, o + inner[k])
+            vi = gv[I]
+            v_pic += w * vi
+            if ti.static(velocity and flip):
+                dv += w * (vi - gv_old[I])
+            if ti.static(velocity and apic and not apic_gradient):
+                B += w * vi.outer_product(r)
+            if ti.static(deform):
+                G += vgrad[I].outer_product(gw)
+            elif ti.static(apic and apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
+                G += vi.outer_product(gw)
+        return v_pic, dv, B, G
+
+    @ti.func
+    def new_velocity(p, kick, v_pic, dv, B, G):
+        """v_p by PIC, FLIP or APIC, APIC's C_p, and the work of body forces and tractions over the kick."""
+        v_old = v[p]
+        if ti.static(flip):
+            a = alpha[None]
+            v[p] = a * (v_old + dv) + (1.0 - a) * v_pic
+        else:
+            v[p] = v_pic
+        if ti.static(works):
+            work[0][None] += 0.5 * kick * external_force(p).dot(v_old + v[p])
+        if ti.static(apic):
+            if ti.static(apic_gradient):
+                C[p] = G
+            else:
+                C[p] = B  # store_B
+
+    @ti.func
+    def failure(p, xp, Fp, J, speed2):
+        """The cause code of a failed particle (solver.FAIL_CAUSES), 0 when it is fine."""
+        code = 0
+        if not (ti.abs(J) < 1e30 and speed2 < 1e60 and xp.norm_sqr() < 1e60):  # false for NaN too
+            code = 2
+        elif J <= 0:
+            code = 1
+        elif (xp < lower - out_tol).any() or (xp > upper + out_tol).any():
+            code = 3
+        elif corner_outside(p, xp, Fp):
+            code = 5
+        elif J < fluid_j_min:
+            if is_fluid(p):
+                code = 4
+        return code
+
+    @ti.func
+    def deform_particle(p, dt, v_pic, G):
+        """Positions x += dt v_grid, F = (I + dt grad v) F (fluids keep only J), return mapping, checks."""
+        xp = x[p] + dt * v_pic
+        Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
+        J = Fp.determinant()
+        if is_fluid(p):
+            Fp = ti.Matrix.identity(float, dim) * ti.pow(ti.abs(J), 1.0 / dim)
+        if ti.static(project_here):
+            Fp = project(p, Fp)
+        x[p] = xp
+        F[p] = Fp
+        if ti.static(has_C and not apic):
+            C[p] = G
+        speed2 = v[p].norm_sqr()
+        ti.atomic_max(vmax2[None], speed2)
+        code = failure(p, xp, Fp, J, speed2)
+        if code != 0:
+            ti.atomic_min(fail[None], p * n_codes + code)
+
+    @ti.kernel
+    def g2p(dt: float, kick: float, velocity: ti.template(), deform: ti.template()):
+        """Grid to particles. velocity: new v (PIC, FLIP or APIC) and APIC's C, and the work of body forces
+        and tractions over the kick, by the trapezoid of the old and new velocities (exact for a uniform force:
+        the kinetic energy's change). deform: positions x += dt v_grid, F = (I + dt grad v) F, and checks.
+        USL does both in one pass; MUSL does them in two passes around the momentum remap."""
+        for p in x:
+            st = sten.at(p)
+            v_pic = ti.Vector.zero(float, dim)
+            dv = ti.Vector.zero(float, dim)
+            B = ti.Matrix.zero(float, dim, dim)
+            G = ti.Matrix.zero(float, dim, dim)
+            modified = False
+            if ti.static(crack):   # near a discontinuity: the modified functions instead
+                modified = crk.modified(p)
+                if modified:
+                    v_pic, dv, B, G = crk.g2p(p, st, deform)
+            if not modified:
+                v_pic, dv, B, G = g2p_sums(p, st, velocity, deform)
+            if ti.static(velocity):
+                new_velocity(p, kick, v_pic, dv, B, G)
+            if ti.static(deform):
+                deform_particle(p, dt, v_pic, G)
+
+    return dict(g2p=g2p)
