@@ -50,6 +50,10 @@ class CrackFinder:
         return self.fields.listed
 
     @property
+    def D(self):
+        return self.fields.D
+
+    @property
     def normal(self):
         return self.fields.normal
 
