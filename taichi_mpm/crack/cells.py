@@ -20,7 +20,7 @@ class CellList(NamedTuple):
 
 
 def cell_list_funcs(ctx) -> CellList:
-    f, dim, lower, inv_cell = ctx.f, ctx.f.dim, ctx.lower, ctx.inv_cell
+    f, dim, lower, inv_cell = ctx.fields, ctx.fields.dim, ctx.lower, ctx.inv_cell
     cells, cell_start, cell_count = f.cells, f.cell_start, f.cell_count
     x, x_ref, cached = ctx.view.x, (f.x_ref if f.cached else None), f.cached
 
@@ -107,16 +107,10 @@ def cell_list_funcs(ctx) -> CellList:
                     cells_slice=cells_slice, row=row, listed_at=listed_at)
 
 
-def bin_cells_kernel(ctx, cl: CellList):
-    """The kernel bin_cells(at_refresh)."""
-    f, dim = ctx.f, ctx.f.dim
-    x, D, vol0 = ctx.view.x, f.D, ctx.view.vol0
-    cell_count, cell_fill, cell_start, pcell, ids = f.cell_count, f.cell_fill, f.cell_start, f.pcell, f.ids
-    cell_lo, cell_hi, cell_varies, xs, vs, d_range = f.cell_lo, f.cell_hi, f.cell_varies, f.xs, f.vs, f.d_range
-    n_cell_total, cells_v, nbr, cached = f.n_cell_total, ti.Vector(f.cells), ctx.nbr, f.cached
-    x_ref, stale, cell_dlo, cell_dhi, cell_drift = (
-        (f.x_ref, f.stale, f.cell_dlo, f.cell_dhi, f.cell_drift) if cached else (None,) * 5)
-    cell_of, flat, unflat, listed_at = cl.cell_of, cl.flat, cl.unflat, cl.listed_at
+def _binning_funcs(ctx, cl: CellList):
+    """rescan() (whether this step recomputes the normals) and binned_position(p, at_refresh)."""
+    f, x, listed_at, cached = ctx.fields, ctx.view.x, cl.listed_at, ctx.fields.cached
+    stale = f.stale if cached else None
 
     @ti.func
     def rescan():
@@ -134,6 +128,20 @@ def bin_cells_kernel(ctx, cl: CellList):
         if at_refresh:
             xp = listed_at(p)
         return xp
+
+    return rescan, binned_position
+
+
+def bin_cells_kernel(ctx, cl: CellList):
+    """The kernel bin_cells(at_refresh)."""
+    f, dim = ctx.fields, ctx.fields.dim
+    x, D, vol0 = ctx.view.x, f.D, ctx.view.vol0
+    cell_count, cell_fill, cell_start, pcell, ids = f.cell_count, f.cell_fill, f.cell_start, f.pcell, f.ids
+    cell_lo, cell_hi, cell_varies, xs, vs, d_range = f.cell_lo, f.cell_hi, f.cell_varies, f.xs, f.vs, f.d_range
+    n_cell_total, cells_v, nbr, cached = f.n_cell_total, ti.Vector(f.cells), ctx.nbr, f.cached
+    x_ref, cell_dlo, cell_dhi, cell_drift = (f.x_ref, f.cell_dlo, f.cell_dhi, f.cell_drift) if cached else (None,) * 4
+    cell_of, flat, unflat = cl.cell_of, cl.flat, cl.unflat
+    rescan, binned_position = _binning_funcs(ctx, cl)
 
     @ti.kernel
     def bin_cells(at_refresh: ti.i32):

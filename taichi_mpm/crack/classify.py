@@ -9,7 +9,7 @@ from .constants import CONTACT, MODIFIED, S_FLOOR, STANDARD
 def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
     """The kernel classify(epoch, pool): band middles, the normals in cell order (contact searches), node normals,
     masks and contact, one launch (each loop still runs in parallel, in turn)."""
-    f, dim, sten = ctx.f, ctx.f.dim, ctx.k.stencil
+    f, dim, sten = ctx.fields, ctx.fields.dim, ctx.solver.stencil
     x, normal, state, mask, sums, gsum, cent, contacts = (
         ctx.view.x, f.normal, f.state, f.mask, f.sums, f.gsum, f.cent, f.contacts)
     node_mark, node_n = ctx.view.grid.scalar["crack_mark"], ctx.view.grid.vec["crack_n"]

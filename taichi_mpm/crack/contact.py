@@ -14,8 +14,8 @@ class ContactTest(NamedTuple):
 
 
 def contact_test_funcs(ctx, cl, sph) -> ContactTest:
-    f = ctx.f
-    x, v, normal, ids, ns, mat = ctx.view.x, ctx.view.v, f.normal, f.ids, f.ns, ctx.k.mat
+    f = ctx.fields
+    x, v, normal, ids, ns, mat = ctx.view.x, ctx.view.v, f.normal, f.ids, f.ns, ctx.solver.mat
     radius, inv_r, radius2_cut, contact_thr = ctx.radius, ctx.inv_r, ctx.radius2_cut, ctx.contact_thr
     rows_wide, wide_span, wide_reach2 = ctx.rows_wide, ctx.wide_span, ctx.wide_reach2
     listed, contact = f.listed, ctx.contact

@@ -8,18 +8,11 @@ import taichi as ti
 from .constants import CONE_MARGIN, FILL, LIST_SLACK, OVERFLOW, SLOTS, STANDARD
 
 
-def contact_list_kernel(ctx, cl):
-    """The kernel contact_list(pool, stage) (ContactPool.build runs its stages)."""
-    f, dim = ctx.f, ctx.f.dim
-    x, D, ids, xs, ns, cell_start, cell_count = ctx.view.x, f.D, f.ids, f.xs, f.ns, f.cell_start, f.cell_count
-    listed, dthr, contact_thr, wide2 = f.listed, ctx.dthr, ctx.contact_thr, ctx.wide2
-    rows_wide, wide_span, wide_reach2 = ctx.rows_wide, ctx.wide_span, ctx.wide_reach2
+def _normal_cone_funcs(ctx):
+    """kept_facing(q) and normal_cone(c): the kept normals in cell order and the cells' cones for the search."""
+    f, dim = ctx.fields, ctx.fields.dim
+    D, ns, cell_start, cell_count, dthr = f.D, f.ns, f.cell_start, f.cell_count, ctx.dthr
     n_cache, s_cache = (f.n_cache, f.s_cache) if f.cached else (None, None)
-    contact_count, contact_start, contact_fill, contact_over, cell_dir, cell_spread = (
-        (f.contact_count, f.contact_start, f.contact_fill, f.contact_over, f.cell_dir, f.cell_spread)
-        if listed else (None,) * 6)
-    cell_of, cell_units, row_cells, listed_at = cl.cell_of, cl.cell_units, cl.row_cells, cl.listed_at
-
     @ti.func
     def kept_facing(q):
         """q's kept normal for the contact list's search; a band particle, which counts as facing any p, as a
@@ -54,6 +47,22 @@ def contact_list_kernel(ctx, cl):
                 if ns[j].norm_sqr() > 0:
                     spread = ti.max(spread, (ns[j] - u).norm())
         return u, spread
+
+    return kept_facing, normal_cone
+
+
+def contact_list_kernel(ctx, cl):
+    """The kernel contact_list(pool, stage) (ContactPool.build runs its stages)."""
+    f = ctx.fields
+    x, D, ids, xs, ns, cell_start, cell_count = ctx.view.x, f.D, f.ids, f.xs, f.ns, f.cell_start, f.cell_count
+    listed, dthr, contact_thr, wide2 = f.listed, ctx.dthr, ctx.contact_thr, ctx.wide2
+    rows_wide, wide_span, wide_reach2 = ctx.rows_wide, ctx.wide_span, ctx.wide_reach2
+    n_cache, s_cache = (f.n_cache, f.s_cache) if f.cached else (None, None)
+    contact_count, contact_start, contact_fill, contact_over, cell_dir, cell_spread = (
+        (f.contact_count, f.contact_start, f.contact_fill, f.contact_over, f.cell_dir, f.cell_spread)
+        if listed else (None,) * 6)
+    cell_of, cell_units, row_cells, listed_at = cl.cell_of, cl.cell_units, cl.row_cells, cl.listed_at
+    kept_facing, normal_cone = _normal_cone_funcs(ctx)
 
     @ti.func
     def facing_scan(p, pool: ti.template(), s0, cap):

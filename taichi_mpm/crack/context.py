@@ -12,10 +12,10 @@ from .constants import CELL_SPLIT
 
 @dataclass(frozen=True)
 class CrackContext:
-    f: Any                  # fields.CrackFields
+    fields: Any             # fields.CrackFields
     view: Any               # sim_view.SimView
     cc: Any                 # the config's crack section
-    k: Any                  # stencils.KernelContext: the solver's stencil and funcs
+    solver: Any             # stencils.KernelContext: the solver's stencil, material and wall funcs
     lower: Any              # ti.Vector: the domain's lower corner
     radius: float           # SPH support radius r
     inv_r: float
@@ -45,7 +45,7 @@ def crack_context(fields, view, cc, kernel_ctx) -> CrackContext:
     wide_cells = CELL_SPLIT * (1.0 + 2.0 * float(cc.normal_refresh))
     wide_span = int(math.ceil(wide_cells))
     thr = float(cc.threshold)
-    return CrackContext(f=fields, view=view, cc=cc, k=kernel_ctx, lower=ti.Vector(view.lower.tolist()),
+    return CrackContext(fields=fields, view=view, cc=cc, solver=kernel_ctx, lower=ti.Vector(view.lower.tolist()),
                         radius=radius, inv_r=1.0 / radius, radius2=radius2, radius2_cut=radius2 * (1 + 1e-4),
                         inv_cell=inv_cell, thr=thr, dthr=float(cc.damage_threshold),
                         gthr=float(cc.gradient_threshold), contact_thr=max(thr, 0.0),

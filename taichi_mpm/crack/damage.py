@@ -17,8 +17,8 @@ class Damage(NamedTuple):
 
 
 def damage_funcs(ctx) -> Damage:
-    f, dim = ctx.f, ctx.f.dim
-    x, F, mat, kirchhoff = ctx.view.x, ctx.view.F, ctx.k.mat, ctx.k.kirchhoff
+    f, dim = ctx.fields, ctx.fields.dim
+    x, F, mat, kirchhoff = ctx.view.x, ctx.view.F, ctx.solver.mat, ctx.solver.kirchhoff
     d_f, D, iface, kappa, cached, has_law = f.d, f.D, f.iface, f.kappa, f.cached, f.has_law
     x_ref, stale = (f.x_ref, f.stale) if cached else (None, None)
     moved2 = (0.5 * f.skin) ** 2   # a particle this far (squared) from where its normal was computed: refresh

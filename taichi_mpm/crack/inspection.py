@@ -8,7 +8,7 @@ from .constants import STANDARD
 def partition_check_kernel(ctx, sf):
     """The kernel partition_check(out): per particle, state, sum Nt, sum Nn, |sum grad Nt|_inf, |sum grad Nn|_inf,
     |sum W_ip - I|_inf and whether any node lies across."""
-    f, dim, sten = ctx.f, ctx.f.dim, ctx.k.stencil
+    f, dim, sten = ctx.fields, ctx.fields.dim, ctx.solver.stencil
     x, state, normal, mask, span = ctx.view.x, f.state, f.normal, f.mask, sten.span
     family, tangential, normal_family = sf.family, sf.tangential, sf.normal_family
 

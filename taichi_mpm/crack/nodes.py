@@ -15,7 +15,7 @@ class NodeCache(NamedTuple):
 
 def node_normals_func(ctx, sph):
     """The func node_normals() (classify calls it)."""
-    f, dim, basis, lower, dx = ctx.f, ctx.f.dim, ctx.k.basis, ctx.lower, ctx.view.dx
+    f, dim, basis, lower, dx = ctx.fields, ctx.fields.dim, ctx.solver.basis, ctx.lower, ctx.view.dx
     n_cells_grid, radius, dthr, gthr, cached = ctx.view.n_cells, ctx.radius, ctx.dthr, ctx.gthr, f.cached
     node_mark, node_n = ctx.view.grid.scalar["crack_mark"], ctx.view.grid.vec["crack_n"]
     cache_m, cache_n = (f.node_cache.m, f.node_cache.vec["n"]) if cached else (None, None)
@@ -51,7 +51,7 @@ def node_normals_func(ctx, sph):
 
 
 def node_cache_kernels(ctx) -> NodeCache:
-    f, dim, cached = ctx.f, ctx.f.dim, ctx.f.cached
+    f, dim, cached = ctx.fields, ctx.fields.dim, ctx.fields.cached
     cache_m, cache_n, cache_fill = ((f.node_cache.m, f.node_cache.vec["n"], f.node_cache_fill)
                                     if cached else (None,) * 3)
 

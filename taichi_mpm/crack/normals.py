@@ -17,17 +17,14 @@ class ParticleNormals(NamedTuple):
 
 
 def particle_normal_funcs(ctx, cl, sph) -> ParticleNormals:
-    f, dim, sten = ctx.f, ctx.f.dim, ctx.k.stencil
-    x, D, normal, state, pcell, cell_varies, ids, xs = (
-        ctx.view.x, f.D, f.normal, f.state, f.pcell, f.cell_varies, f.ids, f.xs)
+    f, dim, sten = ctx.fields, ctx.fields.dim, ctx.solver.stencil
+    x, D, normal, state, pcell, cell_varies = ctx.view.x, f.D, f.normal, f.state, f.pcell, f.cell_varies
     node_mark = ctx.view.grid.scalar["crack_mark"]   # the step's node marks
-    cached, radius, inv_r, radius2_cut, rows = f.cached, ctx.radius, ctx.inv_r, ctx.radius2_cut, ctx.rows
-    dthr, gthr = ctx.dthr, ctx.gthr
+    cached, radius, dthr, gthr = f.cached, ctx.radius, ctx.dthr, ctx.gthr
     n_cache, s_cache, x_ref, drift, cell_drift, recomputed = (
         (f.n_cache, f.s_cache, f.x_ref, f.drift, f.cell_drift, f.recomputed) if cached else (None,) * 6)
     drift_limit = DRIFT_LIMIT * f.skin
-    cell_of, cell_units, row, listed_at = cl.cell_of, cl.cell_units, cl.row, cl.listed_at
-    damage_field, sph_kernel = sph.damage_field, sph.sph_kernel
+    damage_field = sph.damage_field
 
     @ti.func
     def mark_stencil(p):
@@ -70,6 +67,18 @@ def particle_normal_funcs(ctx, cl, sph) -> ParticleNormals:
             if st != STANDARD:
                 mark_stencil(p)
 
+    return ParticleNormals(mark_stencil=mark_stencil, particle_normals=particle_normals,
+                           band_normals=band_normals_func(ctx, cl, sph, mark_stencil))
+
+
+def band_normals_func(ctx, cl, sph, mark_stencil):
+    """The func band_normals() (classify calls it)."""
+    f, dim = ctx.fields, ctx.fields.dim
+    x, D, normal, state, ids, xs = ctx.view.x, f.D, f.normal, f.state, f.ids, f.xs
+    radius, inv_r, radius2_cut, rows, dthr = ctx.radius, ctx.inv_r, ctx.radius2_cut, ctx.rows, ctx.dthr
+    cell_of, cell_units, row, listed_at = cl.cell_of, cl.cell_units, cl.row, cl.listed_at
+    sph_kernel = sph.sph_kernel
+
     @ti.func
     def band_normals():
         """A damaged particle without a gradient (the middle of an odd-width damage band) joins one side:
@@ -110,4 +119,4 @@ def particle_normal_funcs(ctx, cl, sph) -> ParticleNormals:
                     state[p] = MODIFIED
                     mark_stencil(p)
 
-    return ParticleNormals(mark_stencil=mark_stencil, particle_normals=particle_normals, band_normals=band_normals)
+    return band_normals

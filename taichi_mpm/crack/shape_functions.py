@@ -17,7 +17,7 @@ class ShapeFunctions(NamedTuple):
 
 
 def shape_function_funcs(ctx) -> ShapeFunctions:
-    f, dim, sten = ctx.f, ctx.f.dim, ctx.k.stencil
+    f, dim, sten = ctx.fields, ctx.fields.dim, ctx.solver.stencil
     state, mask, sums, gsum, mask_t = f.state, f.mask, f.sums, f.gsum, f.mask_t
 
     @ti.func

@@ -11,7 +11,7 @@ class Sph(NamedTuple):
 
 
 def sph_funcs(ctx, cl) -> Sph:
-    dim, xs, vs = ctx.f.dim, ctx.f.xs, ctx.f.vs
+    dim, xs, vs = ctx.fields.dim, ctx.fields.xs, ctx.fields.vs
     rows, radius2, inv_r = ctx.rows, ctx.radius2, ctx.inv_r
     cell_of, cell_units, row = cl.cell_of, cl.cell_units, cl.row
 

@@ -14,8 +14,8 @@ class TensorGrid(NamedTuple):
 
 
 def tensor_grid_kernels(ctx) -> TensorGrid:
-    dim, grid, flip = ctx.f.dim, ctx.view.grid, ctx.view.flip
-    wall, gravity_kick = ctx.k.wall, ctx.k.gravity_kick   # runtime gravity (solver)
+    dim, grid, flip = ctx.fields.dim, ctx.view.grid, ctx.view.flip
+    wall, gravity_kick = ctx.solver.wall, ctx.solver.gravity_kick   # runtime gravity (solver)
     gm, gv = grid.m, grid.vec["v"]
     gv_old, gv2 = grid.vec.get("v_old"), grid.vec.get("v2")
     Arows = [grid.vec[f"A{a}"] for a in range(dim)]

@@ -13,7 +13,7 @@ class Transfers(NamedTuple):
 
 
 def transfer_funcs(ctx, sf) -> Transfers:
-    f, dim, sten, add, vgrad = ctx.f, ctx.f.dim, ctx.k.stencil, ctx.k.add, ctx.k.vgrad
+    f, dim, sten, add, vgrad = ctx.fields, ctx.fields.dim, ctx.solver.stencil, ctx.solver.add, ctx.solver.vgrad
     normal, cent = f.normal, f.cent
     grid, flip, apic = ctx.view.grid, ctx.view.flip, ctx.view.apic
     gm, gv = grid.m, grid.vec["v"]
