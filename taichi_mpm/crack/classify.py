@@ -1,0 +1,109 @@
+"""Classify: after the particle normals, per near particle and stencil node whether the node lies across the
+discontinuity (the mask), the sums of the kept weights and gradients of both families, and the contact test."""
+
+import taichi as ti
+
+from .constants import CONTACT, MODIFIED, S_FLOOR, STANDARD
+
+
+def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
+    """The kernel classify(epoch, pool): band middles, the normals in cell order (contact searches), node normals,
+    masks and contact, one launch (each loop still runs in parallel, in turn)."""
+    f, dim, sten = ctx.fields, ctx.fields.dim, ctx.solver.stencil
+    x, normal, state, mask, sums, gsum, cent, contacts = (
+        ctx.view.x, f.normal, f.state, f.mask, f.sums, f.gsum, f.cent, f.contacts)
+    node_mark, node_n = ctx.view.grid.scalar["crack_mark"], ctx.view.grid.vec["crack_n"]
+    mask_t, apic, thr, contact = f.mask_t, f.apic, ctx.thr, ctx.contact
+    reuse_masks = f.cached and sten.origin is not None   # tensor stencils: the origin fixes the stencil's nodes
+    s_cache, mask_at, mask_epoch = (f.s_cache, f.mask_at, f.mask_epoch) if f.cached else (None,) * 3
+    grid_shape = list(ctx.view.grid.shape)
+    band_normals, sort_normals = normals.band_normals, contact_test.sort_normals
+    closing_speed, impedance = contact_test.closing_speed, contact_test.impedance
+
+    @ti.func
+    def origin_key(p):
+        """1 + the flat storage index of p's stencil origin (i64: large sparse 3D grids pass 2^31 nodes)."""
+        b = sten.origin(p)
+        k = ti.cast(0, ti.i64)
+        for a in ti.static(range(dim)):
+            k = k * grid_shape[a] + ti.cast(b[a], ti.i64)
+        return k + 1
+
+    @ti.func
+    def particle_masks(epoch, pool: ti.template()):
+        contacts[None] = 0
+        for p in x:
+            key = ti.cast(0, ti.i64)
+            known = False   # p's mask is the one found before (no node normals to read)
+            if ti.static(reuse_masks):
+                # within one period of kept normals a node's side depends only on the node and p's normal
+                # (band particles excepted: theirs follow their neighbours each step)
+                if state[p] != STANDARD and s_cache[p] != STANDARD:
+                    key = origin_key(p)
+                    known = mask_epoch[p] == epoch and mask_at[p] == key
+            if known and mask[p] == 0:   # still nothing across
+                state[p] = STANDARD
+            elif state[p] != STANDARD:
+                n = normal[p]
+                sd = sten.at(p)
+                m = ti.cast(0, mask_t)
+                m_known = mask[p]
+                St, Sx = 0.0, 0.0   # weights of the nodes on p's side / across
+                Gt = ti.Vector.zero(float, dim)
+                Gx = ti.Vector.zero(float, dim)
+                ct = ti.Vector.zero(float, dim)
+                cx = ti.Vector.zero(float, dim)
+                for o in ti.grouped(ti.ndrange(*sten.outer)):
+                  for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split)
+                    off = o + sten.inner[k]
+                    I, w, gw, r = sten.node(sd, off)
+                    bit = ti.cast(1, mask_t) << ti.cast(sten.index(off), mask_t)
+                    across = False
+                    if known:
+                        across = (m_known & bit) != 0
+                    else:
+                        across = node_mark[I] > 1.5 or n.dot(node_n[I]) < -thr
+                    if across:
+                        m |= bit
+                        Sx += w
+                        Gx += gw
+                        cx += w * r
+                    else:
+                        St += w
+                        Gt += gw
+                        ct += w * r
+                st = STANDARD       # nothing across, or it would lose (almost) every node
+                if m != 0 and St >= S_FLOOR:
+                    st = MODIFIED
+                    if ti.static(contact):  # material across within reach, and trial normal traction < 0
+                        vc, touching = closing_speed(p, n, pool)
+                        if touching:   # nested: Taichi's `and` evaluates both sides; the stress costs
+                            if n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
+                                st = CONTACT
+                                contacts[None] += 1
+                Sn, Gn, cn = St, Gt, ct
+                if st == CONTACT:   # the normal family keeps the nodes across
+                    Sn, Gn, cn = St + Sx, Gt + Gx, ct + cx
+                state[p] = st
+                mask[p] = m
+                if ti.static(reuse_masks):
+                    if key != 0:
+                        mask_at[p], mask_epoch[p] = key, epoch
+                sums[p] = ti.Vector([St, Sn])
+                for a in ti.static(range(dim)):
+                    gsum[p][0, a] = Gt[a]
+                    gsum[p][1, a] = Gn[a]
+                    if ti.static(apic):
+                        cent[p][0, a] = ct[a] / St
+                        cent[p][1, a] = cn[a] / Sn
+
+    @ti.kernel
+    def classify(epoch: ti.i32, pool: ti.types.ndarray(dtype=ti.i32, ndim=1)):
+        """Steps 4-6 after the particle normals, one launch (each loop still runs in parallel, in turn): band
+        middles, the normals in cell order (contact searches), node normals, masks and contact."""
+        band_normals()
+        sort_normals()
+        node_normals()
+        particle_masks(epoch, pool)
+
+    return classify

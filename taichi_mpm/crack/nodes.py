@@ -1,0 +1,85 @@
+"""Node normals: at each node a near particle marked, grad D from the same SPH sums (a node on the discontinuity
+itself is marked 2), kept in the node cache until the particle normals are next recomputed; and the kernels that
+read and write that cache for checkpoints."""
+
+from typing import Callable, NamedTuple
+
+import taichi as ti
+
+
+class NodeCache(NamedTuple):
+    size: Callable    # kernel () -> nodes held
+    read: Callable    # kernel (idx, nrm, flag): the held nodes, in thread order
+    write: Callable   # kernel (idx, nrm, flag, k)
+
+
+def node_normals_func(ctx, sph):
+    """The func node_normals() (classify calls it)."""
+    f, dim, basis, lower, dx = ctx.fields, ctx.fields.dim, ctx.solver.basis, ctx.lower, ctx.view.dx
+    n_cells_grid, radius, dthr, gthr, cached = ctx.view.n_cells, ctx.radius, ctx.dthr, ctx.gthr, f.cached
+    node_mark, node_n = ctx.view.grid.scalar["crack_mark"], ctx.view.grid.vec["crack_n"]
+    cache_m, cache_n = (f.node_cache.m, f.node_cache.vec["n"]) if cached else (None, None)
+    damage_field = sph.damage_field
+
+    @ti.func
+    def node_normals():
+        for I in ti.grouped(node_mark):
+            if node_mark[I] > 0:
+                nn = ti.Vector.zero(float, dim)
+                on = False   # the node lies on the discontinuity: both sides leave it
+                known = False
+                if ti.static(cached):   # computed since the particle normals were
+                    known = cache_m[I] > 0
+                    if known:
+                        nn, on = cache_n[I], cache_m[I] > 1.5
+                if not known:
+                    y = ti.Vector.zero(float, dim)
+                    for a in ti.static(range(dim)):
+                        y[a] = lower[a] + basis.coord(I[a], n_cells_grid[a]) * dx
+                    val, g = damage_field(y)
+                    gn = g.norm() * radius
+                    if gn > 1e-6:
+                        nn = g / g.norm()
+                    on = gn < gthr and val >= dthr
+                    if ti.static(cached):
+                        cache_n[I], cache_m[I] = nn, ti.select(on, 2.0, 1.0)
+                node_n[I] = nn
+                if on:
+                    node_mark[I] = 2.0
+
+    return node_normals
+
+
+def node_cache_kernels(ctx) -> NodeCache:
+    f, dim, cached = ctx.fields, ctx.fields.dim, ctx.fields.cached
+    cache_m, cache_n, cache_fill = ((f.node_cache.m, f.node_cache.vec["n"], f.node_cache_fill)
+                                    if cached else (None,) * 3)
+
+    @ti.kernel
+    def node_cache_size() -> ti.i32:
+        k = 0
+        if ti.static(cached):
+            for I in ti.grouped(cache_m):
+                if cache_m[I] > 0:
+                    k += 1
+        return k
+
+    @ti.kernel
+    def node_cache_read(idx: ti.types.ndarray(), nrm: ti.types.ndarray(), flag: ti.types.ndarray()):
+        if ti.static(cached):
+            for I in ti.grouped(cache_m):
+                if cache_m[I] > 0:
+                    k = ti.atomic_add(cache_fill[None], 1)
+                    for a in ti.static(range(dim)):
+                        idx[k, a], nrm[k, a] = I[a], cache_n[I][a]
+                    flag[k] = cache_m[I]
+
+    @ti.kernel
+    def node_cache_write(idx: ti.types.ndarray(), nrm: ti.types.ndarray(), flag: ti.types.ndarray(), k: ti.i32):
+        if ti.static(cached):
+            for j in range(k):
+                I = ti.Vector([idx[j, a] for a in ti.static(range(dim))])
+                cache_m[I] = flag[j]
+                cache_n[I] = ti.Vector([nrm[j, a] for a in ti.static(range(dim))])
+
+    return NodeCache(size=node_cache_size, read=node_cache_read, write=node_cache_write)
