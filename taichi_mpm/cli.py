@@ -348,9 +348,9 @@ def cmd_validate(args) -> int:
     cfg = _load(args.config, args)
     try:
         if cfg.arch not in ("auto", "cpu"):  # an arch named explicitly must exist here, as for `run`
-            from .solver import resolve_arch
+            from .backend import resolve_arch
 
-            resolve_arch(cfg.arch)
+            resolve_arch(cfg.arch, cfg)   # and can run this scene (backend.py)
         estimate = budget.check(cfg)  # before the scene: an absurd size is refused, not generated
         scene = build_scene(cfg)
     except ConfigError as e:

@@ -23,6 +23,7 @@ import numpy as np
 import taichi as ti
 
 from . import budget
+from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid, make_locate
@@ -63,58 +64,6 @@ VISCOUS_DIFFUSION = 2.0
 class StabilityWarning(UserWarning):
     """A scene that is likely to go wrong numerically (e.g. a weakly compressible fluid that is too soft)."""
 
-_live = {"id": 0, "key": None}
-
-
-GPU_ARCHS = ("cuda", "vulkan", "metal")
-
-
-def available_archs() -> list[str]:
-    """cpu and the GPU backends Taichi finds. Taichi's own `ti.gpu` list also probes OpenGL/GLES, which crashes
-    the process (segmentation fault) on headless machines without a GL driver, so those are never probed."""
-    from taichi.lang.misc import is_arch_supported
-
-    ti.set_logging_level(ti.ERROR)  # no "libcuda.so not found" warning on machines without CUDA
-    return [name for name in GPU_ARCHS if is_arch_supported(getattr(ti, name))] + ["cpu"]
-
-
-def resolve_arch(arch: str) -> str:
-    """`auto` -> the first of cuda, vulkan, metal that Taichi finds, else cpu. An arch named explicitly that
-    this machine lacks is a ConfigError (Taichi itself would fall back to the CPU without a word)."""
-    if arch == "cpu":
-        return arch
-    found = available_archs()
-    if arch == "auto":
-        return found[0]
-    if arch not in found:
-        raise ConfigError(f"arch {arch} is not available on this machine (available: {', '.join(found)}); "
-                          "use arch: auto or cpu", key="arch")
-    return arch
-
-
-def init_taichi(arch: str, precision: str, deterministic: bool = False, order_free: bool = False):
-    """(Re)start Taichi for a new simulation; only the newest Simulation stays live.
-
-    deterministic: no fast math and, unless the scene is `order_free` (thread_independent), one CPU thread (atomic
-    adds and reductions then run in one fixed order), so runs are bit-identical whatever the thread count or load.
-    GPU float atomics have no fixed order: there `deterministic` cannot hold and a warning says so
-    (docs/reliability.md)."""
-    fp = ti.f64 if precision == "f64" else ti.f32
-    name = resolve_arch(arch)
-    jit.install()   # kernel building without Taichi's repeated source excerpts (jit.py)
-    options = {}
-    if deterministic:
-        if name == "cpu":
-            options = dict(fast_math=False) if order_free else dict(cpu_max_num_threads=1, fast_math=False)
-        else:
-            warnings.warn(f"solver.deterministic: on {name} float atomic adds are not ordered, so runs may differ "
-                          "in the last digits; use arch: cpu for bit-identical runs", RuntimeWarning, stacklevel=3)
-            options = dict(fast_math=False)
-    ti.init(arch=getattr(ti, name), default_fp=fp, default_ip=ti.i32, offline_cache=True,
-            log_level=ti.ERROR, random_seed=0, **options)
-    _live["id"] += 1
-    return _live["id"]
-
 
 def thread_independent(cfg: Config, body_force: bool = False) -> bool:
     """Whether every sum a CPU step and its diagnostics make has one order whatever the threads: P2G by the coloured
@@ -147,7 +96,8 @@ class Simulation:
         budget.check(c, body_force=body_force is not None)  # refuse absurd sizes before allocating anything
         self.scene = scene if scene is not None else build_scene(c)
         self.n = self.scene.n
-        self._id = init_taichi(c.arch, c.precision, c.solver.deterministic,
+        self.backend = choose_backend(c)   # the arch and grid this scene gets on this machine, and why (backend.py)
+        self._id = init_taichi(self.backend, c.precision, c.solver.deterministic,
                                c.solver.deterministic and thread_independent(c, body_force is not None))
         self.basis = make_basis(c.solver.basis, grid_knots(c))   # domain.knots: per-axis knot vectors
         self.basis.materialize()
@@ -235,7 +185,7 @@ class Simulation:
             self.mapped.allocate_particles(n)
         # the crack finder's node fields (tensor node mass rows, node normals and marks): few particles touch them
         apart, apart_scalars = crack_finder.grid_fields(d) if self.cfg.crack is not None else ([], [])
-        self.grid = Grid(d, shape, self.cfg.domain.sparse, vec, apart, apart_scalars)
+        self.grid = Grid(d, shape, self.backend.sparse, vec, apart, apart_scalars)
         gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
         coloured = scatter.coloured(self.cfg, gpu)
         self.bins = scatter.BlockBins(d, self.grid, n) if coloured else None  # atomic-free P2G (scatter.py)
