@@ -418,13 +418,16 @@ def cmd_compare(args) -> int:
 
 def cmd_gui(args) -> int:
     cfg = _load(args.config, args)
-    from .gui import run_gui
+    from .gui import NoDisplay, run_gui
 
     try:
         run_gui(cfg, max_frames=args.max_frames, screenshot=args.screenshot,
                 view=None if args.view == "auto" else args.view)
     except ConfigError as e:
         raise locate(e, cfg) from None
+    except NoDisplay as e:   # no window can open here: what is missing, what to do instead
+        _err(f"gui: {e}")
+        return EXIT_INPUT
     return EXIT_OK
 
 
