@@ -22,7 +22,7 @@ from typing import Callable, Optional
 import numpy as np
 import taichi as ti
 
-from . import budget
+from . import budget, states   # states: the API's refusals (states.py)
 from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
@@ -965,14 +965,15 @@ class Simulation:
         for colour in range(self.bins.colours):
             self._k[kernel](*args, colour)
 
+    @states.stepping   # a failed simulation is not stepped again (states.py)
     def step(self, dt: Optional[float] = None) -> float:
         """Advance one step (dt from the CFL rule unless given); returns dt."""
         self._check_live()
         k = self._k
         if dt is None:
             dt = self.stable_dt()
-        elif not (_is_real(dt) and math.isfinite(dt) and dt > 0):
-            raise ValueError(f"step(dt): dt must be a finite number > 0, got {dt!r}")
+        else:
+            dt = states.check_dt(self, dt)   # finite, > 0, and one the kernels and the clock can step by
         dt = float(dt)
         watch = self.cfg.solver.energy_growth_limit is not None
         if self._balance is None:  # the balance is kept (energy_balance()) even with the check off
@@ -1226,6 +1227,7 @@ class Simulation:
         m = self.cfg.solver.max_steps
         return bool(m) and self.n_steps >= m
 
+    @states.stepping
     def advance_to(self, target: float, on_step: Optional[Callable] = None) -> int:
         """Step until simulation time `target`, shortening the last step to land on it exactly; stop early at
         solver.max_steps. on_step(self) runs after every step. Returns the number of steps taken.
@@ -1356,6 +1358,7 @@ class Simulation:
         if "v" in checked:
             self._vmax = _max_speed(checked["v"])
             self._half_dt = 0.0  # velocities given at the clock's time: the next step kicks over half a step
+        states.restored(self)   # a failed simulation whose state is good again may step
 
     def _place_on_map(self):
         """domain.map: every particle's parametric coordinates, by Newton from the nearest sample of the map; a
@@ -1384,6 +1387,7 @@ class Simulation:
             if not np.isfinite(value).all():
                 raise ValueError(f"{name} holds non-finite values (NaN or infinity)")
             out[name] = value
+        states.check_particles(self, out)   # positions inside the domain, J = det F > 0
         return out
 
     def get_state(self) -> dict:
