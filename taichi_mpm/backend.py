@@ -210,11 +210,12 @@ def _gpu_problem(arch: str, cfg: Config | None) -> str | None:
     return None
 
 
-def _dense_note(arch: str, cfg: Config) -> str | None:
+def _dense_grid(arch: str, cfg: Config) -> str | None:
+    """What the note says when a sparse grid becomes dense on `arch`; None for a dense grid asked for."""
     if not cfg.domain.sparse:
         return None
-    return (f"arch {arch}: dense grid (Taichi's {arch} backend has no sparse grids; the run uses more memory than "
-            "with domain.sparse on cpu or cuda)")
+    return (f"a dense grid (Taichi's {arch} backend has no sparse grids; the run uses more memory than with "
+            "domain.sparse on cpu or cuda)")
 
 
 def choose(cfg: Config) -> Backend:
@@ -233,12 +234,12 @@ def choose(cfg: Config) -> Backend:
         problem = _gpu_problem(arch, cfg)
         if problem:
             raise ConfigError(f"arch {arch} cannot run this scene: {problem}; use arch: auto or cpu", key="arch")
-        note = _dense_note(arch, cfg)
+        said = [_dense_grid(arch, cfg)]
         device = vulkan_device() if arch == "vulkan" else None
         if device is not None and device.emulated:
-            note = (note + "; " if note else f"arch {arch}: ") + (
-                f"{device.name} is a CPU-emulated GPU, much slower than arch: cpu")
-        return Backend(arch, False, note)
+            said.append(f"{device.name} is a CPU-emulated GPU, much slower than arch: cpu")
+        said = [s for s in said if s]
+        return Backend(arch, False, f"arch {arch}: " + "; ".join(said) if said else None)
     if "cuda" in found:
         return Backend("cuda", cfg.domain.sparse)
     skipped = []
@@ -253,8 +254,9 @@ def choose(cfg: Config) -> Backend:
         if problem:
             skipped.append(f"{gpu} skipped ({problem})")
             continue
-        note = _dense_note(gpu, cfg)
-        return Backend(gpu, False, "arch auto: " + "; ".join(skipped + [note]) if (skipped or note) else None)
+        dense = _dense_grid(gpu, cfg)
+        said = f"arch auto: {gpu}" + (f" with {dense}" if dense else "")
+        return Backend(gpu, False, "; ".join([said, *skipped]) if (dense or skipped) else None)
     return Backend("cpu", cfg.domain.sparse, ("arch auto: cpu; " + "; ".join(skipped)) if skipped else None)
 
 

@@ -46,7 +46,8 @@ def test_auto_on_a_real_gpu_without_sparse_gets_a_dense_grid(monkeypatch):
     machine(monkeypatch, ["vulkan", "cpu"], RADEON)
     b = backend.choose(cfg())
     assert (b.arch, b.sparse) == ("vulkan", False)
-    assert b.note.startswith("arch auto: arch vulkan: dense grid (Taichi's vulkan backend has no sparse grids")
+    assert b.note == ("arch auto: vulkan with a dense grid (Taichi's vulkan backend has no sparse grids; the run uses "
+                      "more memory than with domain.sparse on cpu or cuda)")
     c = cfg()
     c.domain.sparse = False
     assert backend.choose(c) == Backend("vulkan", False, None)   # dense asked for: nothing to say
@@ -79,6 +80,16 @@ def test_auto_skips_vulkan_when_the_dense_grid_does_not_fit(monkeypatch):
     assert b.arch == "cpu" and b.sparse and "the dense grid it would need does not fit" in b.note
 
 
+def test_auto_says_which_gpu_it_skipped_before_the_one_it_took(monkeypatch):
+    machine(monkeypatch, ["vulkan", "metal", "cpu"], NO_F64)
+    c = cfg()
+    c.domain.sparse = False
+    b = backend.choose(c)   # metal is always skipped (no f64): cpu, both skips said
+    assert b.arch == "cpu" and "vulkan skipped (the Vulkan device" in b.note and "metal skipped (" in b.note
+    machine(monkeypatch, ["vulkan", "cpu"], RADEON)
+    assert backend.choose(c) == Backend("vulkan", False, None)
+
+
 def test_auto_prefers_cuda_and_keeps_its_sparse_grid(monkeypatch):
     machine(monkeypatch, ["cuda", "vulkan", "cpu"], LLVMPIPE)
     assert backend.choose(cfg()) == Backend("cuda", True, None)
@@ -108,7 +119,10 @@ def test_explicit_gpu_arch_that_cannot_run_the_scene_is_a_config_error(monkeypat
         backend.choose(tm.load_config(c))
     assert e.value.key == "arch" and "node-normal cache (crack.normal_refresh > 0) needs a sparse grid" in str(e.value)
     b = backend.choose(cfg("vulkan"))   # it can: a dense grid, said in one line
-    assert (b.arch, b.sparse) == ("vulkan", False) and b.note.startswith("arch vulkan: dense grid")
+    assert (b.arch, b.sparse) == ("vulkan", False) and b.note.startswith("arch vulkan: a dense grid (Taichi's vulkan")
+    c = cfg("vulkan")
+    c.domain.sparse = False
+    assert backend.choose(c) == Backend("vulkan", False, None)
     machine(monkeypatch, ["vulkan", "cpu"], LLVMPIPE)
     assert "llvmpipe (LLVM 15.0.6, 256 bits) is a CPU-emulated GPU, much slower than arch: cpu" in \
         backend.choose(cfg("vulkan")).note
@@ -165,7 +179,7 @@ def test_explicit_vulkan_runs_with_a_dense_grid_and_matches_cpu():
     real_vulkan()
     c = make_cfg(2, dx=0.1, precision="f32", velocity=[0.5, -0.3], end_time=0.02)
     c["arch"] = "vulkan"
-    with pytest.warns(BackendNote, match="arch vulkan: dense grid"):
+    with pytest.warns(BackendNote, match="arch vulkan: a dense grid"):
         gpu = tm.Simulation(c)
     assert gpu.backend.arch == "vulkan" and not gpu.grid.sparse
     for _ in range(5):
