@@ -166,7 +166,7 @@ def test_ggui_window_runs_under_xvfb_and_saves_an_image(tmp_path, xvfb):
     shot = tmp_path / "ggui.png"
     env = dict(os.environ, DISPLAY=xvfb)
     res = subprocess.run([sys.executable, "-c", GGUI_SCRIPT, json.dumps(cfg), str(shot), json.dumps(script)],
-                         env=env, capture_output=True, text=True, timeout=600)
+                         env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600)   # ImGui writes imgui.ini to its cwd
     assert res.returncode == 0, res.stderr[-3000:]
     state = json.loads(res.stdout.split("STATE")[-1])
     assert state["kind"] == "ggui" and state["arch"] == "cpu"
