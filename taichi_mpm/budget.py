@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import scatter
-from .archs import resolve_arch
+from .backend import resolve_arch
 from .basis import make_basis
 from .crack import grid_fields as crack_grid_fields
 from .crack import particle_bytes as crack_particle_bytes

@@ -354,9 +354,9 @@ def cmd_validate(args) -> int:
     cfg = _load(args.config, args)
     try:
         if cfg.arch not in ("auto", "cpu"):  # an arch named explicitly must exist here, as for `run`
-            from .solver import resolve_arch
+            from .backend import resolve_arch
 
-            resolve_arch(cfg.arch)
+            resolve_arch(cfg.arch, cfg)   # and can run this scene (backend.py)
         estimate = budget.check(cfg)  # before the scene: an absurd size is refused, not generated
         scene = build_scene(cfg)
     except ConfigError as e:
@@ -424,13 +424,16 @@ def cmd_compare(args) -> int:
 
 def cmd_gui(args) -> int:
     cfg = _load(args.config, args)
-    from .gui import run_gui
+    from .gui import NoDisplay, run_gui
 
     try:
         run_gui(cfg, max_frames=args.max_frames, screenshot=args.screenshot,
                 view=None if args.view == "auto" else args.view)
     except ConfigError as e:
         raise locate(e, cfg) from None
+    except NoDisplay as e:   # no window can open here: what is missing, what to do instead
+        _err(f"gui: {e}")
+        return EXIT_INPUT
     return EXIT_OK
 
 

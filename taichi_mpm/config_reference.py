@@ -24,7 +24,7 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "name": ("", "name of the scene; `{name}` in output.dir; no '/'"),
     "dim": ("", "dimension: 1 (uniaxial strain), 2 (plane strain) or 3"),
     "precision": ("", "floating point of the Taichi fields: f32 (fast) or f64 (verification)"),
-    "arch": ("", "Taichi backend; auto picks cuda, vulkan or metal when present, else cpu"),
+    "arch": ("", "Taichi backend; auto picks cuda, else a real GPU's vulkan or metal (dense grid) that can run the scene, else cpu; never a CPU-emulated GPU (docs/contract.md)"),
     "domain": ("", "the background grid: a box [lower, upper] of cells dx"),
     "domain.lower": ("m", "lower corner of the domain, one number per axis"),
     "domain.upper": ("m", "upper corner; upper - lower must be a whole number of cells dx on every axis"),

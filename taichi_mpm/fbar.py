@@ -55,7 +55,7 @@ class FBar:
         # velocity space (see `build`); the other bases average with their own stencil
         self.linear = sim.cfg.solver.basis in LOWER_ORDER
         shape = [n + 1 for n in sim.n_cells] if self.linear else sim.grid.shape
-        self.grids = [Grid(sim.dim, shape, sim.cfg.domain.sparse, []) for _ in range(2)]
+        self.grids = [Grid(sim.dim, shape, sim.grid.sparse, []) for _ in range(2)]
 
     def bytes_per_particle(self) -> int:
         return 8 if self.sim.cfg.precision == "f64" else 4

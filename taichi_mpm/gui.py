@@ -21,6 +21,8 @@ window.
 """
 from __future__ import annotations
 
+import os
+import sys
 import time as _time
 
 import numpy as np
@@ -139,6 +141,57 @@ def _colour_ints(t, cmap_name):
 def _pack(rgb):
     rgb = rgb.astype(np.uint32)
     return (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
+
+
+class NoDisplay(RuntimeError):
+    """No window can open here; the message says what is missing and what to do instead (the CLI exits 2)."""
+
+
+NO_DISPLAY_ADVICE = ("start it under a virtual X server (xvfb-run -a taichi-mpm gui CONFIG; Debian/Ubuntu: apt-get "
+                     "install xvfb), or make pictures without a window: taichi-mpm run CONFIG writes frames and a "
+                     "movie, taichi-mpm render RUN_DIR renders a run's snapshots again, taichi-mpm compare CONFIG "
+                     "--vary KEY=A,B puts runs side by side")
+
+
+def display_problem(environ=None) -> str | None:
+    """Why no window can open on this machine, or None. Taichi's windows (ti.GUI and GGUI's GLFW) are X11 windows on
+    Linux and the BSDs: without DISPLAY, or with one no X server answers, ti.GUI ends in a traceback and GGUI exits
+    the process ("cannot initialize GLFW"), so this is asked before anything starts. macOS and Windows: None."""
+    environ = os.environ if environ is None else environ
+    if sys.platform in ("darwin", "win32", "cygwin"):
+        return None
+    display = environ.get("DISPLAY", "")
+    if not display:
+        wayland = " (a Wayland session without XWayland: Taichi opens X11 windows only)" if environ.get(
+            "WAYLAND_DISPLAY") else ""
+        return f"no display to open a window on: DISPLAY is not set{wayland}"
+    if _x11_answers(display) is False:
+        return f"no X server answers on DISPLAY={display}"
+    return None
+
+
+def _x11_answers(display: str) -> bool | None:
+    """Whether an X server accepts a connection on `display` (XOpenDisplay); None where libX11 cannot be loaded."""
+    import ctypes
+
+    try:
+        x11 = ctypes.CDLL("libX11.so.6")
+    except OSError:
+        return None
+    x11.XOpenDisplay.restype, x11.XOpenDisplay.argtypes = ctypes.c_void_p, [ctypes.c_char_p]
+    x11.XCloseDisplay.argtypes = [ctypes.c_void_p]
+    handle = x11.XOpenDisplay(display.encode())
+    if not handle:
+        return False
+    x11.XCloseDisplay(handle)
+    return True
+
+
+def check_display():
+    """Raise NoDisplay (what is missing, what to do instead) where no window can open."""
+    problem = display_problem()
+    if problem:
+        raise NoDisplay(f"{problem}; {NO_DISPLAY_ADVICE}")
 
 
 def ggui_support() -> tuple[bool, bool]:
@@ -440,16 +493,18 @@ class Session:
 
 def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None, view: str | None = None):
     """Open the interactive window for a config (path, dict or Config); returns the simulation shown last (a basis
-    or transfer switch replaces it). A 3D scene opens Taichi's GGUI scene where a Vulkan device exists (ggui.py),
-    else the ti.GUI projection; `view` ('ggui' or 'projection') overrides the choice, and the title says which.
-    With `max_frames` the window closes by itself after that many frames; `screenshot` saves the last frame as a
-    PNG. `script` (for tests and demos): {frame: [action, ...]} applied before that frame's events, an action being
-    ("slider", label, value) (moves a slider widget, read back like a hand's move) or ("event", name) (a key or a
-    button's event name)."""
+    or transfer switch replaces it); NoDisplay where no window can open (show=True). A 3D scene opens Taichi's GGUI scene where a Vulkan device exists (ggui.py),
+    else the ti.GUI projection; `view` ('ggui' or 'projection') overrides the choice, and the title says which. With `max_frames` the window closes by itself after that many frames; `screenshot` saves the last frame as a PNG. `script` (for tests and
+    demos): {frame: [action, ...]} applied before that frame's events, an action being ("slider", label, value)
+    (moves a slider widget, read back like a hand's move) or ("event", name) (a key or a button's event name)."""
+    import taichi as ti
+
     from .config import load_config
     from .runner import Simulation  # resolves arch auto without Taichi's crashing OpenGL probe
 
     cfg = cfg if hasattr(cfg, "model_dump") else load_config(cfg)
+    if show:
+        check_display()   # before Taichi starts: no window, no traceback or exit from inside Taichi (NoDisplay)
     res = tuple(int(s) for s in cfg.output.render.size)
     session = Session(Simulation(cfg), res)
     support = ggui_support() if cfg.dim == 3 else (False, False)

@@ -22,7 +22,8 @@ from typing import Callable, Optional
 import numpy as np
 import taichi as ti
 
-from . import budget
+from . import budget, states   # states: the API's refusals (states.py)
+from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid
@@ -38,7 +39,6 @@ from .loads import Loads
 from . import materials as material_models
 from .materials import MODELS, wave_speed
 from .scene import Scene, build_scene
-from .archs import GPU_ARCHS, available_archs, resolve_arch  # noqa: F401 (GPU_ARCHS, available_archs re-exported)
 from . import step as step_kernels
 from .step import Features, StepContext
 from .step.extensions import ColouredScatter, DualDomainFill, MappedCoordinates, VolumeAverage
@@ -66,32 +66,6 @@ VISCOUS_DIFFUSION = 2.0
 
 class StabilityWarning(UserWarning):
     """A scene that is likely to go wrong numerically (e.g. a weakly compressible fluid that is too soft)."""
-
-_live = {"id": 0, "key": None}
-
-
-def init_taichi(arch: str, precision: str, deterministic: bool = False, order_free: bool = False):
-    """(Re)start Taichi for a new simulation; only the newest Simulation stays live.
-
-    deterministic: no fast math and, unless the scene is `order_free` (thread_independent), one CPU thread (atomic
-    adds and reductions then run in one fixed order), so runs are bit-identical whatever the thread count or load.
-    GPU float atomics have no fixed order: there `deterministic` cannot hold and a warning says so
-    (docs/reliability.md)."""
-    fp = ti.f64 if precision == "f64" else ti.f32
-    name = resolve_arch(arch)
-    jit.install()   # kernel building without Taichi's repeated source excerpts (jit.py)
-    options = {}
-    if deterministic:
-        if name == "cpu":
-            options = dict(fast_math=False) if order_free else dict(cpu_max_num_threads=1, fast_math=False)
-        else:
-            warnings.warn(f"solver.deterministic: on {name} float atomic adds are not ordered, so runs may differ "
-                          "in the last digits; use arch: cpu for bit-identical runs", RuntimeWarning, stacklevel=3)
-            options = dict(fast_math=False)
-    ti.init(arch=getattr(ti, name), default_fp=fp, default_ip=ti.i32, offline_cache=True,
-            log_level=ti.ERROR, random_seed=0, **options)
-    _live["id"] += 1
-    return _live["id"]
 
 
 def thread_independent(cfg: Config, body_force: bool = False) -> bool:
@@ -125,7 +99,8 @@ class Simulation:
         budget.check(c, body_force=body_force is not None)  # refuse absurd sizes before allocating anything
         self.scene = scene if scene is not None else build_scene(c)
         self.n = self.scene.n
-        self._id = init_taichi(c.arch, c.precision, c.solver.deterministic,
+        self.backend = choose_backend(c)   # the arch and grid this scene gets on this machine, and why (backend.py)
+        self._id = init_taichi(self.backend, c.precision, c.solver.deterministic,
                                c.solver.deterministic and thread_independent(c, body_force is not None))
         self.basis = make_basis(c.solver.basis, grid_knots(c))   # domain.knots: per-axis knot vectors
         self.basis.materialize()
@@ -211,7 +186,7 @@ class Simulation:
             self.mapped.allocate_particles(n)
         # the crack finder's node fields (tensor node mass rows, node normals and marks): few particles touch them
         apart, apart_scalars = crack_finder.grid_fields(d) if self.cfg.crack is not None else ([], [])
-        self.grid = Grid(d, shape, self.cfg.domain.sparse, vec, apart, apart_scalars)
+        self.grid = Grid(d, shape, self.backend.sparse, vec, apart, apart_scalars)
         gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
         coloured = scatter.coloured(self.cfg, gpu)
         self.bins = scatter.BlockBins(d, self.grid, n) if coloured else None  # atomic-free P2G (scatter.py)
@@ -443,14 +418,15 @@ class Simulation:
         for colour in range(self._p2g_passes):
             self._k[kernel](*args, colour)
 
+    @states.stepping   # a failed simulation is not stepped again (states.py)
     def step(self, dt: Optional[float] = None) -> float:
         """Advance one step (dt from the CFL rule unless given); returns dt."""
         self._check_live()
         k = self._k
         if dt is None:
             dt = self.stable_dt()
-        elif not (_is_real(dt) and math.isfinite(dt) and dt > 0):
-            raise ValueError(f"step(dt): dt must be a finite number > 0, got {dt!r}")
+        else:
+            dt = states.check_dt(self, dt)   # finite, > 0, and one the kernels and the clock can step by
         dt = float(dt)
         watch = self.cfg.solver.energy_growth_limit is not None
         if self._balance is None:  # the balance is kept (energy_balance()) even with the check off
@@ -699,6 +675,7 @@ class Simulation:
         m = self.cfg.solver.max_steps
         return bool(m) and self.n_steps >= m
 
+    @states.stepping
     def advance_to(self, target: float, on_step: Optional[Callable] = None) -> int:
         """Step until simulation time `target`, shortening the last step to land on it exactly; stop early at
         solver.max_steps. on_step(self) runs after every step. Returns the number of steps taken.
@@ -827,6 +804,7 @@ class Simulation:
         if "v" in checked:
             self._vmax = _max_speed(checked["v"])
             self._half_dt = 0.0  # velocities given at the clock's time: the next step kicks over half a step
+        states.restored(self)   # a failed simulation whose state is good again may step
 
     def _validated_particles(self, arrays: dict) -> dict:
         fields = self._state_fields()
@@ -844,6 +822,7 @@ class Simulation:
             if not np.isfinite(value).all():
                 raise ValueError(f"{name} holds non-finite values (NaN or infinity)")
             out[name] = value
+        states.check_particles(self, out)   # positions inside the domain, J = det F > 0
         return out
 
     def get_state(self) -> dict:

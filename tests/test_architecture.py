@@ -23,8 +23,8 @@ LAYERS = {
                    "fields", "colour_range", "render_options", "window_layout"),
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
-    "physics": ("grid", "basis", "nurbs", "stencils", "mapped", "scatter", "fbar", "crack", "loads", "scene", "archs",
-                "budget", "solver", "analytic"),
+    "physics": ("grid", "basis", "nurbs", "stencils", "mapped", "scatter", "fbar", "crack", "loads", "scene", "backend",
+                "states", "step", "budget", "solver", "analytic"),
     # output files, probes, the output-writing run, frames and plots
     "outputs": ("io", "probes", "observe", "runner", "render", "plots", "config_reference"),
     # the tools: studies, stability scenarios and the CFL search, advise, compare, the windows
@@ -33,7 +33,7 @@ LAYERS = {
 }
 # the physics core, and the modules it may never import (issue 26)
 PHYSICS = ("solver", "basis", "grid", "stencils", "materials", "crack", "fbar", "mapped", "mapgeom", "nurbs", "knots",
-           "scatter", "sums", "traced", "jit", "scene", "loads", "analytic", "budget", "archs", "fields")
+           "scatter", "sums", "traced", "jit", "scene", "loads", "analytic", "budget", "backend", "states", "step", "fields")
 TOOLS = ("cli", "render", "gui", "ggui", "io", "runner", "study", "advise", "compare", "stability", "plots", "probes",
          "observe")
 

@@ -222,9 +222,10 @@ def test_ctrl_c_keeps_checkpoint_and_resume_matches(tmp_path, full_run):
         if s.n_steps == 5:
             os.kill(os.getpid(), signal.SIGINT)  # the real signal: the handler lets the step finish
 
+    before = signal.getsignal(signal.SIGINT)   # Python's default, or SIG_IGN under nohup / a background job
     with pytest.raises(Interrupted):
         run.execute(on_step=ctrl_c_at_step_5)
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
+    assert signal.getsignal(signal.SIGINT) is before  # the handler it found is restored
     state, meta = io.load_checkpoint(tmp_path / "cut" / "checkpoint.npz")
     assert state["n_steps"] == 5 and 0.02 < state["time"] < 0.08  # between two output times
     assert main(["run", str(path), "--out", str(tmp_path / "cut"), "--quiet", "--resume"]) == 0
@@ -232,6 +233,26 @@ def test_ctrl_c_keeps_checkpoint_and_resume_matches(tmp_path, full_run):
     assert len(a) == len(b) == 5
     for xa, xb in zip(a, b):  # within rounding of the threads' order: see test_resume_reproduces_uninterrupted_run
         np.testing.assert_allclose(xb, xa, rtol=0, atol=1e-12)
+
+
+def test_run_restores_an_ignored_sigint(tmp_path):
+    """Started where SIGINT is ignored (nohup or a background job of a script: Python then keeps SIG_IGN), a run
+    still stops cleanly on SIGINT and leaves SIG_IGN behind, not Python's default handler."""
+    from taichi_mpm.runner import Interrupted, Run
+
+    sim = tm.Simulation(tm.load_config(scene_cfg(tmp_path, **{"solver.end_time": "0.08"})))
+
+    def ctrl_c_at_step_2(s):
+        if s.n_steps == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with pytest.raises(Interrupted):
+            Run(sim, tmp_path / "cut").execute(on_step=ctrl_c_at_step_2)
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)
 
 
 # ---------------------------------------------------------------- instability

@@ -301,3 +301,31 @@ def test_gui_draws_a_mapped_grid_under_xvfb(tmp_path, xvfb):
     img = imageio.imread(shot)[..., :3]
     grey = (img == [0xCC, 0xCC, 0xCC]).all(axis=-1)
     assert grey.sum() > 300
+
+
+@pytest.mark.parametrize("environ, says", [({}, "DISPLAY is not set"),
+                                           ({"WAYLAND_DISPLAY": "wayland-0"}, "Wayland session without XWayland"),
+                                           ({"DISPLAY": ":65000"}, "no X server answers on DISPLAY=:65000")])
+def test_gui_without_a_display_says_what_is_missing_and_exits_2(tmp_path, monkeypatch, capsys, environ, says):
+    """`taichi-mpm gui` where no window can open: before anything starts (no Taichi traceback, no exit from inside
+    GLFW), one line naming what is missing and what to do instead (Xvfb, `render`, `compare`), exit 2."""
+    import yaml
+
+    from taichi_mpm import gui
+    from taichi_mpm.cli import main
+
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in environ.items():
+        monkeypatch.setenv(name, value)
+    monkeypatch.setattr(gui, "Session", lambda *a: pytest.fail("the window's session started without a display"))
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(make_cfg(2)))
+    if sys.platform in ("darwin", "win32"):
+        pytest.skip("windows open without DISPLAY here")
+    assert main(["gui", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("taichi-mpm: error: gui: no ")
+    assert says in err and "Traceback" not in err
+    assert all(word in err for word in ("xvfb-run", "taichi-mpm render", "taichi-mpm compare"))
+    assert gui.display_problem({"DISPLAY": ":65000"}) == "no X server answers on DISPLAY=:65000"
