@@ -278,7 +278,7 @@ def check_resume(cfg, out_dir, old_config: dict, dim: int) -> None:
         now = spec.model_dump(mode="json")
         old = before.get(spec.name)
         if old is not None and _definition(old) != _definition(now):
-            keys = sorted(set(_definition(old)) | set(_definition(now)))
+            keys = ["type"] + sorted(set(_definition(old)) | set(_definition(now)))   # a changed type first
             k = next(k for k in keys if _definition(old).get(k) != _definition(now).get(k))
             raise ConfigError(f"--resume: {path} holds {n} rows of the probe '{spec.name}' as it was "
                               f"({k}: {old.get(k)!r}); it is now {k}: {now.get(k)!r}, which would drop or mix "
