@@ -217,7 +217,8 @@ class FrameRenderer:
         t0 = _time.perf_counter()
         values = field_values(particles, self.color_by, self.dim)
         path = Path(path)
-        io.ensure_folder(path.parent, parents=True)
+        if not path.parent.is_dir():   # (a folder the caller gave, even through a link, is the caller's choice)
+            io.ensure_folder(path.parent, parents=True)
         img = self.image(particles["x"], values, time, spacing=self._spacing(particles), volume=particles.get("volume"))
         _write_png(path, img)
         self.seconds += _time.perf_counter() - t0
@@ -435,7 +436,8 @@ def make_movie(frames_dir, out_path, fps: int = 20, root=None) -> Path:
     suffix = out.suffix.lower()
     if suffix not in (".gif", ".mp4", ".mov", ".mkv", ".avi"):
         raise ValueError(f"unknown movie format '{suffix}' (use .mp4 or .gif)")
-    io.ensure_folder(out.parent, parents=True)
+    if not out.parent.is_dir():
+        io.ensure_folder(out.parent, parents=True)
     with io.atomic_path(out, suffix=suffix, root=root) as tmp:   # the writers pick the format by the suffix
         if suffix == ".gif":
             images = [imageio.imread(f)[..., :3] for f in frames]

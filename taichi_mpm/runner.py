@@ -67,7 +67,7 @@ class FolderLock:
                 continue
             except OSError as e:
                 if os.path.islink(self.path) or e.errno == errno.ELOOP:
-                    raise io.FileError(f"{self.path} is a symbolic link (to {os.readlink(self.path)}): the lock file "
+                    raise io.FileError(f"{self.path} is a symbolic link (to {io._link_target(self.path)}): the lock file "
                                        f"is never opened through a link; remove it", self.path) from None
                 raise io.as_file_error(e, "create the lock file", self.path) from None
             if not stat.S_ISREG(os.fstat(fd).st_mode):

@@ -336,8 +336,8 @@ def test_file_size_limit_mid_run_and_on_resume_is_exit_4(tmp_path):
 
 
 def test_a_file_where_a_folder_goes_is_exit_4_before_anything_runs(finished, tmp_path, capsys):
-    """Before: FileExistsError / NotADirectoryError tracebacks from `run` (frames, probes, the output folder itself)
-    and from `render` (frames)."""
+    """Before: FileExistsError / NotADirectoryError tracebacks from `run` (frames, probes, the output folder itself),
+    `render` (frames) and `plot` (plots)."""
     path = scene(tmp_path, formats=("vtu", "png"), render=dict(size=[64, 48]))
     for name in ("frames", "probes"):
         out = tmp_path / f"out_{name}"
@@ -355,6 +355,10 @@ def test_a_file_where_a_folder_goes_is_exit_4_before_anything_runs(finished, tmp
     code, err = run(capsys, "render", out)
     assert code == EXIT_IO and f"{out / 'frames'} is a file, not a folder" in err, err
     assert (out / "frames").read_text() == "mine"
+    (out / "plots").write_text("mine")                                  # and `plot`
+    code, err = run(capsys, "plot", out)
+    assert code == EXIT_IO and f"{out / 'plots'} is a file, not a folder" in err, err
+    assert (out / "plots").read_text() == "mine"
 
 
 @pytest.mark.parametrize("content,words", [
