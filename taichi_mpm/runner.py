@@ -195,9 +195,9 @@ class Run:
             except ValueError as e:
                 raise ConfigError(str(e), key="output.render.size") from None
         try:
-            if os.path.lexists(self.out_dir) and not self.out_dir.is_dir():
-                raise io.FileError(f"{self.out_dir} is a file, not a folder: give the run another output folder "
-                                   f"(--out DIR or output.dir)", self.out_dir)
+            if os.path.lexists(self.out_dir) and not self.out_dir.is_dir():  # what the user gave: an input error
+                raise ConfigError(f"{self.out_dir} is a file, not a folder: give the run another output folder "
+                                  f"(--out DIR or output.dir)", key="output.dir")
             self.out_dir.mkdir(parents=True, exist_ok=True)
         except ValueError as e:  # a NUL character in --out or output.dir
             raise ConfigError(f"cannot use {str(self.out_dir)!r} as the output folder: {e}", key="output.dir") from None

@@ -346,9 +346,9 @@ def test_a_file_where_a_folder_goes_is_exit_4_before_anything_runs(finished, tmp
         code, err = run(capsys, "run", path, "--quiet", "--out", out)
         assert code == EXIT_IO and f"{out / name} is a file, not a folder" in err, err
         assert (out / name).read_text() == "mine" and not (out / "checkpoint.npz").exists()
-    (tmp_path / "plain").write_text("mine")
+    (tmp_path / "plain").write_text("mine")                            # --out itself: an input error, as before
     code, err = run(capsys, "run", path, "--quiet", "--out", tmp_path / "plain")
-    assert code == EXIT_IO and "is a file, not a folder" in err
+    assert code == 2 and "is a file, not a folder" in err and "output.dir" in err
     _, out = copy_of(finished, tmp_path)
     shutil.rmtree(out / "frames")
     (out / "frames").write_text("mine")
