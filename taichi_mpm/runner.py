@@ -70,10 +70,12 @@ class FolderLock:
                     raise io.FileError(f"{self.path} is a symbolic link (to {io._link_target(self.path)}): the lock file "
                                        f"is never opened through a link; remove it", self.path) from None
                 raise io.as_file_error(e, "create the lock file", self.path) from None
-            if not stat.S_ISREG(os.fstat(fd).st_mode):
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode) or st.st_nlink > 1:   # a hard link's other names are not the run's
                 os.close(fd)
-                raise io.FileError(f"{self.path} is not a regular file: remove it (it is the run's lock file)",
-                                   self.path)
+                what = "not a regular file" if not stat.S_ISREG(st.st_mode) else "a file with other (hard) links"
+                raise io.FileError(f"{self.path} is {what}: remove it (it is the run's lock file, which is "
+                                   f"truncated and written)", self.path)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:

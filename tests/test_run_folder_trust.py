@@ -174,6 +174,11 @@ def test_io_helpers_replace_links_instead_of_following_them(tmp_path):
     (run_dir / LOCK_NAME).symlink_to(outside.file)
     with pytest.raises(io.FileError, match="symbolic link"):
         FolderLock(run_dir)
+    (run_dir / LOCK_NAME).unlink()
+    os.link(outside.file, run_dir / LOCK_NAME)                     # a hard link: the lock would truncate the file
+    with pytest.raises(io.FileError, match="other \\(hard\\) links"):
+        FolderLock(run_dir)
+    (run_dir / LOCK_NAME).unlink()
     fifo = run_dir / "probes.fifo"
     if hasattr(os, "mkfifo"):
         os.mkfifo(fifo)
