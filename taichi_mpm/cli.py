@@ -15,7 +15,9 @@
                     [--jobs N] [--out DIR] [--resume | --overwrite] [--allow-problem MODULE:FACTORY]...
 
 Exit codes: 0 success; 2 invalid input (one message on stderr, no traceback); 3 numerical
-instability (the last good state is kept as checkpoint.npz); 130 stopped by Ctrl-C (checkpoint kept).
+instability (the last good state is kept as checkpoint.npz); 4 a file could not be read or written (disk full,
+file-size limit, permission, a link or a file in the way; one line naming it; the last checkpoint stays valid);
+130 stopped by Ctrl-C, 143 by SIGTERM (checkpoint kept).
 """
 from __future__ import annotations
 
@@ -33,6 +35,7 @@ from .config import ConfigError, load_config, locate, parse_overrides  # noqa: E
 from .errors import InstabilityError  # noqa: E402
 
 EXIT_OK, EXIT_FAILURE, EXIT_INPUT, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EXIT_IO = 4  # an operating-system error reading or writing a file (docs/contract.md, exit codes)
 
 
 def configs_dir() -> Path:
@@ -312,10 +315,7 @@ def _run(cfg, args) -> int:
     # ti.init prints "[Taichi] Starting on arch=..." to stdout: keep stdout clean
     with contextlib.redirect_stdout(StringIO() if args.quiet else sys.stderr):
         sim = Simulation(cfg)
-    try:
-        run = Run(sim, args.out, resume=args.resume, overwrite=args.overwrite)
-    except OSError as e:  # an output directory that cannot be created or written
-        raise _InputError(f"cannot write the outputs: {e}") from None
+    run = Run(sim, args.out, resume=args.resume, overwrite=args.overwrite)  # an OSError: main's exit 4
     if args.resume and run.done:
         if not args.quiet:
             print(f"nothing to do: {run.out_dir} is already at t={sim.time:g} = solver.end_time", file=sys.stderr)
@@ -328,8 +328,16 @@ def _run(cfg, args) -> int:
             with _ProgressBar(sim, run) as bar:
                 run.execute(on_step=lambda s: (clock(s), bar.update(s)))
     except Interrupted as e:
-        _err(f"interrupted: {e}")
-        return EXIT_INTERRUPTED
+        _err(f"interrupted: {e}" if e.signal_name == "SIGINT" else f"stopped by {e.signal_name}: {e}")
+        return 128 + e.signum   # 130 for Ctrl-C, 143 for SIGTERM
+    except OSError as e:  # disk full, file-size limit, ...: the checkpoint is only ever replaced by a complete one
+        from .io import describe
+
+        t = run.checkpoint_time
+        kept = (f"the last checkpoint (t={t:.6g}) is {run.out_dir / io.CHECKPOINT_NAME}: fix the cause and continue "
+                f"with --resume" if t is not None else "no checkpoint was written")
+        _err(f"{describe(e)}; {kept}")
+        return EXIT_IO
     except InstabilityError as e:
         where = run.out_dir / "checkpoint.npz"
         kept = f"the last good state (t={run.last_time:.6g}) is in {where}" if run.last_time is not None else ""
@@ -505,6 +513,16 @@ def main(argv=None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # so that the interpreter's final flush does not fail again
         return EXIT_OK
+    except OSError as e:  # disk full, file-size limit, permission, a link or a file in the way: one line, exit 4
+        from .io import FileError
+
+        if isinstance(e, FileError):
+            _err(e.message)
+        elif e.filename is not None:
+            _err(f"cannot access {e.filename}: {e.strerror or e}")
+        else:
+            _err(f"operating-system error: {e.strerror or e}")
+        return EXIT_IO
 
 
 if __name__ == "__main__":

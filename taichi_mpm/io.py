@@ -4,12 +4,24 @@ diagnostics.csv, checkpoint.npz and the resolved config.yaml.
 Reads solver state only through the public Simulation API (particles(), energy(), momentum(),
 max_speed(), cfl_number(), get_state()). Every file is written to a temporary name first and then
 renamed, so a run stopped at any moment leaves complete files behind.
+
+The file-system helpers below are the only way the run folder is written or cleaned (runner, probes, plots,
+render): `atomic_write` / `atomic_path` (a temporary created exclusively, never through a link, then renamed over
+the real name, which replaces a link there instead of following it), `ensure_folder` (a real folder, never a link
+or a file), `remove_file` (unlinks a name, never what a link points to), `files_in` (a real folder's entries) and
+`refuse_links` (a run folder with a symbolic link or a special file at a name the run uses is refused before
+anything is written). Every operating-system failure of a write is a `FileError` naming the file and the cause
+(disk full, file-size limit, permission, something in the way): the CLI's exit code 4.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
+import errno
+import fnmatch
 import json
 import os
+import stat
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -28,11 +40,263 @@ ALWAYS = registry.ALWAYS  # written to every VTU ("damage" when present)
 von_mises = registry.von_mises
 
 
-# ---------------------------------------------------------------- helpers
-def _atomic(path: Path):
-    """A temporary sibling of `path`; call os.replace(tmp, path) when it is complete."""
+# ---------------------------------------------------------------- the file system
+class FileError(OSError):
+    """A file or folder that cannot be read or written: an operating-system error (disk full, file-size limit,
+    permission) or something in the way (a symbolic link or a special file in a run folder, a file where a folder
+    goes). The message names the path and the cause; the CLI prints it on one line and exits 4."""
+
+    def __init__(self, message: str, path=None, cause: int | None = None):
+        super().__init__(message)
+        self.message, self.filename, self.cause = message, None if path is None else str(path), cause
+
+    def __str__(self):
+        return self.message
+
+
+def describe(e: OSError, verb: str = "write", path=None) -> str:
+    """One line for an OSError: 'cannot write PATH: No space left on device'."""
+    if isinstance(e, FileError):
+        return e.message
+    where = path if path is not None else (e.filename if e.filename is not None else None)
+    why = e.strerror or str(e) or type(e).__name__
+    if e.errno == errno.EFBIG:
+        why += " (the file-size limit, ulimit -f)"
+    return f"cannot {verb} {where}: {why}" if where is not None else f"cannot {verb}: {why}"
+
+
+def as_file_error(e: OSError, verb: str = "write", path=None) -> FileError:
+    return e if isinstance(e, FileError) else FileError(describe(e, verb, path), path or e.filename, e.errno)
+
+
+_TMP = "{name}.tmp{pid}"   # ".NAME.tmpPID[.SUFFIX]": the only names the run folder's clean-up removes
+
+
+def temporary_name(path: Path, suffix: str = "") -> Path:
+    """The temporary sibling of `path` that this process writes before renaming it over `path`."""
     path = Path(path)
-    return path.with_name(f".{path.name}.tmp{os.getpid()}")
+    return path.with_name("." + _TMP.format(name=path.name, pid=os.getpid()) + suffix)
+
+
+def _link_target(path: Path) -> str:
+    try:
+        return os.readlink(path)
+    except OSError:
+        return "?"
+
+
+def _check_folders(path: Path, root) -> None:
+    """Every folder between `root` (a run folder, which may itself be or lie under a link the user made) and
+    `path` must be a real folder: a link there would take the write outside the run folder."""
+    if root is None:
+        return
+    root, parent = Path(root), Path(path).parent
+    try:
+        rel = parent.relative_to(root)
+    except ValueError:
+        return
+    cur = root
+    for part in rel.parts:
+        cur = cur / part
+        if os.path.islink(cur):
+            raise FileError(f"{cur} is a symbolic link (to {_link_target(cur)}): nothing is written or deleted "
+                            f"through links in a run folder; remove the link", cur)
+
+
+def _create_exclusive(tmp: Path) -> int:
+    """A new file at `tmp`, never through a link (O_EXCL | O_NOFOLLOW); a leftover of that name (a dead process
+    with this pid, or a planted link) is removed first: unlink removes a link, not what it points to."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        return os.open(tmp, flags, 0o644)
+    except FileExistsError:
+        os.unlink(tmp)
+        return os.open(tmp, flags, 0o644)
+
+
+@contextlib.contextmanager
+def atomic_path(path, suffix: str = "", root=None, verb: str = "write"):
+    """A fresh temporary path beside `path` for a writer that opens files by name (meshio, imageio, matplotlib);
+    on success it is renamed over `path` (a link at `path` is replaced, not followed); on failure it is removed and
+    `path` keeps its old content. An OSError becomes a FileError naming `path`."""
+    path = Path(path)
+    tmp = temporary_name(path, suffix)
+    try:
+        _check_folders(path, root)
+        os.close(_create_exclusive(tmp))
+        yield tmp
+        if os.path.islink(tmp) or not os.path.isfile(tmp):  # replaced behind our back
+            raise FileError(f"cannot write {path}: its temporary file {tmp} was replaced while it was written", path)
+        os.replace(tmp, path)
+    except BaseException as e:
+        with contextlib.suppress(OSError):
+            if os.path.lexists(tmp) and not os.path.isdir(tmp):
+                os.unlink(tmp)
+        if isinstance(e, OSError):
+            raise as_file_error(e, verb, path) from None
+        raise
+
+
+@contextlib.contextmanager
+def atomic_write(path, mode: str = "wb", root=None, fsync: bool = False, newline=None, keep_open: bool = False):
+    """An open file at a fresh temporary name beside `path` (created exclusively, never through a link); when the
+    block ends it is flushed (and fsync'ed with `fsync`) and renamed over `path`. With keep_open the file stays open
+    for appending after the rename (the caller closes it). OSError -> FileError naming `path`; `path` then keeps
+    its old content and the temporary is removed."""
+    path = Path(path)
+    tmp = temporary_name(path)
+    f = None
+    try:
+        _check_folders(path, root)
+        fd = _create_exclusive(tmp)
+        f = os.fdopen(fd, mode, newline=newline) if "b" not in mode else os.fdopen(fd, mode)
+        yield f
+        f.flush()
+        if fsync:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+        if not keep_open:
+            f.close()
+    except BaseException as e:
+        if f is not None:
+            with contextlib.suppress(OSError):
+                f.close()
+        with contextlib.suppress(OSError):
+            if os.path.lexists(tmp) and not os.path.isdir(tmp):
+                os.unlink(tmp)
+        if isinstance(e, OSError):
+            raise as_file_error(e, "write", path) from None
+        raise
+
+
+def open_append(path):
+    """`path` opened for appending, never through a link (O_NOFOLLOW)."""
+    flags = os.O_WRONLY | os.O_APPEND | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        return os.fdopen(os.open(path, flags), "a", newline="")
+    except OSError as e:
+        if os.path.islink(path):
+            raise FileError(f"{path} is a symbolic link (to {_link_target(Path(path))}): nothing is written "
+                            f"through links in a run folder; remove the link", path) from None
+        raise as_file_error(e, "write", path) from None
+
+
+def read_regular(path, newline: str | None = "") -> str:
+    """The text of a regular file, never read through a link or from a FIFO (which would block)."""
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as e:
+        if os.path.islink(path):
+            raise FileError(f"{path} is a symbolic link (to {_link_target(Path(path))}): nothing is read "
+                            f"through links in a run folder; remove the link", path) from None
+        raise as_file_error(e, "read", path) from None
+    with os.fdopen(fd, "r", newline=newline, errors="replace") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise FileError(f"cannot read {path}: not a regular file", path)
+        try:
+            return f.read()
+        except OSError as e:
+            raise as_file_error(e, "read", path) from None
+
+
+def ensure_folder(path, root=None, parents: bool = False) -> Path:
+    """`path` as a real folder (created when missing, with its parents if `parents`): a link or a file in its
+    place is a FileError."""
+    path = Path(path)
+    _check_folders(path, root)
+    if os.path.islink(path):
+        raise FileError(f"{path} is a symbolic link (to {_link_target(path)}): nothing is written or deleted "
+                        f"through links in a run folder; remove the link", path)
+    if os.path.lexists(path) and not path.is_dir():
+        raise FileError(f"{path} is a file, not a folder: remove or rename it (the outputs go into a folder of "
+                        f"that name)", path)
+    try:
+        path.mkdir(exist_ok=True, parents=parents)
+    except FileExistsError:  # a file in place of one of the parents
+        raise FileError(f"cannot create the folder {path}: a file is in the way", path) from None
+    except OSError as e:
+        raise as_file_error(e, "create the folder", path) from None
+    return path
+
+
+def files_in(folder, pattern: str = "*", root=None) -> list[Path]:
+    """Entries of a real folder whose names match `pattern`, in name order (none when the folder is missing);
+    a link in the folder's place is a FileError (its entries are somebody else's)."""
+    folder = Path(folder)
+    _check_folders(folder / "x", root)
+    if os.path.islink(folder):
+        raise FileError(f"{folder} is a symbolic link (to {_link_target(folder)}): nothing is written or deleted "
+                        f"through links in a run folder; remove the link", folder)
+    if not folder.is_dir():
+        return []
+    with os.scandir(folder) as it:
+        return sorted(Path(e.path) for e in it if fnmatch.fnmatchcase(e.name, pattern))
+
+
+def remove_file(path, root=None) -> None:
+    """Remove a file of the run folder: a link is removed itself, never what it points to; a folder is left."""
+    path = Path(path)
+    _check_folders(path, root)
+    try:
+        if os.path.isdir(path) and not os.path.islink(path):
+            return
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+    except OSError as e:
+        raise as_file_error(e, "remove", path) from None
+
+
+# names a run, `plot` and `render` write, read or remove at the top of a run folder, and the folders whose every
+# entry is theirs
+RUN_NAMES = ("run.lock", "config.yaml", "checkpoint.npz", "particles.pvd", "diagnostics.csv", "particles_*.vtu",
+             "particles_*.npz", "movie.*", ".*.tmp*")
+RUN_FOLDERS = ("probes", "frames", "plots")
+
+
+def unsafe_entries(run_dir) -> list[tuple[Path, str]]:
+    """(path, what) for each symbolic link or special file (FIFO, socket, device) at a name of RUN_NAMES, at one of
+    RUN_FOLDERS or inside one of them."""
+    run_dir = Path(run_dir)
+    found = []
+
+    def look(entry, path):
+        if entry.is_symlink():
+            found.append((path, f"a symbolic link (to {_link_target(path)})"))
+            return False
+        mode = entry.stat(follow_symlinks=False).st_mode
+        if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+            found.append((path, "not a regular file"))
+            return False
+        return True
+
+    if not run_dir.is_dir():
+        return found
+    with os.scandir(run_dir) as it:
+        top = sorted(it, key=lambda e: e.name)
+    for e in top:
+        path = run_dir / e.name
+        if e.name in RUN_FOLDERS:
+            if look(e, path) and e.is_dir(follow_symlinks=False):
+                with os.scandir(path) as inner:
+                    for i in sorted(inner, key=lambda x: x.name):
+                        look(i, path / i.name)
+        elif any(fnmatch.fnmatchcase(e.name, p) for p in RUN_NAMES):
+            look(e, path)
+    return found
+
+
+def refuse_links(run_dir) -> None:
+    """FileError when the run folder holds a link or a special file where a run writes, reads or deletes: nothing
+    is written, read or deleted through one (it could point outside the run folder)."""
+    bad = unsafe_entries(run_dir)
+    if bad:
+        path, what = bad[0]
+        more = f" (and {len(bad) - 1} more such entr{'y' if len(bad) == 2 else 'ies'})" if len(bad) > 1 else ""
+        raise FileError(f"{path} is {what}{more}: taichi-mpm writes, reads and deletes only regular files and "
+                        f"folders in a run folder, never through links; remove it", path)
+
 
 
 def _pad3(a: np.ndarray) -> np.ndarray:
@@ -81,9 +345,8 @@ def write_vtu(path, p: dict, fields=()):
     n = len(p["x"])
     mesh = meshio.Mesh(_pad3(p["x"]), [("vertex", np.arange(n, dtype=np.int64).reshape(n, 1))],
                        point_data=point_data(p, fields))
-    tmp = _atomic(path)
-    meshio.write(tmp, mesh, file_format="vtu", binary=True)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        meshio.write(tmp, mesh, file_format="vtu", binary=True)
 
 
 def read_vtu(path, dim: int | None = None) -> dict:
@@ -117,10 +380,8 @@ def write_npz(path, p: dict, fields=()):
         if name in ("velocity", "stress") or not registry.available(p, name):
             continue
         arrays[name] = np.asarray(p[name]) if name in ("F", "C") else np.asarray(registry.values(p, name))
-    tmp = _atomic(path)
-    with open(tmp, "wb") as f:
+    with atomic_write(path) as f:
         np.savez(f, **arrays)
-    os.replace(tmp, path)
 
 
 # ---------------------------------------------------------------- PVD series
@@ -132,9 +393,8 @@ def write_pvd(path, entries):
     for time, name in entries:
         ET.SubElement(coll, "DataSet", timestep=repr(float(time)), group="", part="0", file=str(name))
     ET.indent(root)
-    tmp = _atomic(path)
-    ET.ElementTree(root).write(tmp, encoding="utf-8", xml_declaration=True)
-    os.replace(tmp, path)
+    with atomic_write(path) as f:
+        ET.ElementTree(root).write(f, encoding="utf-8", xml_declaration=True)
 
 
 def read_pvd(path) -> list[tuple[float, str]]:
@@ -185,25 +445,60 @@ class Diagnostics:
     def __init__(self, path, dim: int, keep: int | None = None):
         self.path, self.columns = Path(path), diagnostics_columns(dim)
         rows = []
-        if keep and self.path.is_file():
-            with open(self.path, newline="") as f:
-                rows = list(csv.reader(f))[1: 1 + keep]
-        tmp = _atomic(self.path)
-        with open(tmp, "w", newline="") as f:
+        if keep and os.path.lexists(self.path):
+            rows = list(csv.reader(read_regular(self.path).splitlines()))[1: 1 + keep]
+        with atomic_write(self.path, "w", newline="") as f:
             w = csv.writer(f)
             w.writerow(self.columns)
             w.writerows(rows)
-        os.replace(tmp, self.path)
 
     def append(self, row: dict):
-        with open(self.path, "a", newline="") as f:
-            csv.writer(f).writerow([repr(float(row[c])) if c != "step" else int(row[c]) for c in self.columns])
+        line = [repr(float(row[c])) if c != "step" else int(row[c]) for c in self.columns]
+        with open_append(self.path) as f:
+            try:
+                csv.writer(f).writerow(line)
+                f.flush()
+            except OSError as e:
+                raise as_file_error(e, "write", self.path) from None
+
+
+def read_csv_columns(path, required=(), what: str = "CSV file") -> dict[str, np.ndarray]:
+    """A CSV of numbers with one header line as {column: values}. An empty file, a missing header or required
+    column, a row of the wrong length or a value that is not a number is a ValueError naming the file, the row
+    (line number) and the column; an unreadable file is a FileError. Empty trailing lines are ignored."""
+    text = read_regular(path)
+    try:
+        rows = list(csv.reader(text.splitlines()))
+    except csv.Error as e:  # a NUL byte, ...: not a CSV file
+        raise ValueError(f"{path} is not a {what} ({e})") from None
+    while rows and not rows[-1]:
+        rows.pop()
+    if not rows or not any(h.strip() for h in rows[0]):
+        raise ValueError(f"{path} is empty: no header line (a {what} starts with its column names)")
+    header = rows[0]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise ValueError(f"{path} is not a {what}: its header has no column {missing[0]!r} "
+                         f"(it has: {', '.join(header[:8])}{', ...' if len(header) > 8 else ''})")
+    if len(set(header)) != len(header):
+        raise ValueError(f"{path}: the header names a column twice")
+    out = {h: np.empty(len(rows) - 1) for h in header}
+    for i, r in enumerate(rows[1:]):
+        line = i + 2
+        if len(r) != len(header):
+            raise ValueError(f"{path}, line {line}: {len(r)} values, the header has {len(header)} columns (a "
+                             f"truncated or edited file)")
+        for h, v in zip(header, r):
+            try:
+                out[h][i] = float(v)
+            except ValueError:
+                raise ValueError(f"{path}, line {line}, column {h!r}: {v[:40]!r} is not a number") from None
+    return out
 
 
 def read_diagnostics(path) -> dict[str, np.ndarray]:
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    return {k: np.array([float(r[k]) for r in rows]) for k in (rows[0] if rows else [])}
+    """diagnostics.csv as {column: values}; a malformed file is a ValueError naming the file and the line."""
+    return read_csv_columns(path, required=("time",), what="diagnostics file")
 
 
 # ---------------------------------------------------------------- checkpoint and config
@@ -212,10 +507,8 @@ def save_checkpoint(path, state: dict, meta: dict | None = None):
     path = Path(path)
     arrays = {k: np.asarray(v) for k, v in state.items()}
     arrays["__meta__"] = np.array(json.dumps(meta or {}))
-    tmp = _atomic(path)
-    with open(tmp, "wb") as f:
+    with atomic_write(path, fsync=True) as f:   # the state a --resume needs: on disk before it replaces the last
         np.savez(f, **arrays)
-    os.replace(tmp, path)
 
 
 def load_checkpoint(path) -> tuple[dict, dict]:
@@ -257,7 +550,6 @@ def config_dict(cfg) -> dict:
 
 
 def write_config(path, cfg):
-    path = Path(path)
-    tmp = _atomic(path)
-    tmp.write_text(yaml.safe_dump(config_dict(cfg), sort_keys=False, default_flow_style=None))
-    os.replace(tmp, path)
+    text = yaml.safe_dump(config_dict(cfg), sort_keys=False, default_flow_style=None)
+    with atomic_write(path, "w") as f:
+        f.write(text)

@@ -2,6 +2,10 @@
 
 One figure per probe (one panel per quantity group: position, displacement, velocity, stress, kinetic energy,
 force) in RUN_DIR/plots/probe_NAME.png, and RUN_DIR/plots/energy.png. Headless (matplotlib's Agg backend).
+
+An empty or malformed CSV is a ValueError naming the file and the line (the CLI's exit 2), found before any plot
+is drawn; plots are written to a temporary file and renamed (io.atomic_path), and a run folder with a link where
+`plot` reads or writes is refused (io.refuse_links, io.FileError: exit 4).
 """
 from __future__ import annotations
 
@@ -24,9 +28,14 @@ def pyplot():
     return plt
 
 
-def plot_probe(csv_path, png_path) -> Path:
+def _save(fig, png_path, root=None):
+    with io.atomic_path(png_path, root=root) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+
+
+def plot_probe(csv_path, png_path, data=None, root=None) -> Path:
     plt = pyplot()
-    data = read_probe(csv_path)
+    data = dict(read_probe(csv_path) if data is None else data)
     t = data.pop("time [s]")
     data.pop("step", None)
     groups = [(title, [c for c in data if re.match(pat, c)]) for title, pat in GROUPS]
@@ -41,14 +50,16 @@ def plot_probe(csv_path, png_path) -> Path:
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(f"probe {Path(csv_path).stem}")
     fig.tight_layout()
-    fig.savefig(png_path, dpi=100)
-    plt.close(fig)
+    try:
+        _save(fig, png_path, root)
+    finally:
+        plt.close(fig)
     return Path(png_path)
 
 
-def plot_energy(csv_path, png_path) -> Path:
+def plot_energy(csv_path, png_path, data=None, root=None) -> Path:
     plt = pyplot()
-    d = io.read_diagnostics(csv_path)
+    d = io.read_diagnostics(csv_path) if data is None else data
     fig, ax = plt.subplots(figsize=(7, 3.5))
     for c in ("kinetic", "strain", "gravity", "total"):
         if c in d:
@@ -58,8 +69,10 @@ def plot_energy(csv_path, png_path) -> Path:
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(png_path, dpi=100)
-    plt.close(fig)
+    try:
+        _save(fig, png_path, root)
+    finally:
+        plt.close(fig)
     return Path(png_path)
 
 
@@ -68,21 +81,27 @@ def plot_run(run_dir, probe: str | None = None, out=None) -> list[Path]:
     single plot (only with `probe`, or in a run with just one plot); default RUN_DIR/plots/. FileNotFoundError
     when there is nothing to plot."""
     run_dir = Path(run_dir)
-    csvs = sorted((run_dir / PROBES_DIR).glob("*.csv"))
+    io.refuse_links(run_dir)
+    every = [c for c in io.files_in(run_dir / PROBES_DIR, "*.csv", root=run_dir) if not c.is_dir()]
+    csvs = every
     if probe is not None:
         csvs = [c for c in csvs if c.stem == probe]
         if not csvs:
-            known = ", ".join(c.stem for c in sorted((run_dir / PROBES_DIR).glob("*.csv"))) or "none"
+            known = ", ".join(c.stem for c in every) or "none"
             raise FileNotFoundError(f"no probe '{probe}' in {run_dir} (probes: {known})")
-    jobs = [(plot_probe, c, f"probe_{c.stem}.png") for c in csvs]
+    jobs = [(plot_probe, c, f"probe_{c.stem}.png", read_probe) for c in csvs]
     diag = run_dir / io.DIAGNOSTICS_NAME
     if probe is None and diag.is_file():
-        jobs.append((plot_energy, diag, "energy.png"))
+        jobs.append((plot_energy, diag, "energy.png", io.read_diagnostics))
     if not jobs:
         raise FileNotFoundError(f"nothing to plot in {run_dir}: no {PROBES_DIR}/*.csv and no {io.DIAGNOSTICS_NAME}")
     if out is not None and len(jobs) > 1:
         raise ValueError(f"--out names one file, but there are {len(jobs)} plots: add --probe NAME")
-    plots = run_dir / "plots"
-    if out is None:
-        plots.mkdir(exist_ok=True)
-    return [fn(src, Path(out) if out is not None else plots / name) for fn, src, name in jobs]
+    data = [read(src) for _, src, _, read in jobs]   # every file checked before any plot is drawn
+    for (_, src, _, _), d in zip(jobs, data):
+        if not any(len(v) for v in d.values()):
+            raise ValueError(f"{src} holds no rows (only its header): nothing to plot")
+    if out is not None:
+        return [jobs[0][0](jobs[0][1], Path(out), data[0])]
+    plots = io.ensure_folder(run_dir / "plots", root=run_dir)
+    return [fn(src, plots / name, d, root=run_dir) for (fn, src, name, _), d in zip(jobs, data)]

@@ -19,7 +19,10 @@ the momentum change to round-off.
 
 Sampling (`output.probe_every`): null samples at every output, a number every that many seconds (at the first
 step on or after each multiple), `step` after every step; t = 0 is always sampled. Each row is flushed, so the
-files are complete up to a stop or a failure; `--resume` keeps the rows up to the checkpoint's time.
+files are complete up to a stop or a failure; `--resume` keeps the rows up to the checkpoint's time. A probe whose
+file holds rows must be resumed with the definition that wrote them (`check_resume`): a changed type, point, body,
+region, face or grip would drop or mix its rows, so `--resume` refuses it (exit 2) before writing anything; give the
+changed probe a new name. Files are written through io's helpers (never through a link in the run folder).
 
 No physics here: everything comes from the Simulation's public state (particles(), scene, wall_impulse()).
 """
@@ -27,10 +30,12 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
+from . import io
 from .config import ConfigError
 from .scene import inside
 
@@ -163,19 +168,20 @@ class Probes:
     def __init__(self, sim, out_dir, resume: bool = False):
         out = sim.cfg.output
         self.every = out.probe_every
-        self.dir = Path(out_dir) / PROBES_DIR
+        self.root = Path(out_dir)
+        self.dir = self.root / PROBES_DIR
         self.probes = []
         for i, spec in enumerate(out.probes):
             self.probes.append((spec.name, KINDS[spec.type](spec, sim, f"output.probes.{i}")))
-        if not resume and self.dir.is_dir():
-            for f in self.dir.glob("*.csv"):  # an earlier run's probes
-                f.unlink()
+        if not resume:
+            for f in io.files_in(self.dir, "*.csv", root=self.root):  # an earlier run's probes (a link: itself)
+                io.remove_file(f, root=self.root)
         self._files = {}
         if self.probes:
-            self.dir.mkdir(parents=True, exist_ok=True)
+            io.ensure_folder(self.dir, root=self.root)
         for name, probe in self.probes:
             self._files[name] = self._open(self.dir / f"{name}.csv", ["time [s]", "step"] + probe.columns,
-                                           sim.time if resume else None)
+                                           sim.time if resume else None, self.root)
         self._particles = any(p.needs_particles for _, p in self.probes)
         self._walls = any(type(p) is WallProbe for _, p in self.probes)
         self._grips = any(isinstance(p, GripProbe) for _, p in self.probes)
@@ -184,19 +190,19 @@ class Probes:
         self._next = self._next_time(sim.time)
 
     @staticmethod
-    def _open(path: Path, header: list[str], keep_until):
-        """A fresh file with its header, or (resuming) the old rows up to the checkpoint's time."""
+    def _open(path: Path, header: list[str], keep_until, root=None):
+        """A fresh file with its header, or (resuming) the old rows up to the checkpoint's time: written to a
+        temporary file and renamed over the old one (a link there is replaced, never followed), then kept open
+        for the rows to come. check_resume has made sure that a file with rows has this header."""
         rows = []
-        if keep_until is not None and path.is_file():
-            with open(path, newline="") as f:
-                old = list(csv.reader(f))
+        if keep_until is not None and os.path.lexists(path):
+            old = list(csv.reader(io.read_regular(path).splitlines()))
             if old and old[0] == header:
-                rows = [r for r in old[1:] if r and float(r[0]) <= keep_until * (1 + 1e-12)]
-        f = open(path, "w", newline="")
-        w = csv.writer(f)
-        w.writerow(header)
-        w.writerows(rows)
-        f.flush()
+                rows = [r for r in old[1:] if len(r) == len(header) and _time(r[0]) <= keep_until * (1 + 1e-12)]
+        with io.atomic_write(path, "w", root=root, newline="", keep_open=True) as f:
+            w = csv.writer(f)
+            w.writerow(header)
+            w.writerows(rows)
         return f
 
     def _next_time(self, t: float) -> float:
@@ -224,19 +230,69 @@ class Probes:
         for name, probe in self.probes:
             values = probe.row(p, sim, grip_impulse if isinstance(probe, GripProbe) else impulse, elapsed)
             f = self._files[name]
-            csv.writer(f).writerow([repr(float(sim.time)), sim.n_steps] + [repr(float(v)) for v in values])
-            f.flush()
+            try:
+                csv.writer(f).writerow([repr(float(sim.time)), sim.n_steps] + [repr(float(v)) for v in values])
+                f.flush()
+            except OSError as e:  # disk full, file-size limit: the rows up to the checkpoint are kept for --resume
+                raise io.as_file_error(e, "write", self.dir / f"{name}.csv") from None
         self._since, self._last_step = sim.velocity_time, sim.n_steps
         self._next = self._next_time(sim.time)
 
     def close(self):
         for f in self._files.values():
-            f.close()
+            try:
+                f.close()
+            except OSError:  # a failed flush was reported when the row was written
+                pass
         self._files = {}
 
 
+def _time(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return math.inf   # not a time: not kept
+
+
+def _definition(spec: dict) -> dict:
+    """A probe's definition without its name (what decides which rows it writes), unset keys left out."""
+    return {k: v for k, v in spec.items() if k != "name" and v is not None}
+
+
+def check_resume(cfg, out_dir, old_config: dict, dim: int) -> None:
+    """Before a --resume writes anything: a probe whose file already holds rows must be the probe that wrote them.
+    A changed definition (type, point, body, region, face, grip) would drop its rows (another header) or mix two
+    quantities in one file (the same header): a ConfigError naming the probe, what changed and the file. A file
+    whose header is not this probe's (edited, or from another tool) is refused as well, never emptied."""
+    out_dir = Path(out_dir)
+    old_probes = ((old_config or {}).get("output") or {}).get("probes") or []
+    before = {p.get("name"): p for p in old_probes if isinstance(p, dict)}
+    for i, spec in enumerate(cfg.output.probes):
+        path = out_dir / PROBES_DIR / f"{spec.name}.csv"
+        if not os.path.lexists(path):
+            continue
+        rows = [r for r in csv.reader(io.read_regular(path).splitlines())]
+        n = sum(1 for r in rows[1:] if r)
+        if n == 0:
+            continue   # nothing to lose
+        now = spec.model_dump(mode="json")
+        old = before.get(spec.name)
+        if old is not None and _definition(old) != _definition(now):
+            keys = ["type"] + sorted(set(_definition(old)) | set(_definition(now)))   # a changed type first
+            k = next(k for k in keys if _definition(old).get(k) != _definition(now).get(k))
+            raise ConfigError(f"--resume: {path} holds {n} rows of the probe '{spec.name}' as it was "
+                              f"({k}: {old.get(k)!r}); it is now {k}: {now.get(k)!r}, which would drop or mix "
+                              f"those rows. Keep its definition to resume, or give the changed probe a new name "
+                              f"(the old file stays as it is)", key=f"output.probes.{i}.{k}")
+        header = ["time [s]", "step"] + probe_columns(spec, dim)
+        if rows[0] != header:
+            raise ConfigError(f"--resume: {path} holds {n} rows under another header than the probe '{spec.name}' "
+                              f"writes ({', '.join(rows[0][:4])}, ... instead of {', '.join(header[:4])}, ...); "
+                              f"resuming would drop them: move the file aside or restore the probe's definition",
+                              key=f"output.probes.{i}")
+
+
 def read_probe(path) -> dict[str, np.ndarray]:
-    """A probe CSV as {column header: values}."""
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    return {h: np.array([float(r[i]) for r in rows[1:]]) for i, h in enumerate(rows[0])} if rows else {}
+    """A probe CSV as {column header: values}. An empty or malformed file (no header, no time column, a row of
+    the wrong length, a value that is not a number) is a ValueError naming the file and the line."""
+    return io.read_csv_columns(path, required=("time [s]",), what="probe file")

@@ -7,6 +7,12 @@ seen through an orthographic camera, 3D scenes as shaded spheres (camera `iso` b
 
 Rendering reads solver state only through the particle dict of `Simulation.particles()` or the
 saved VTU files (`render_run`); it never touches Taichi.
+
+Frames, records and movies are written through io's helpers: a temporary file renamed over the real name, never
+through a link in the run folder, a frames folder that is a file or a link refused before any frame
+(io.FileError). A frame size is checked (check_size) before VTK sees it: VTK aborts the whole process (exit 134)
+when it cannot allocate a window. A saved state with non-finite (NaN or infinite) coordinates is refused naming
+its file (ConfigError), never drawn silently.
 """
 from __future__ import annotations
 
@@ -19,10 +25,35 @@ import numpy as np
 
 from . import colour_range
 from . import fields as registry
+from . import io
 from .fields import von_mises  # noqa: F401 (the one implementation, in fields.py)
 
 from .render_options import ALIASES as _ALIASES
 from .render_options import CAMERAS, FIELDS, color_fields, options  # noqa: F401 (CAMERAS, color_fields re-exported)
+
+
+# frame sizes VTK is given: each side at most MAX_SIDE pixels and at most MAX_PIXELS in all (8192 x 8192: about
+# 1.3 GB of frame buffers and copies). Beyond, VTK's allocation fails and it aborts the process without a message.
+MAX_SIDE, MAX_PIXELS = 16384, 8192 * 8192
+
+
+def check_size(size) -> tuple[int, int]:
+    """(width, height) of a frame, checked: two whole numbers >= 1, each side <= MAX_SIDE, width x height <=
+    MAX_PIXELS; ValueError otherwise (callers turn it into an input error: exit 2)."""
+    try:
+        w, h = (int(v) for v in size)
+        if any(float(v) != int(v) for v in size):
+            raise ValueError
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"a frame size is [width, height] in whole pixels, got {size!r}") from None
+    if w < 1 or h < 1:
+        raise ValueError(f"a frame size needs width and height >= 1 pixel, got {w}x{h}")
+    if w > MAX_SIDE or h > MAX_SIDE or w * h > MAX_PIXELS:
+        raise ValueError(f"a frame of {w}x{h} pixels is too large to render (at most {MAX_SIDE} pixels a side and "
+                         f"{MAX_PIXELS:,} pixels in all, e.g. 8192x8192; the renderer would fail to allocate it)")
+    return w, h
+
+
 
 _BACKEND: dict = {}
 
@@ -138,6 +169,7 @@ class FrameRenderer:
     def __init__(self, render_cfg, dim: int, lower, upper, limits=None, bounds=None, title: str | None = None,
                  lines=None):
         o = options(render_cfg)
+        check_size(o["size"])   # before VTK: it aborts the process on a window it cannot allocate
         self.lines = lines      # 2D: polylines (M, 2) drawn under the particles (a mapped grid's cells)
         self.color_by, self.size, self.camera = o["color_by"], o["size"], o["camera"]
         self.point_size, self.cmap = o["point_size"], o["cmap"]
@@ -167,7 +199,8 @@ class FrameRenderer:
         t0 = _time.perf_counter()
         values = field_values(particles, self.color_by, self.dim)
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
+        if not path.parent.is_dir():   # (a folder the caller gave, even through a link, is the caller's choice)
+            io.ensure_folder(path.parent, parents=True)
         img = self.image(particles["x"], values, time, spacing=self._spacing(particles), volume=particles.get("volume"))
         write_png(path, img)
         self.seconds += _time.perf_counter() - t0
@@ -177,6 +210,9 @@ class FrameRenderer:
     def image(self, x, values, time: float, spacing: float | None = None, volume=None) -> np.ndarray:
         """The (H, W, 3) uint8 picture of positions x coloured by values at `time` (no file written)."""
         values = np.asarray(values, float)
+        bad = int(np.count_nonzero(~np.isfinite(np.asarray(x, float).reshape(len(x), -1)).all(axis=1))) if len(x) else 0
+        if bad:
+            raise ValueError(f"{bad} of {len(x)} particles have non-finite (NaN or infinite) coordinates: not drawn")
         clim = self.live.update(values)
         if spacing is None:
             spacing = self._spacing({"x": x})
@@ -369,37 +405,40 @@ class FrameRenderer:
             self._plotter.reset_camera_clipping_range()
 
 # ---------------------------------------------------------------- movies
-def make_movie(frames_dir, out_path, fps: int = 20) -> Path:
+def make_movie(frames_dir, out_path, fps: int = 20, root=None) -> Path:
     """Join frames_dir/frame_*.png (in name order) into an mp4 (imageio-ffmpeg, H.264) or a gif, by suffix.
-    frames_dir may also be a list of PNG paths."""
+    frames_dir may also be a list of PNG paths. The movie is written to a temporary file and renamed over out_path
+    (a link there is replaced, never followed); `root`: the run folder it belongs to (links inside refused)."""
     import imageio.v2 as imageio
 
     if isinstance(frames_dir, (list, tuple)):
         frames = [Path(f) for f in frames_dir]
     else:
-        frames = sorted(Path(frames_dir).glob("frame_*.png"))
+        frames = io.files_in(frames_dir, "frame_*.png", root=root)
     if not frames:
         raise FileNotFoundError(f"no frame_*.png in {frames_dir}")
     out = Path(out_path)
-    out.parent.mkdir(parents=True, exist_ok=True)
     suffix = out.suffix.lower()
-    if suffix == ".gif":
-        images = [imageio.imread(f)[..., :3] for f in frames]
-        imageio.mimsave(out, images, duration=1000.0 / fps, loop=0)
-        return out
-    if suffix not in (".mp4", ".mov", ".mkv", ".avi"):
+    if suffix not in (".gif", ".mp4", ".mov", ".mkv", ".avi"):
         raise ValueError(f"unknown movie format '{suffix}' (use .mp4 or .gif)")
-    writer = imageio.get_writer(out, fps=fps, codec="libx264", quality=7, macro_block_size=1,
-                                pixelformat="yuv420p", ffmpeg_log_level="error")
-    try:
-        for f in frames:
-            img = imageio.imread(f)[..., :3]
-            h, w = img.shape[:2]
-            if h % 2 or w % 2:  # yuv420p needs even sides
-                img = np.pad(img, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
-            writer.append_data(img)
-    finally:
-        writer.close()
+    if not out.parent.is_dir():
+        io.ensure_folder(out.parent, parents=True)
+    with io.atomic_path(out, suffix=suffix, root=root) as tmp:   # the writers pick the format by the suffix
+        if suffix == ".gif":
+            images = [imageio.imread(f)[..., :3] for f in frames]
+            imageio.mimsave(tmp, images, duration=1000.0 / fps, loop=0)
+            return out
+        writer = imageio.get_writer(tmp, fps=fps, codec="libx264", quality=7, macro_block_size=1,
+                                    pixelformat="yuv420p", ffmpeg_log_level="error")
+        try:
+            for f in frames:
+                img = imageio.imread(f)[..., :3]
+                h, w = img.shape[:2]
+                if h % 2 or w % 2:  # yuv420p needs even sides
+                    img = np.pad(img, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+                writer.append_data(img)
+        finally:
+            writer.close()
     return out
 
 
@@ -448,6 +487,12 @@ def read_particles(vtu_path, dim: int) -> dict:
                           f"snapshot)") from None
     if "velocity" in p:
         p["v"] = p.pop("velocity")
+    x = np.asarray(p["x"], float).reshape(len(p["x"]), -1)
+    bad = ~np.isfinite(x).all(axis=1)
+    if bad.any():
+        raise ConfigError(f"{vtu_path}: {int(bad.sum())} of {len(x)} particles have non-finite (NaN or infinite) "
+                          f"coordinates (the first: particle {int(np.argmax(bad))}); such a state cannot be drawn: "
+                          f"remove the file, or render a run whose snapshots are intact")
     return p
 
 
@@ -488,6 +533,8 @@ class FrameRecorder:
         self.color_by = options(render_cfg)["color_by"]
         if dim == 3 and options(render_cfg)["camera"] not in CAMERAS:
             raise ValueError(f"unknown camera '{options(render_cfg)['camera']}' (choose from {', '.join(CAMERAS)})")
+        check_size(options(render_cfg)["size"])
+        self.root = self.dir.parent   # the run folder: no link inside it is followed
         self.seconds = 0.0
 
     def record(self, particles: dict, time: float, index: int):
@@ -496,16 +543,14 @@ class FrameRecorder:
         n = len(particles["x"])
         vol = np.asarray(particles.get("volume", np.zeros(0)), float).reshape(-1)
         spacing = float(np.median(np.abs(vol))) ** (1.0 / self.dim) if len(vol) else float("nan")
-        self.dir.mkdir(parents=True, exist_ok=True)
+        io.ensure_folder(self.dir, root=self.root)
         path = self.dir / f".record_{index:06d}.npz"
-        tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-        with open(tmp, "wb") as f:
+        with io.atomic_write(path, root=self.root) as f:
             np.savez(f, x=np.asarray(particles["x"], np.float32).reshape(n, -1), values=values.astype(np.float32),
                      time=float(time), spacing=spacing, volume=vol.astype(np.float32) if self.dim == 1 else np.zeros(0))
-        os.replace(tmp, path)
 
     def records(self) -> list[Path]:
-        return sorted(self.dir.glob(self.PATTERN))
+        return [r for r in io.files_in(self.dir, self.PATTERN, root=self.root) if not r.is_dir()]
 
     def render_all(self) -> list[Path]:
         """Render every recorded frame into frames/frame_NNNNNN.png; returns the frames in order."""
@@ -530,12 +575,12 @@ class FrameRecorder:
                 out = self.dir / r.name.replace(".record_", "frame_").replace(".npz", ".png")
                 img = renderer.image(d["x"], d["values"], float(d["time"]), spacing=spacing,
                                      volume=d["volume"] if len(d["volume"]) else None)
-                write_png(out, img)
+                write_png(out, img, root=self.root)
                 frames.append(out)
         finally:
             renderer.close()
         for r in records:
-            r.unlink()
+            io.remove_file(r, root=self.root)
         self.seconds += _time.perf_counter() - t0
         return frames
 
@@ -560,13 +605,11 @@ def grid_lines(cfg, per_cell: int = 12):
     return lines
 
 
-def write_png(path, img):
+def write_png(path, img, root=None):
     import imageio.v2 as imageio
 
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    imageio.imwrite(tmp, img, format="png", compress_level=1)  # level 6 (the default) costs 10x the time for ~25 % less
-    os.replace(tmp, path)
+    with io.atomic_path(path, root=root) as tmp:
+        imageio.imwrite(tmp, img, format="png", compress_level=1)  # level 6 (the default) costs 10x the time for ~25 % less
 
 
 def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: int = 20) -> dict:
@@ -583,6 +626,7 @@ def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: 
     from .errors import ConfigError
 
     run_dir = Path(run_dir)
+    io.refuse_links(run_dir)   # nothing read, written or deleted through a link in the run folder
     cfg_path = run_dir / "config.yaml"
     if not cfg_path.is_file():
         raise FileNotFoundError(f"{run_dir} holds no config.yaml (not a run directory?)")
@@ -594,6 +638,10 @@ def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: 
         rc["size"] = list(size)
     if camera:
         rc["camera"] = camera
+    try:
+        check_size(rc["size"])   # before anything is read: VTK aborts the process on a size it cannot allocate
+    except ValueError as e:
+        raise ConfigError(str(e), key="output.render.size") from None
     series = read_series(run_dir)
     if not series:
         raise FileNotFoundError(f"{run_dir} holds no particles_*.vtu files")
@@ -607,9 +655,9 @@ def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: 
     t0 = _time.perf_counter()
     spacing = FrameRenderer(rc, dim, cfg.domain.lower, cfg.domain.upper)._spacing(states[0])
     bounds = sequence_bounds([s["x"] for s in states], spacing, dim) if dim == 3 else None
+    frames_dir = io.ensure_folder(run_dir / "frames", root=run_dir)   # a file in its place: said before any frame
     renderer = FrameRenderer(rc, dim, cfg.domain.lower, cfg.domain.upper, limits=sequence_limits(rc, vals),
                              bounds=bounds, title=cfg.name)
-    frames_dir = run_dir / "frames"
     frames = []
     try:
         for k, ((t, f), state) in enumerate(zip(series, states)):
@@ -631,5 +679,6 @@ def render_run(run_dir, color_by=None, size=None, camera=None, movie=None, fps: 
             movie_path = run_dir / f"movie.{str(movie).lower()}"
         else:
             movie_path = Path(movie)
-        make_movie(frames, movie_path, fps=fps)  # this sequence only, not stale frames of an older run
+        # this sequence only, not stale frames of an older run
+        make_movie(frames, movie_path, fps=fps, root=run_dir if movie_path.parent == run_dir else None)
     return {"frames": frames, "movie": movie_path, "seconds": seconds}
