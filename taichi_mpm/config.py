@@ -526,6 +526,25 @@ class Config(Strict):
 
     @model_validator(mode="after")
     def _consistent(self):
+        """Cross-field checks, in order (the first problem found is the one reported)."""
+        self._check_domain_box()
+        self._check_knots()
+        self._check_map()
+        self._check_scatter()
+        if self.solver.gravity is not None:
+            _need_len("solver.gravity", self.solver.gravity, self.dim)
+        for i, b in enumerate(self.bodies):
+            self._check_body(i, b)
+        self._check_velocity_walls()
+        self._check_crack_combinations()
+        if self.solver.basis == "cpdi" and self.solver.cpdi.variant == "cpdi2":
+            raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
+                                                  "2013) is not implemented yet; use cpdi1")
+        self._check_probes()
+        return self
+
+    def _check_domain_box(self):
+        """domain.lower / upper of the scene's dimension, ordered, a whole number of cells of dx along each axis."""
         d = self.dim
         _need_len("domain.lower", self.domain.lower, d)
         _need_len("domain.upper", self.domain.upper, d)
@@ -540,37 +559,33 @@ class Config(Strict):
                 raise _Located("domain.dx", f"the domain extent {u - l:g} along {'xyz'[a]} is not a whole number of "
                                             f"cells of dx={self.domain.dx:g} ({n:.4g} cells); "
                                             f"choose e.g. dx={(u - l) / max(1, round(n)):.6g}")
-        self._check_knots()
-        self._check_map()
+
+    def _check_scatter(self):
         if self.solver.scatter == "coloured" and (self.solver.basis == "cpdi" or self.domain.map is not None):
             raise _Located("solver.scatter", "coloured needs a tensor-product basis on a box grid (linear, gimp, "
                                              "quadratic, cubic, ddmp): cpdi's particle domains and a mapped grid's "
                                              "stencil can reach any node, so they add atomically (scatter: auto)")
-        if self.solver.gravity is not None:
-            _need_len("solver.gravity", self.solver.gravity, d)
-        for i, b in enumerate(self.bodies):
-            key = f"bodies.{i}"
-            if b.material not in self.materials:
-                raise _Located(f"{key}.material", f"undefined material '{b.material}' (defined: {', '.join(self.materials) or 'none'})")
-            if b.velocity is not None:
-                _need_len(f"{key}.velocity", b.velocity, d)
-            if b.angular_velocity is not None:
-                if d == 1:
-                    raise _Located(f"{key}.angular_velocity", "has no meaning in 1D")
-                if d == 2 and not isinstance(b.angular_velocity, (int, float)):
-                    raise _Located(f"{key}.angular_velocity", "must be a scalar in 2D")
-                if d == 3 and isinstance(b.angular_velocity, (int, float)):
-                    raise _Located(f"{key}.angular_velocity", "must be a vector [wx, wy, wz] in 3D")
-                if d == 3:
-                    _need_len(f"{key}.angular_velocity", b.angular_velocity, 3)
-            _check_shape(f"{key}.shape", b.shape, d)
-            for j, r in enumerate(b.damage_regions):
-                _check_shape(f"{key}.damage_regions.{j}.shape", r.shape, d)
-            _check_loads(key, b, d)
-            if self.crack is not None and b.prescribed_velocity:
-                raise _Located(f"{key}.prescribed_velocity", "prescribed velocities are not available with a crack "
-                                                             "section (the crack finder has its own grid update)")
-        for a in range(d):
+
+    def _check_body(self, i, b):
+        """One body: its material exists, its vectors and shapes fit the dimension, its loads are consistent."""
+        d, key = self.dim, f"bodies.{i}"
+        if b.material not in self.materials:
+            raise _Located(f"{key}.material", f"undefined material '{b.material}' (defined: {', '.join(self.materials) or 'none'})")
+        if b.velocity is not None:
+            _need_len(f"{key}.velocity", b.velocity, d)
+        if b.angular_velocity is not None:
+            _check_angular_velocity(f"{key}.angular_velocity", b.angular_velocity, d)
+        _check_shape(f"{key}.shape", b.shape, d)
+        for j, r in enumerate(b.damage_regions):
+            _check_shape(f"{key}.damage_regions.{j}.shape", r.shape, d)
+        _check_loads(key, b, d)
+        if self.crack is not None and b.prescribed_velocity:
+            raise _Located(f"{key}.prescribed_velocity", "prescribed velocities are not available with a crack "
+                                                         "section (the crack finder has its own grid update)")
+
+    def _check_velocity_walls(self):
+        """A velocity wall's vector has the scene's dimension; not with the crack finder."""
+        for a in range(self.dim):
             for side in (0, 1):
                 face = FACES[2 * a + side]
                 vel = self.domain.boundaries.velocity(a, side)
@@ -578,10 +593,13 @@ class Config(Strict):
                     continue
                 named = getattr(self.domain.boundaries, face) is not None
                 fkey = f"domain.boundaries.{face if named else 'default'}.velocity"
-                _need_len(fkey, vel, d)
+                _need_len(fkey, vel, self.dim)
                 if self.crack is not None:
                     raise _Located(fkey, "velocity walls are not available with a crack section (the crack finder "
                                          "has its own grid update)")
+
+    def _check_crack_combinations(self):
+        """Options the crack finder cannot be combined with."""
         if self.crack is not None and self.solver.volumetric == "fbar":
             raise _Located("solver.volumetric", "fbar cannot be combined with the crack finder (section 'crack'): "
                                                 "its modified shape functions are not averaged; use standard")
@@ -589,13 +607,6 @@ class Config(Strict):
             raise _Located("crack", "the crack finder does not support basis ddmp: two interface blocks pulled apart "
                                     "kept only 0.185 of their 0.2 m/s (measured; the finder's separation bound is "
                                     "5 %); use cpdi, quadratic, cubic, gimp or linear with a crack section")
-        if self.solver.basis == "cpdi" and self.solver.cpdi.variant == "cpdi2":
-            raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
-                                                  "2013) is not implemented yet; use cpdi1")
-        self._check_probes()
-        if self.crack is None and any(b.interface or b.damage_regions for b in self.bodies):
-            pass  # allowed: damage/interface flags are stored but only act with a crack section
-        return self
 
     def _check_knots(self):
         if self.domain.knots is None:
@@ -825,6 +836,17 @@ def _check_loads(key, b, d):
         _need_len(f"{gkey}.velocity", g.velocity, d)
         if all(v is None for v in g.velocity):
             raise _Located(f"{gkey}.velocity", "prescribes no component (every one is null)")
+
+
+def _check_angular_velocity(key, w, d):
+    if d == 1:
+        raise _Located(key, "has no meaning in 1D")
+    if d == 2 and not isinstance(w, (int, float)):
+        raise _Located(key, "must be a scalar in 2D")
+    if d == 3 and isinstance(w, (int, float)):
+        raise _Located(key, "must be a vector [wx, wy, wz] in 3D")
+    if d == 3:
+        _need_len(key, w, 3)
 
 
 def _check_shape(key, s, d):
