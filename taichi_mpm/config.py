@@ -65,6 +65,10 @@ FIELDS = ("velocity", "stress", "von_mises", "J", "body", "damage", "speed", "pr
 
 
 MAX_NAME = 100
+# samples of a nurbs map's checks: det J at DET_SAMPLES + 1 points per refined cell and axis up to FOLD_SAMPLES
+# cells per axis (beyond, per span of the given net: the same map), its faces at 8 points per cell up to
+# EDGE_SAMPLES; a check costs at most ~FOLD_SAMPLES^2 DET_SAMPLES^2 evaluations whatever `refine` says
+FOLD_SAMPLES, EDGE_SAMPLES = 64, 8192
 
 
 def plain_name(v) -> bool:
@@ -497,6 +501,8 @@ class Limits(Strict):
     """Resource limits checked before anything is allocated (taichi_mpm/budget.py)."""
     memory_gb: Optional[PositiveFloat] = None        # default: half of this machine's physical memory
     particles: Optional[Annotated[int, Field(gt=0)]] = None  # default: only the memory limit
+    # estimated steps to solver.end_time above which a run is refused (default 1e8: budget.RUN_STEPS)
+    steps: Optional[Annotated[float, BeforeValidator(_no_bool), Field(gt=0)]] = None
     allow_large: bool = False                        # --allow-large: run anyway (the estimate still prints)
 
 
@@ -697,16 +703,21 @@ class Config(Strict):
                 raise _Located("domain.map.periodic", "a periodic map closes on itself: its last row of control "
                                "points and weights must equal the first")
         _need_len("domain.map.refine", m.refine, 2)
-        knots, P, w = mapgeom.refine([m.knots.x, m.knots.y], P, w, m.refine)    # the grid the solver will use
-        det, where = mapgeom.fold(knots, [2, 2], P, w)
+        # the refined map is the given one (knot insertion changes the grid, not the map): checked on the given
+        # net with its knots scaled to the refined cells, so the check costs the same at any `refine` (the
+        # refined net's size is budget.py's to estimate and refuse, before anything is built)
+        _, cells = mapgeom.refined_shape([m.knots.x, m.knots.y], m.refine)
+        knots = [mapgeom.scaled_knots(t, n) for t, n in zip((m.knots.x, m.knots.y), cells)]
+        det, where = mapgeom.fold(knots, [2, 2], P, w, [mapgeom.DET_SAMPLES * min(k, max(1, FOLD_SAMPLES * k // n))
+                                                      for k, n in zip(m.refine, cells)])
         if det <= 1e-9:
             raise _Located("domain.map.control_points", f"the map folds or pinches: det J = {det:.3g} (relative) at "
                            f"parameters ({where[0]:g}, {where[1]:g}) cells; control points must keep each cell "
                            "turning the same way (det J of one sign everywhere)")
         # a map that does not fold is one-to-one, so its extremes lie on its boundary: sample the four faces
-        s = [np.linspace(0.0, t[-1], 8 * int(round(t[-1])) + 1) for t in knots]
-        edges = [np.stack([s[0], np.full_like(s[0], e)], -1) for e in (0.0, knots[1][-1])]
-        edges += [np.stack([np.full_like(s[1], e), s[1]], -1) for e in (0.0, knots[0][-1])]
+        s = [np.linspace(0.0, n, min(8 * n, EDGE_SAMPLES) + 1) for n in cells]
+        edges = [np.stack([s[0], np.full_like(s[0], e)], -1) for e in (0.0, cells[1])]
+        edges += [np.stack([np.full_like(s[1], e), s[1]], -1) for e in (0.0, cells[0])]
         pts = mapgeom.surface(knots, [2, 2], P, w, np.concatenate(edges))[0]
         for a in range(2):
             lo, hi = pts[:, a].min(), pts[:, a].max()

@@ -178,7 +178,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "limits": ("", "resource limits checked before anything is allocated"),
     "limits.memory_gb": ("GB", "largest estimated memory of a run; null: half of this machine's physical memory"),
     "limits.particles": ("", "largest particle count; null: only the memory limit"),
-    "limits.allow_large": ("", "run past the limits (the estimate still prints); same as --allow-large"),
+    "limits.steps": ("", "largest estimated number of steps to solver.end_time (dt from every rate of the CFL rule "
+                         "at t = 0); null: 1e8"),
+    "limits.allow_large": ("", "run past the limits (memory, particles, steps; the estimate still prints); same as "
+                               "--allow-large"),
     "output": ("", "what a run writes into its folder"),
     "output.dir": ("", "run folder; {name} is replaced by the scene name"),
     "output.every": ("s", "simulated time between outputs"),
