@@ -70,6 +70,13 @@ MAX_NAME = 100
 # EDGE_SAMPLES; a check costs at most ~FOLD_SAMPLES^2 DET_SAMPLES^2 evaluations whatever `refine` says
 FOLD_SAMPLES, EDGE_SAMPLES = 64, 8192
 
+# magnitudes an input may have in each precision (0 aside): the solver squares them (norms, energies, the yield
+# checks) and multiplies two of them (stress x volume / dx, mass x velocity), so they stay within the square root
+# of the float's range; derived sizes (particle volume and mass) within its range over its epsilon
+PRECISION_RANGE = {"f32": (1e-18, 1e18), "f64": (1e-150, 1e150)}
+DERIVED_RANGE = {"f32": (1e-30, 1e30), "f64": (1e-290, 1e290)}
+RANGE_UNITS = ("Pa", "kg/m^3", "Pa s", "J/m^2")   # material keys of these units are range checked
+
 
 def plain_name(v) -> bool:
     """A name that is safe as one folder name: `runs/{name}` stays inside runs/ (not '.', '..', a path, a hidden
@@ -547,6 +554,7 @@ class Config(Strict):
             raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
                                                   "2013) is not implemented yet; use cpdi1")
         self._check_probes()
+        self._check_ranges()
         return self
 
     def _check_domain_box(self):
@@ -725,6 +733,94 @@ class Config(Strict):
                 raise _Located("domain.upper", f"the domain box must hold the map: [{lo:g}, {hi:g}] along "
                                                f"{'xy'[a]}")
 
+    def _check_ranges(self):
+        """Inputs (and the sizes they give) whose magnitude the precision cannot carry through a step: a density
+        of 1e-300 is 0 in f32 (a body that never moves), a stress of 1e40 is infinite, a velocity of 1e30 squared
+        overflows. ConfigError naming the key and the precision."""
+        from .expressions import largest_magnitude
+
+        lo, hi = PRECISION_RANGE[self.precision]
+        where = f"precision {self.precision}"
+        fix = "use precision: f64 or check the units" if self.precision == "f32" else "check the units"
+
+        def check(key, value, unit="", what="", bounds=(lo, hi)):
+            if value is None or value == 0:
+                return
+            if not bounds[0] <= abs(value) <= bounds[1]:
+                raise _Located(key, f"{what or _brief(value)}{' ' + unit if unit else ''} is outside what {where} "
+                                    f"carries through a step (magnitudes {bounds[0]:g} to {bounds[1]:g}, or 0): {fix}")
+
+        for name, m in self.materials.items():
+            for field, info in type(m).model_fields.items():
+                unit = (info.json_schema_extra or {}).get("unit")
+                if unit in RANGE_UNITS:
+                    check(f"materials.{name}.{field}", getattr(m, field), unit)
+            c = material_models.wave_speed(m)
+            stiffest = c * c * m.density if m.density <= hi else 0.0
+            if stiffest > hi:   # the hardened modulus of snow (max_hardening x the P-wave modulus)
+                key = f"materials.{name}.{'max_hardening' if hasattr(m, 'max_hardening') else 'density'}"
+                check(key, stiffest, "Pa", f"the stiffest modulus of material '{name}', {stiffest:.3g}")
+        space = self._space_samples
+        for a, g in enumerate(self.solver.gravity or []):
+            check(f"solver.gravity.{a}", g, "m/s^2")
+        for i, b in enumerate(self.bodies):
+            key, at = f"bodies.{i}", space(b.shape)
+            for a, v in enumerate(b.velocity or []):
+                check(f"{key}.velocity.{a}", largest_magnitude(v, SPACE, **at), "m/s")
+            for a, w in enumerate(np.atleast_1d(b.angular_velocity if b.angular_velocity is not None else [])):
+                check(f"{key}.angular_velocity" + (f".{a}" if isinstance(b.angular_velocity, list) else ""), w, "1/s")
+            stress = b.stress or []
+            for idx, v in _flat(stress):
+                check(f"{key}.stress.{idx}", largest_magnitude(v, SPACE, **at), "Pa")
+            for j, t in enumerate(b.tractions):
+                ramp = max(largest_magnitude(t.ramp, TIME, t=self._time_samples), 1e-300)
+                for a, v in enumerate(t.traction or []):
+                    check(f"{key}.tractions.{j}.traction.{a}", v, "Pa")
+                    check(f"{key}.tractions.{j}.ramp", v * ramp, "Pa", f"traction x ramp, {v * ramp:.3g}")
+                check(f"{key}.tractions.{j}.pressure", t.pressure, "Pa")
+                if t.pressure:
+                    check(f"{key}.tractions.{j}.ramp", t.pressure * ramp, "Pa", f"pressure x ramp, {t.pressure * ramp:.3g}")
+            for j, g in enumerate(b.prescribed_velocity):
+                for a, v in enumerate(g.velocity):
+                    if v is not None:
+                        check(f"{key}.prescribed_velocity.{j}.velocity.{a}",
+                              largest_magnitude(v, TIME, t=self._time_samples), "m/s")
+            spacing = self.domain.dx / b.particles_per_cell
+            with np.errstate(all="ignore"):
+                volume = float(np.float64(spacing) ** self.dim)
+            check(f"{key}.particles_per_cell", volume, "m^3", f"the particle volume (domain.dx / particles_per_cell)"
+                  f"^{self.dim} = {volume:.3g}", DERIVED_RANGE[self.precision])
+            if b.material in self.materials:
+                with np.errstate(all="ignore"):
+                    mass = float(np.float64(volume) * self.materials[b.material].density)
+                check(f"materials.{b.material}.density", mass, "kg", f"the particle mass of body {i} (density x "
+                      f"volume {volume:.3g}), {mass:.3g}", DERIVED_RANGE[self.precision])
+        for a in range(self.dim):
+            for side in (0, 1):
+                vel = self.domain.boundaries.velocity(a, side)
+                face = FACES[2 * a + side]
+                fkey = f"domain.boundaries.{face if getattr(self.domain.boundaries, face) is not None else 'default'}"
+                for c, v in enumerate(vel or []):
+                    if v is not None:
+                        check(f"{fkey}.velocity.{c}", largest_magnitude(v, TIME, t=self._time_samples), "m/s")
+
+    @property
+    def _time_samples(self) -> np.ndarray:
+        return np.linspace(0.0, self.solver.end_time, 65)
+
+    def _space_samples(self, shape) -> dict:
+        """x, y, z at 5 points per axis over a shape's bounding box (the domain's for a mesh)."""
+        lo, hi = np.asarray(self.domain.lower, float), np.asarray(self.domain.upper, float)
+        if not isinstance(shape, Mesh):
+            from .scene import shape_bounds   # (scene imports this module)
+            try:
+                lo, hi = shape_bounds(shape, self.dim)
+            except Exception:   # a shape of the wrong dimension: its own check reports it
+                pass
+        axes = [np.linspace(l, h, 5) for l, h in zip(lo, hi)]
+        grid = np.meshgrid(*axes, indexing="ij")
+        return {SPACE[a]: g.ravel() for a, g in enumerate(grid)}
+
     def _check_probes(self):
         d, names = self.dim, set()
         body_names = [b.name for b in self.bodies]
@@ -799,6 +895,16 @@ def _check_names(key, value, d):
         if extra:
             raise _Located(key, f"expression {_brief(value)} uses {', '.join(extra)}, which {d}D does not have "
                                 f"(axes: {', '.join(SPACE[:d])})")
+
+
+def _flat(stress):
+    """(index text, value) of a Voigt list or a matrix of stress components."""
+    for i, row in enumerate(stress):
+        if isinstance(row, list):
+            for j, v in enumerate(row):
+                yield f"{i}.{j}", v
+        else:
+            yield str(i), row
 
 
 def _check_region(key, region, d):

@@ -229,3 +229,18 @@ def evaluate(value, key: str | None, variables: Iterable[str], **values):
     arrays = [np.asarray(v) for v in values.values()]
     shape = np.broadcast_shapes(*[a.shape for a in arrays]) if arrays else ()
     return np.full(shape, float(value)) if shape else float(value)
+
+
+def largest_magnitude(value, variables: Iterable[str], **values) -> float:
+    """The largest finite |value| of a number or an expression over sample points (non-finite samples are left
+    out: where they matter the evaluation at the particles reports them). Config checks of magnitudes."""
+    if not isinstance(value, str):
+        return abs(float(value))
+    try:
+        tree = parse(value, tuple(variables))
+        with np.errstate(all="ignore"):
+            out = np.abs(np.asarray(_eval(tree.body, values, None), dtype=np.float64))
+    except (ConfigError, ArithmeticError, ValueError, TypeError):
+        return 0.0
+    out = out[np.isfinite(out)]
+    return float(out.max()) if out.size else 0.0

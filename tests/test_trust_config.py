@@ -148,7 +148,7 @@ def test_viscosity_limits_the_estimated_step_and_a_run_of_1e31_steps_is_refused(
 def test_every_rate_that_limits_dt_bounds_the_run(case):
     data = make_cfg(2, end_time=1.0)
     if case == "E":
-        data["materials"]["m"]["E"] = 1e300
+        data["materials"]["m"]["E"] = 1e20      # f64: in range, but a wave speed of 3e8 m/s
         key = "materials.m.E"
     elif case == "hardening":
         data["materials"]["m"] = dict(model="snow", density=400.0, E=1.4e5, max_hardening=1e30)
@@ -190,3 +190,85 @@ def test_estimated_dt_is_the_solvers_with_gravity_and_speed():
     assert budget.estimate(cfg).dt == pytest.approx(sim.stable_dt(), rel=1e-12)
     limits = budget.dt_limits(cfg)
     assert {k: v[0] for k, v in limits.items()} == pytest.approx(sim.dt_limits(), rel=1e-12)
+
+
+# ---------------------------------------------------------------- 3: values outside the precision's range
+def range_error(data, tmp_path=None):
+    if tmp_path is not None:
+        path = tmp_path / "c.yaml"
+        path.write_text(yaml.safe_dump(data, sort_keys=False))
+        data = path
+    with pytest.raises(ConfigError, match="outside what precision") as e:
+        tm.load_config(data)
+    return e.value
+
+
+def f32(**kw):
+    data = make_cfg(2, precision="f32", **kw)
+    return data
+
+
+@pytest.mark.parametrize("case,key", [
+    ("E", "materials.m.E"), ("density", "materials.m.density"), ("pressure", "bodies.0.tractions.0.pressure"),
+    ("stress", "bodies.0.stress.0"), ("velocity", "bodies.0.velocity.0"), ("gravity", "solver.gravity.1"),
+    ("velocity_expression", "bodies.0.velocity.1"), ("grip", "bodies.0.prescribed_velocity.0.velocity.0"),
+    ("wall", "domain.boundaries.y_max.velocity.1"), ("ramp", "bodies.0.tractions.0.ramp"),
+    ("hardening", "materials.m.max_hardening"), ("tiny_cells", "bodies.0.particles_per_cell"),
+    ("yield", "materials.m.yield_stress")])
+def test_values_outside_f32_are_config_errors_naming_key_and_precision(tmp_path, case, key):
+    """Before: E and density 1e-300 ran a body that never moved (exit 0); pressures of 1e38, stresses of 1e40,
+    velocities of 1e30 and gravity 1e39 validated, then stopped with advice to lower solver.cfl."""
+    data = f32()
+    b, m = data["bodies"][0], data["materials"]["m"]
+    if case == "E":
+        m["E"] = 1e-300
+    elif case == "density":
+        m["density"] = 1e-300
+    elif case == "pressure":
+        b["tractions"] = [dict(pressure=1e38)]
+    elif case == "stress":
+        b["stress"] = [1e40, 0.0, 0.0]
+    elif case == "velocity":
+        b["velocity"] = [1e30, 0.0]
+    elif case == "gravity":
+        data["solver"]["gravity"] = [0.0, -1e39]
+    elif case == "velocity_expression":
+        b["velocity"] = [0.0, "1e30 * x"]
+    elif case == "grip":
+        b["prescribed_velocity"] = [dict(velocity=["1e25 * t", None])]
+        data["solver"]["end_time"] = 1.0
+    elif case == "wall":
+        data["domain"]["boundaries"]["y_max"] = dict(type="velocity", velocity=[None, 1e20])
+    elif case == "ramp":
+        b["tractions"] = [dict(pressure=1e3, ramp="1e20 * t")]
+        data["solver"]["end_time"] = 1.0
+    elif case == "hardening":
+        data["materials"]["m"] = dict(model="snow", density=400.0, E=1.4e5, max_hardening=1e30)
+    elif case == "tiny_cells":
+        data["domain"].update(dx=1e-16, upper=[1e-15, 1e-15])
+        b["shape"] = dict(type="box", lower=[3e-16, 3e-16], upper=[6e-16, 6e-16])
+    else:
+        data["materials"]["m"] = dict(model="von_mises", density=1000.0, E=1e4, yield_stress=1e19)
+    e = range_error(data, tmp_path)
+    assert e.key == key, str(e)
+    assert "f32" in str(e) and e.line is not None
+
+
+def test_f64_takes_what_f32_refuses_and_refuses_beyond_its_own_range():
+    data = make_cfg(2, precision="f64")
+    data["bodies"][0]["stress"] = [1e40, 0.0, 0.0]
+    data["materials"]["m"]["E"] = 1e40
+    tm.load_config(data)
+    data["materials"]["m"]["density"] = 1e-300
+    assert range_error(data).key == "materials.m.density"
+
+
+def test_ordinary_extremes_stay_valid():
+    """Steel in Pa, a 1 micron grid in 2D, a 1e3 m/s impact, a centrifuge's 1e5 g: all inside f32's range."""
+    data = f32(E=2e11, density=7850.0, velocity=[1e3, 0.0])
+    data["solver"]["gravity"] = [0.0, -1e6]
+    tm.load_config(data)
+    data = f32()
+    data["domain"].update(dx=1e-6, upper=[1e-5, 1e-5])
+    data["bodies"][0]["shape"] = dict(type="box", lower=[3e-6, 3e-6], upper=[6e-6, 6e-6])
+    tm.load_config(data)
