@@ -10,6 +10,7 @@ import math
 import os
 import reprlib
 import re
+import warnings
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -24,6 +25,10 @@ from .expressions import parse as parse_expression
 
 from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
 from . import materials as material_models
+
+
+class ConfigWarning(UserWarning):
+    """A setting that does nothing in this config but is legitimately there (docs/reliability.md)."""
 
 
 SPACE, TIME = ("x", "y", "z"), ("t",)  # the variables of initial fields and of time functions
@@ -550,6 +555,7 @@ class Config(Strict):
             self._check_body(i, b)
         self._check_velocity_walls()
         self._check_crack_combinations()
+        self._check_unused_settings()
         if self.solver.basis == "cpdi" and self.solver.cpdi.variant == "cpdi2":
             raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
                                                   "2013) is not implemented yet; use cpdi1")
@@ -621,6 +627,38 @@ class Config(Strict):
             raise _Located("crack", "the crack finder does not support basis ddmp: two interface blocks pulled apart "
                                     "kept only 0.185 of their 0.2 m/s (measured; the finder's separation bound is "
                                     "5 %); use cpdi, quadratic, cubic, gimp or linear with a crack section")
+
+    def _check_unused_settings(self):
+        """Settings given that nothing would read: an error at validation rather than a run that ignores them."""
+        s = self.solver
+        # (a default value written out, as Config.to_dict does, is no setting: only other values are refused)
+        if s.cpdi != Cpdi() and s.basis != "cpdi":
+            raise _Located("solver.cpdi", f"is read by solver.basis cpdi only (the basis is {s.basis}): remove it "
+                                          "or use basis cpdi")
+        if s.basis != "gimp" and s.gimp_domain != "uniform":
+            raise _Located("solver.gimp_domain", f"is read by solver.basis gimp only (the basis is {s.basis}): "
+                                                 "remove it or use basis gimp")
+        if self.crack is None:
+            why = "acts through the crack finder only: add a `crack:` section (docs/crack_finder.md) or remove it"
+            for name, m in self.materials.items():
+                if getattr(m, "tensile_strength", None) is not None:
+                    raise _Located(f"materials.{name}.tensile_strength", f"material '{name}': the damage law {why}")
+            for i, b in enumerate(self.bodies):   # harmless (a crack section switched off to compare): warned
+                for key, what in (("damage_regions", "initial damage"), ("interface", "an interface body")):
+                    if getattr(b, key):
+                        warnings.warn(f"key 'bodies.{i}.{key}': {what} acts through the crack finder only, and "
+                                      "the config has no `crack:` section: it is ignored in this run",
+                                      ConfigWarning, stacklevel=2)
+        for name, m in self.materials.items():
+            if getattr(m, "volume_correction", False) and getattr(m, "dilatancy", 0.0) > 0:
+                # the return corrects volume-preserving flow only (materials/drucker_prager.py): ignored otherwise
+                raise _Located(f"materials.{name}.volume_correction", f"material '{name}': the volume correction "
+                               f"takes dilatancy 0 only (J_p - 1 is then all loosening; with dilatancy "
+                               f"{m.dilatancy:g} it is also the shear dilation, which stays): set dilatancy: 0 or "
+                               "volume_correction: false")
+            if getattr(m, "fracture_energy", None) is not None and getattr(m, "tensile_strength", None) is None:
+                raise _Located(f"materials.{name}.fracture_energy", f"material '{name}': the softening needs "
+                                                                    "tensile_strength (where damage starts)")
 
     def _check_knots(self):
         if self.domain.knots is None:

@@ -285,3 +285,38 @@ def cell_sizes(knots, degrees, P, w, breaks=None, rows=4096):
             lo, hi = min(lo, float(edges.min())), max(hi, float(edges.max()))
         prev = x[-1]
     return lo, hi
+
+
+def boundary(knots, degrees, P, w, per_cell: int = 16, most: int = 16384) -> np.ndarray:
+    """The map's boundary as a closed polygon (K, 2): its four parameter faces in turn (y_min, x_max, y_max
+    reversed, x_min reversed), `per_cell` points per cell of each face, at most `most` per face. A periodic map's
+    seam is traversed both ways, so it adds no crossing to an even-odd test (`outside`)."""
+    hi = [float(t[-1]) for t in knots]
+    s = [np.linspace(0.0, h, min(most, per_cell * max(1, int(round(h)))) + 1) for h in hi]
+    faces = [np.stack([s[0], np.zeros_like(s[0])], -1), np.stack([np.full_like(s[1], hi[0]), s[1]], -1),
+             np.stack([s[0][::-1], np.full_like(s[0], hi[1])], -1), np.stack([np.zeros_like(s[1]), s[1][::-1]], -1)]
+    return surface(knots, degrees, P, w, np.concatenate(faces))[0]
+
+
+def outside(polygon: np.ndarray, pts: np.ndarray, tol: float) -> np.ndarray:
+    """Mask of the points outside the closed polygon (even-odd rule) by more than `tol` (points within `tol` of
+    its edges count as inside: particles flush with a wall)."""
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    out = np.zeros(len(pts), bool)
+    for start in range(0, len(pts), 4096):
+        p = pts[start:start + 4096, None, :]
+        crosses = ((a[None, :, 1] > p[..., 1]) != (b[None, :, 1] > p[..., 1]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_at = a[None, :, 0] + (p[..., 1] - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (
+                b[None, :, 1] - a[None, :, 1])
+        inside = (crosses & (p[..., 0] < x_at)).sum(axis=1) % 2 == 1
+        far = ~inside
+        if far.any():
+            q = p[far]
+            e = b - a
+            L2 = np.maximum((e * e).sum(-1), 1e-300)
+            t = np.clip(((q - a[None]) * e[None]).sum(-1) / L2[None], 0.0, 1.0)
+            dist = np.linalg.norm(q - (a[None] + t[..., None] * e[None]), axis=-1).min(axis=1)
+            far[np.flatnonzero(far)] = dist > tol
+        out[start:start + 4096] = far
+    return out

@@ -272,3 +272,114 @@ def test_ordinary_extremes_stay_valid():
     data["domain"].update(dx=1e-6, upper=[1e-5, 1e-5])
     data["bodies"][0]["shape"] = dict(type="box", lower=[3e-6, 3e-6], upper=[6e-6, 6e-6])
     tm.load_config(data)
+
+
+# ---------------------------------------------------------------- 4: settings ignored or checked in the wrong place
+def config_error(data, tmp_path, key):
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(ConfigError) as e:
+        tm.load_config(path)
+    assert e.value.key == key, str(e.value)
+    assert e.value.line is not None
+    return e.value
+
+
+def sand(**keys):
+    data = make_cfg(2)
+    data["materials"] = dict(sand=dict(model="drucker_prager", density=1600.0, E=1e6, friction_angle=30.0, **keys))
+    data["bodies"][0]["material"] = "sand"
+    return data
+
+
+@pytest.mark.parametrize("case,key", [
+    ("tensile_strength", "materials.m.tensile_strength"), ("fracture_energy", "materials.m.fracture_energy"),
+    ("cpdi", "solver.cpdi"), ("gimp_domain", "solver.gimp_domain"),
+    ("volume_correction", "materials.sand.volume_correction"),
+    ("dilatancy", "materials.sand.dilatancy")])
+def test_settings_nothing_reads_are_config_errors_with_key_and_line(tmp_path, case, key):
+    """Before: each validated and the run ignored it (tensile_strength without a crack section, solver.cpdi with
+    another basis, volume_correction with dilatancy), or the key named the material only (dilatancy)."""
+    data = make_cfg(2)
+    m = data["materials"]["m"]
+    if case == "tensile_strength":
+        m["tensile_strength"] = 1e3
+    elif case == "fracture_energy":
+        data["crack"] = {}
+        m["fracture_energy"] = 10.0
+    elif case == "cpdi":
+        data["solver"]["cpdi"] = dict(variant="cpdi2")
+    elif case == "gimp_domain":
+        data["solver"]["gimp_domain"] = "deforming"
+    elif case == "volume_correction":
+        data = sand(dilatancy=5.0, volume_correction=True)
+    else:
+        data = sand(dilatancy=40.0)
+    e = config_error(data, tmp_path, key)
+    if key.startswith("materials."):
+        assert f"'{key.split('.')[1]}'" in str(e) or case == "dilatancy"
+
+
+@pytest.mark.parametrize("key", ["damage_regions", "interface"])
+def test_crack_flags_without_a_crack_section_are_a_documented_warning(key):
+    """Legitimately there (a crack section switched off to compare): a ConfigWarning naming the key, not silence."""
+    from taichi_mpm.config import ConfigWarning
+
+    data = make_cfg(2)
+    data["bodies"][0][key] = True if key == "interface" else [
+        dict(shape=dict(type="sphere", center=[0.45, 0.45], radius=0.05))]
+    with pytest.warns(ConfigWarning, match=f"bodies.0.{key}"):
+        tm.load_config(data)
+
+
+def test_the_settings_in_their_place_stay_valid():
+    data = make_cfg(2, basis="cpdi")
+    data["solver"]["cpdi"] = dict(variant="cpdi1")
+    tm.load_config(data)
+    data["solver"]["basis"] = "quadratic"   # the default written out (Config.to_dict does) is no setting
+    tm.load_config(tm.load_config(data).to_dict())
+    tm.load_config(sand(dilatancy=0.0, volume_correction=True))
+    tm.load_config(sand(dilatancy=5.0))
+    data = make_cfg(2)
+    data["crack"] = {}
+    data["materials"]["m"].update(tensile_strength=1e3, fracture_energy=10.0)
+    data["bodies"][0]["damage_regions"] = [dict(shape=dict(type="sphere", center=[0.45, 0.45], radius=0.05))]
+    tm.load_config(data)
+
+
+def validate_cli(tmp_path, data, capsys):
+    from taichi_mpm.cli import main
+
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    code = main(["validate", str(path)])
+    return code, capsys.readouterr().err
+
+
+def test_damage_region_holding_no_particle_is_refused_at_validate(tmp_path, capsys):
+    """As a grip's region: before, a damage region beside the body validated and damaged nothing."""
+    data = make_cfg(2)
+    data["crack"] = {}
+    data["bodies"][0]["damage_regions"] = [dict(shape=dict(type="sphere", center=[0.9, 0.9], radius=0.05))]
+    code, err = validate_cli(tmp_path, data, capsys)
+    assert code == 2 and "bodies.0.damage_regions.0.shape" in str(err) and "no particle" in err
+    assert "c.yaml:" in err   # file and line
+
+
+@pytest.mark.parametrize("grid", ["nurbs", "annulus"])
+def test_body_partly_outside_the_map_is_refused_at_validate(tmp_path, capsys, grid):
+    """Before: validate passed and `run` stopped at upload with a message about an annulus (for any map)."""
+    if grid == "nurbs":
+        data = round_tank(refine=[4, 4])
+        data["bodies"][0]["shape"] = dict(type="sphere", center=[-0.8, -0.5], radius=0.2)   # through the wall
+        inside = dict(type="sphere", center=[-0.45, -0.4], radius=0.3)
+    else:
+        data = ring([24, 4])
+        data["bodies"][0]["shape"] = dict(type="sphere", center=[0.0, 0.45], radius=0.1)   # over the inner circle
+        inside = dict(type="ring", center=[0.0, 0.0], inner_radius=0.5, outer_radius=1.0)  # flush with both
+    code, err = validate_cli(tmp_path, data, capsys)
+    assert code == 2 and "bodies.0.shape" in err and "outside" in err, err
+    assert (grid == "nurbs") == ("nurbs map" in err)
+    data["bodies"][0]["shape"] = inside
+    code, err = validate_cli(tmp_path, data, capsys)
+    assert code == 0, err
