@@ -194,16 +194,16 @@ def _nurbs_h_min(m, cells) -> float:
     knots = [mapgeom.scaled_knots(t, n) for t, n in zip((m.knots.x, m.knots.y), cells)]
     P = np.asarray(m.control_points, float)
     w = np.ones(P.shape[:2]) if m.weights is None else np.asarray(m.weights, float)
-    breaks = []
-    for t, k in zip(knots, m.refine):
-        b = np.unique(t)
-        breaks.append(np.unique(np.concatenate([np.linspace(lo, hi, k + 1) for lo, hi in zip(b[:-1], b[1:])])))
-    if math.prod(len(b) for b in breaks) <= EXACT_CORNERS:
+    if math.prod(n + 1 for n in cells) <= EXACT_CORNERS:
+        breaks = []
+        for t, k in zip(knots, m.refine):
+            b = np.unique(t)
+            breaks.append(np.unique(np.concatenate([np.linspace(lo, hi, k + 1) for lo, hi in zip(b[:-1], b[1:])])))
         return mapgeom.cell_sizes(knots, [2, 2], P, w, breaks)[0]
     s = [np.linspace(0.0, n, FOLD_SAMPLES + 1) for n in cells]
     xi = np.stack(np.meshgrid(*s, indexing="ij"), -1).reshape(-1, 2)
     _, J = mapgeom.surface(knots, [2, 2], P, w, xi)
-    width = [float(np.diff(b).min()) for b in breaks]
+    width = [float(np.diff(np.unique(t)).min()) / k for t, k in zip(knots, m.refine)]   # the narrowest refined span
     return float(min((np.linalg.norm(J[:, :, a], axis=1) * width[a]).min() for a in range(2)))
 
 

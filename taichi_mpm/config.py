@@ -70,6 +70,7 @@ FIELDS = ("velocity", "stress", "von_mises", "J", "body", "damage", "speed", "pr
 
 
 MAX_NAME = 100
+MAX_INDEX = 2**31 - 1   # Taichi indexes fields with i32 (budget.MAX_ELEMENTS): no count of cells may pass it
 # samples of a nurbs map's checks: det J at DET_SAMPLES + 1 points per refined cell and axis up to FOLD_SAMPLES
 # cells per axis (beyond, per span of the given net: the same map), its faces at 8 points per cell up to
 # EDGE_SAMPLES; a check costs at most ~FOLD_SAMPLES^2 DET_SAMPLES^2 evaluations whatever `refine` says
@@ -243,7 +244,9 @@ class AnnulusMap(Strict):
     outer_radius: PositiveFloat
     angle: Annotated[float, Field(gt=0, le=360)] = 360.0    # degrees, counter-clockwise from +x
     center: Vec = [0.0, 0.0]
-    cells: list[Annotated[int, Field(gt=0, le=4096)]]    # [along the angle, across the radius]
+    # [along the angle, across the radius]; sized by the budget (budget.map_size: memory, limits.memory_gb,
+    # limits.allow_large) before anything is built, at most what Taichi can index
+    cells: list[Annotated[int, Field(gt=0, le=MAX_INDEX)]]
 
 
 class MapKnots(Strict):
@@ -260,7 +263,8 @@ class NurbsMap(Strict):
     control_points: list[list[Vec]]
     weights: Optional[list[list[Real]]] = None        # null: all 1 (a B-spline map)
     periodic: bool = False                             # x wraps around: the last column is the first
-    refine: list[Annotated[int, Field(gt=0, le=256)]] = [1, 1]   # cells per knot span (knot insertion)
+    # cells per knot span (knot insertion); the refined net is sized by the budget as the annulus' cells
+    refine: list[Annotated[int, Field(gt=0, le=MAX_INDEX)]] = [1, 1]
 
 
 class Domain(Strict):

@@ -49,7 +49,7 @@ def nothing_built(monkeypatch):
 
 # ---------------------------------------------------------------- 1: sizes before the expensive work
 def test_nurbs_refine_at_the_schema_maximum_validates_fast_and_is_sized_from_the_knots(nothing_built):
-    """refine [256, 256] (the schema's maximum) on the round tank: before, validation refined the net and
+    """refine [256, 256] (the schema's old maximum) on the round tank: before, validation refined the net and
     sampled det J on every refined cell (8 GiB asked for); now the checks run on the given net (the same map)
     and the budget counts the refined net from the knots."""
     t0 = time.perf_counter()
@@ -76,7 +76,7 @@ def test_large_nurbs_net_refined_is_refused_naming_refine(nothing_built):
 
 
 def test_annulus_cells_at_the_schema_maximum_are_refused_before_building(nothing_built):
-    """cells [4096, 4096]: before, the budget built the map (514 GiB asked for by the wall normals); now refused
+    """cells [4096, 4096] (the old maximum): before, the budget built the map (514 GiB asked for by the wall normals); now refused
     from its size (the grid and the solver's first particle location), naming domain.map.cells."""
     t0 = time.perf_counter()
     cfg = tm.load_config(dict(ring([4096, 4096]), limits=dict(memory_gb=16)))
@@ -84,6 +84,25 @@ def test_annulus_cells_at_the_schema_maximum_are_refused_before_building(nothing
         budget.check(cfg)
     assert e.value.key == "domain.map.cells"
     assert time.perf_counter() - t0 < 5
+
+
+@pytest.mark.parametrize("grid,size,words", [("nurbs", [4096, 4096], "memory"), ("nurbs", [10**6, 10**6], "2\\^31"),
+                                              ("annulus", [10**6, 10**6], "2\\^31"), ("annulus", [2**31 - 4, 1], "2\\^31")])
+def test_map_sizes_past_the_old_schema_maxima_are_the_budgets_to_refuse(nothing_built, grid, size, words):
+    """The schema bounds cells and refine only by what Taichi can index; the budget refuses from the estimate
+    (memory, limits.memory_gb, limits.allow_large; 2^31 elements whatever the limits), fast, naming the key."""
+    t0 = time.perf_counter()
+    data = round_tank(refine=size) if grid == "nurbs" else ring(size)
+    data["limits"] = dict(memory_gb=16)
+    cfg = tm.load_config(data)
+    with pytest.raises(ConfigError, match=words) as e:
+        budget.check(cfg)
+    assert e.value.key == ("domain.map.refine" if grid == "nurbs" else "domain.map.cells")
+    assert time.perf_counter() - t0 < 5
+    if words == "memory":
+        data["limits"]["allow_large"] = True
+        with pytest.warns(budget.SizeWarning, match="running anyway"):
+            budget.check(tm.load_config(data))
 
 
 @pytest.mark.parametrize("angle,cells", [(360.0, (24, 4)), (180.0, (8, 3)), (100.0, (6, 5)), (45.0, (3, 2))])
