@@ -888,9 +888,30 @@ class Config(Strict):
                                               "entries (numbered from 0 over all bodies in order)")
             if p.face is not None and "xyz".index(p.face[0]) >= d:
                 raise _Located(f"{key}.face", f"no face {p.face} in {d}D (faces: {', '.join(FACES[:2 * d])})")
+            self._check_probe_reach(key, p)
         if any(p.type == "wall" for p in self.output.probes) and self.crack is not None:
             raise _Located("output.probes", "wall probes are not available with a crack section (the crack finder "
                                             "has its own grid update)")
+
+    def _check_probe_reach(self, key, p):
+        """A point probe inside the domain; a region probe that meets some body's box (a region beside every body
+        selects no particle: found at validation, not when the run starts)."""
+        lo, hi = np.asarray(self.domain.lower, float), np.asarray(self.domain.upper, float)
+        if p.point is not None and (np.any(np.asarray(p.point) < lo) or np.any(np.asarray(p.point) > hi)):
+            raise _Located(f"{key}.point", f"the point {p.point} lies outside the domain {lo.tolist()}..{hi.tolist()}")
+        if p.region is None:
+            return
+        from .scene import shape_bounds   # (scene imports this module)
+
+        r_lo, r_hi = shape_bounds(p.region, self.dim)
+        for b in self.bodies:
+            if isinstance(b.shape, Mesh):
+                return   # its box needs the file: the probe's own selection reports an empty region
+            b_lo, b_hi = shape_bounds(b.shape, self.dim)
+            if np.all(r_lo <= b_hi) and np.all(b_lo <= r_hi):
+                return
+        raise _Located(f"{key}.region", f"the probe '{p.name}' selects no particle: its region (box "
+                                        f"{r_lo.tolist()}..{r_hi.tolist()}) meets no body's bounding box")
 
     # resolved values --------------------------------------------------
     @property

@@ -1,10 +1,7 @@
 """Issue 30's config classes ("Trust, round 2"): every size estimated before anything is built, run length
 bounded by every rate that limits dt, values outside the precision's range refused, settings that would be
 ignored or checked too late refused at validation. Each test failed before its fix (the issue's cases)."""
-import copy
-import math
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -402,3 +399,17 @@ def test_body_partly_outside_the_map_is_refused_at_validate(tmp_path, capsys, gr
     data["bodies"][0]["shape"] = inside
     code, err = validate_cli(tmp_path, data, capsys)
     assert code == 0, err
+
+
+@pytest.mark.parametrize("probe,key", [(dict(name="r", type="region", region=dict(type="box", lower=[0.8, 0.8],
+                                                                                  upper=[0.9, 0.9])), "region"),
+                                       (dict(name="p", type="point", point=[2.0, 0.5]), "point")])
+def test_probe_beside_every_body_is_refused_at_validation(tmp_path, probe, key):
+    """Before: validated, and the run stopped at its start ('the probe selects no particle')."""
+    data = make_cfg(2)
+    data["output"] = dict(probes=[probe])
+    config_error(data, tmp_path, f"output.probes.0.{key}")
+    probe = dict(probe, region=dict(type="box", lower=[0.5, 0.5], upper=[0.9, 0.9])) if key == "region" else \
+        dict(probe, point=[0.9, 0.1])
+    data["output"] = dict(probes=[probe])
+    tm.load_config(data)
