@@ -264,7 +264,7 @@ def face_normals(knots, degrees, P, w, periodic=False) -> np.ndarray:
     return out
 
 
-def cell_sizes(knots, degrees, P, w, breaks=None, rows=4096):
+def cell_sizes(knots, degrees, P, w, breaks=None, rows=256):
     """(smallest, largest) chord between neighbouring cell corners x(knot_a, knot_b): the edges of the
     physical cells (the annulus: an inner arc's chord and a radial cell). `breaks`: the corner parameters per
     axis (default: the distinct knots; a refined map's on its coarse net: scaled_knots). Evaluated a few rows
