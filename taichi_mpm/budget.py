@@ -285,11 +285,20 @@ def _modulus_key(m) -> str:
 
 def _initial_speed(cfg: Config, base_dir) -> tuple[float, str | None]:
     """The largest initial particle speed the config states (velocity, spin about the body's centre, numeric grip
-    velocities) and its key; expression components (functions of position or time) count as 0."""
+    velocities) and its key; an expression of position counts with its largest magnitude over 5 points per axis
+    of the body's box (expressions.largest_magnitude), grip expressions of time as 0."""
+    from .config import SPACE
+    from .expressions import largest_magnitude
+
     vmax, key = 0.0, None
     for i, b in enumerate(cfg.bodies):
+        at = {}
+        if b.velocity is not None and any(isinstance(c, str) for c in b.velocity):
+            lo, hi = shape_bounds(b.shape, cfg.dim, base_dir, f"bodies.{i}.shape")
+            grid = np.meshgrid(*[np.linspace(l, h, 5) for l, h in zip(lo, hi)], indexing="ij")
+            at = {SPACE[a]: g.ravel() for a, g in enumerate(grid)}
         with np.errstate(over="ignore"):
-            v = float(np.linalg.norm([c for c in b.velocity if not isinstance(c, str)] or [0.0])) \
+            v = float(np.linalg.norm([largest_magnitude(c, SPACE, **at) for c in b.velocity] or [0.0])) \
                 if b.velocity is not None else 0.0
             if b.angular_velocity is not None:
                 lo, hi = shape_bounds(b.shape, cfg.dim, base_dir, f"bodies.{i}.shape")

@@ -413,3 +413,13 @@ def test_probe_beside_every_body_is_refused_at_validation(tmp_path, probe, key):
         dict(probe, point=[0.9, 0.1])
     data["output"] = dict(probes=[probe])
     tm.load_config(data)
+
+
+def test_expression_velocities_count_in_the_estimated_step():
+    """A velocity given as an expression of position counted as 0 before (the estimate's dt was the elastic one)."""
+    data = make_cfg(2, end_time=0.1, E=10.0, velocity=["300 * x", 0.0])
+    cfg = tm.load_config(data)
+    sim = tm.Simulation(cfg)
+    est = budget.estimate(cfg)
+    # the body's box reaches x = 0.6 (180 m/s), its particles 0.575: the estimate is on the safe side, close
+    assert sim.stable_dt() * 0.9 < est.dt <= sim.stable_dt() and sim.dt_limit == "speed"
