@@ -21,7 +21,7 @@ from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapte
 
 from .errors import ConfigError
 from .knots import DEGREE as KNOT_DEGREE, knot_problem
-from .expressions import parse as parse_expression
+from .expressions import largest_magnitude, parse as parse_expression
 
 from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
 from . import materials as material_models
@@ -779,72 +779,50 @@ class Config(Strict):
         """Inputs (and the sizes they give) whose magnitude the precision cannot carry through a step: a density
         of 1e-300 is 0 in f32 (a body that never moves), a stress of 1e40 is infinite, a velocity of 1e30 squared
         overflows. ConfigError naming the key and the precision."""
-        from .expressions import largest_magnitude
-
-        lo, hi = PRECISION_RANGE[self.precision]
-        where = f"precision {self.precision}"
-        fix = "use precision: f64 or check the units" if self.precision == "f32" else "check the units"
-
-        def check(key, value, unit="", what="", bounds=(lo, hi)):
-            if value is None or value == 0:
-                return
-            if not bounds[0] <= abs(value) <= bounds[1]:
-                raise _Located(key, f"{what or _brief(value)}{' ' + unit if unit else ''} is outside what {where} "
-                                    f"carries through a step (magnitudes {bounds[0]:g} to {bounds[1]:g}, or 0): {fix}")
-
+        check = _InRange(self.precision)
         for name, m in self.materials.items():
-            for field, info in type(m).model_fields.items():
-                unit = (info.json_schema_extra or {}).get("unit")
-                if unit in RANGE_UNITS:
-                    check(f"materials.{name}.{field}", getattr(m, field), unit)
-            c = material_models.wave_speed(m)
-            stiffest = c * c * m.density if m.density <= hi else 0.0
-            if stiffest > hi:   # the hardened modulus of snow (max_hardening x the P-wave modulus)
-                key = f"materials.{name}.{'max_hardening' if hasattr(m, 'max_hardening') else 'density'}"
-                check(key, stiffest, "Pa", f"the stiffest modulus of material '{name}', {stiffest:.3g}")
-        space = self._space_samples
+            _check_material_range(check, name, m)
         for a, g in enumerate(self.solver.gravity or []):
             check(f"solver.gravity.{a}", g, "m/s^2")
         for i, b in enumerate(self.bodies):
-            key, at = f"bodies.{i}", space(b.shape)
-            for a, v in enumerate(b.velocity or []):
-                check(f"{key}.velocity.{a}", largest_magnitude(v, SPACE, **at), "m/s")
-            for a, w in enumerate(np.atleast_1d(b.angular_velocity if b.angular_velocity is not None else [])):
-                check(f"{key}.angular_velocity" + (f".{a}" if isinstance(b.angular_velocity, list) else ""), w, "1/s")
-            stress = b.stress or []
-            for idx, v in _flat(stress):
-                check(f"{key}.stress.{idx}", largest_magnitude(v, SPACE, **at), "Pa")
-            for j, t in enumerate(b.tractions):
-                ramp = max(largest_magnitude(t.ramp, TIME, t=self._time_samples), 1e-300)
-                for a, v in enumerate(t.traction or []):
-                    check(f"{key}.tractions.{j}.traction.{a}", v, "Pa")
-                    check(f"{key}.tractions.{j}.ramp", v * ramp, "Pa", f"traction x ramp, {v * ramp:.3g}")
-                check(f"{key}.tractions.{j}.pressure", t.pressure, "Pa")
-                if t.pressure:
-                    check(f"{key}.tractions.{j}.ramp", t.pressure * ramp, "Pa", f"pressure x ramp, {t.pressure * ramp:.3g}")
-            for j, g in enumerate(b.prescribed_velocity):
-                for a, v in enumerate(g.velocity):
-                    if v is not None:
-                        check(f"{key}.prescribed_velocity.{j}.velocity.{a}",
-                              largest_magnitude(v, TIME, t=self._time_samples), "m/s")
-            spacing = self.domain.dx / b.particles_per_cell
-            with np.errstate(all="ignore"):
-                volume = float(np.float64(spacing) ** self.dim)
-            check(f"{key}.particles_per_cell", volume, "m^3", f"the particle volume (domain.dx / particles_per_cell)"
-                  f"^{self.dim} = {volume:.3g}", DERIVED_RANGE[self.precision])
-            if b.material in self.materials:
-                with np.errstate(all="ignore"):
-                    mass = float(np.float64(volume) * self.materials[b.material].density)
-                check(f"materials.{b.material}.density", mass, "kg", f"the particle mass of body {i} (density x "
-                      f"volume {volume:.3g}), {mass:.3g}", DERIVED_RANGE[self.precision])
+            self._check_body_range(check, i, b)
         for a in range(self.dim):
             for side in (0, 1):
-                vel = self.domain.boundaries.velocity(a, side)
                 face = FACES[2 * a + side]
                 fkey = f"domain.boundaries.{face if getattr(self.domain.boundaries, face) is not None else 'default'}"
-                for c, v in enumerate(vel or []):
-                    if v is not None:
-                        check(f"{fkey}.velocity.{c}", largest_magnitude(v, TIME, t=self._time_samples), "m/s")
+                for c, v in enumerate(self.domain.boundaries.velocity(a, side) or []):
+                    check(f"{fkey}.velocity.{c}", largest_magnitude(v, TIME, t=self._time_samples), "m/s")
+
+    def _check_body_range(self, check, i, b):
+        """A body's initial fields (expressions sampled over its box), loads, grips, particle volume and mass."""
+        key, at = f"bodies.{i}", self._space_samples(b.shape)
+        for a, v in enumerate(b.velocity or []):
+            check(f"{key}.velocity.{a}", largest_magnitude(v, SPACE, **at), "m/s")
+        w = b.angular_velocity
+        for a, wa in enumerate(np.atleast_1d(w if w is not None else [])):
+            check(f"{key}.angular_velocity" + (f".{a}" if isinstance(w, list) else ""), wa, "1/s")
+        for idx, v in _flat(b.stress or []):
+            check(f"{key}.stress.{idx}", largest_magnitude(v, SPACE, **at), "Pa")
+        for j, t in enumerate(b.tractions):
+            tkey, ramp = f"{key}.tractions.{j}", max(largest_magnitude(t.ramp, TIME, t=self._time_samples), 1e-300)
+            for a, v in enumerate(t.traction or []):
+                check(f"{tkey}.traction.{a}", v, "Pa")
+            check(f"{tkey}.pressure", t.pressure, "Pa")
+            for v, what in [(v, "traction") for v in t.traction or []] + [(t.pressure or 0.0, "pressure")]:
+                check(f"{tkey}.ramp", v * ramp, "Pa", f"{what} x ramp, {v * ramp:.3g}")
+        for j, g in enumerate(b.prescribed_velocity):
+            for a, v in enumerate(g.velocity):
+                check(f"{key}.prescribed_velocity.{j}.velocity.{a}", largest_magnitude(v, TIME, t=self._time_samples),
+                      "m/s")
+        with np.errstate(all="ignore"):
+            volume = float(np.float64(self.domain.dx / b.particles_per_cell) ** self.dim)
+        check(f"{key}.particles_per_cell", volume, "m^3", f"the particle volume (domain.dx / particles_per_cell)"
+              f"^{self.dim} = {volume:.3g}", derived=True)
+        if b.material in self.materials:
+            with np.errstate(all="ignore"):
+                mass = float(np.float64(volume) * self.materials[b.material].density)
+            check(f"materials.{b.material}.density", mass, "kg", f"the particle mass of body {i} (density x "
+                  f"volume {volume:.3g}), {mass:.3g}", derived=True)
 
     @property
     def _time_samples(self) -> np.ndarray:
@@ -958,6 +936,37 @@ def _check_names(key, value, d):
         if extra:
             raise _Located(key, f"expression {_brief(value)} uses {', '.join(extra)}, which {d}D does not have "
                                 f"(axes: {', '.join(SPACE[:d])})")
+
+
+class _InRange:
+    """check(key, value, unit, what): a ConfigError naming the key and the precision when a nonzero value's
+    magnitude is outside PRECISION_RANGE (DERIVED_RANGE for derived sizes)."""
+
+    def __init__(self, precision):
+        self.precision = precision
+        self.fix = "use precision: f64 or check the units" if precision == "f32" else "check the units"
+
+    def __call__(self, key, value, unit="", what="", derived=False):
+        if value is None or value == 0:
+            return
+        lo, hi = (DERIVED_RANGE if derived else PRECISION_RANGE)[self.precision]
+        if not lo <= abs(value) <= hi:
+            raise _Located(key, f"{what or _brief(value)}{' ' + unit if unit else ''} is outside what precision "
+                                f"{self.precision} carries through a step (magnitudes {lo:g} to {hi:g}, or 0): "
+                                f"{self.fix}")
+
+
+def _check_material_range(check, name, m):
+    """Material keys in RANGE_UNITS, and the stiffest modulus (snow: max_hardening x the P-wave modulus)."""
+    for field, info in type(m).model_fields.items():
+        unit = (info.json_schema_extra or {}).get("unit")
+        if unit in RANGE_UNITS:
+            check(f"materials.{name}.{field}", getattr(m, field), unit)
+    c = material_models.wave_speed(m)
+    stiffest = c * c * m.density
+    if stiffest > PRECISION_RANGE[check.precision][1]:
+        key = f"materials.{name}.{'max_hardening' if hasattr(m, 'max_hardening') else 'density'}"
+        check(key, stiffest, "Pa", f"the stiffest modulus of material '{name}', {stiffest:.3g}")
 
 
 def _flat(stress):

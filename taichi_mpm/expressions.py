@@ -232,8 +232,10 @@ def evaluate(value, key: str | None, variables: Iterable[str], **values):
 
 
 def largest_magnitude(value, variables: Iterable[str], **values) -> float:
-    """The largest finite |value| of a number or an expression over sample points (non-finite samples are left
+    """The largest finite |value| of a number (None: 0) or an expression over sample points (non-finite samples are left
     out: where they matter the evaluation at the particles reports them). Config checks of magnitudes."""
+    if value is None:   # a free component
+        return 0.0
     if not isinstance(value, str):
         return abs(float(value))
     try:
