@@ -26,6 +26,7 @@ from .basis import make_basis
 from .crack import grid_fields as crack_grid_fields
 from .crack import particle_bytes as crack_particle_bytes
 from .knots import grid_knots, smallest_span
+from . import mapgeom
 from .mapped import MappedGrid
 from .config import Config, ConfigError
 from .grid import LEAF, MAX_TOP_POINTERS, _pow2
@@ -35,9 +36,15 @@ from .scene import base_dir_of, shape_bounds, shape_volume
 
 MEMORY_FRACTION = 0.5      # default limit: this share of the machine's physical memory (also on GPUs)
 MAX_STEPS = 1e7            # warn above: a unit slip, or a run of days
+RUN_STEPS = 1e8            # refuse above (limits.steps, the opt-in): days of steps at the smallest scenes' ~1 ms a step
 MAX_OUTPUTS = 1e4          # warn above: tens of thousands of files
 MAX_ELEMENTS = 2**31 - 1   # Taichi indexes fields with i32: not overridable
 POINTER_SLOT_BYTES = 16    # a Taichi pointer SNode keeps a pointer and a lock per slot (measured 16.5 B/slot, CPU)
+# building a mapped grid (host, numpy): the refined net (homogeneous copies) per control point, and per cell the
+# parameter samples the solver's first particle location starts from (9 a cell: points, parameters, their local
+# basis evaluation and the sort into buckets)
+MAP_BYTES_PER_CONTROL_POINT, MAP_BYTES_PER_CELL = 72, 9 * 700
+EXACT_CORNERS = 1_000_000  # a nurbs map's smallest cell from every refined corner up to this many, else sampled
 HOST_FLOATS, HOST_INTS = 4, 5  # scene arrays per particle besides x and v: volume, mass, damage, spacing (f64);
 #                                body, material, interface (i32) and the solver's sort permutation (i64)
 
@@ -62,6 +69,9 @@ class Estimate:
     outputs: float
     limit_bytes: float | None
     limit_source: str
+    map_build_bytes: int = 0       # transient: building a mapped grid's net and its first particle location
+    dt_limits: dict = None         # rate -> (dt, keys that set it), as Simulation.dt_limits at t = 0
+    grid_key: str = "domain.dx"    # the key that sets the grid's size
 
     @property
     def particle_bytes(self) -> int:
@@ -71,7 +81,8 @@ class Estimate:
     def total_bytes(self) -> int:
         """Peak: the scene's arrays plus either the lattice being filled or the solver's fields and grid."""
         host = self.particles * self.host_bytes_per_particle
-        return host + max(self.lattice_bytes, self.particles * self.device_bytes_per_particle + self.grid_bytes)
+        return host + max(self.lattice_bytes, self.particles * self.device_bytes_per_particle + self.grid_bytes
+                          + self.map_build_bytes)
 
     def summary(self) -> str:
         limit = f" of {_gb(self.limit_bytes)} allowed ({self.limit_source})" if self.limit_bytes else ""
@@ -136,19 +147,73 @@ def _coloured_scatter(cfg: Config) -> bool:
     return scatter.coloured(cfg, gpu=resolve_arch(cfg.arch) != "cpu")
 
 
-def _mapped(cfg: Config) -> MappedGrid | None:
-    """The host side of a mapped grid (numpy only: allocates no Taichi field), or None."""
-    return MappedGrid(cfg) if cfg.domain.map is not None else None
+@dataclass
+class MapSize:
+    """A mapped grid's sizes from its config alone (nothing built; mapgeom.refined_shape / annulus_shape): control
+    points and cells per axis, the nodes stored (a full ring or a periodic patch stores its seam column once),
+    the smallest cell (the CFL rule's) and the key that sets the size."""
+    ctrl: list[int]
+    cells: list[int]
+    shape: list[int]
+    h_min: float
+    key: str
+
+    def field_floats(self) -> int:
+        """As MappedGrid.field_floats: control points (2) and weights (1) per control point, wall normals (8) per node."""
+        return 3 * math.prod(self.ctrl) + 8 * math.prod(self.shape)
+
+    def build_bytes(self) -> int:
+        return MAP_BYTES_PER_CONTROL_POINT * math.prod(self.ctrl) + MAP_BYTES_PER_CELL * math.prod(self.cells)
 
 
-def grid_layout(cfg: Config, mapped: MappedGrid | None = None) -> dict:
+def map_size(cfg: Config) -> MapSize | None:
+    """The size of `domain.map` (None without one), estimated before anything is built."""
+    m = cfg.domain.map
+    if m is None:
+        return None
+    if m.type == "annulus":
+        ctrl, cells = mapgeom.annulus_shape(m.angle, m.cells)
+        periodic, key = m.angle >= 360.0, "domain.map.cells"
+        angle, (n_angle, n_radial) = math.radians(m.angle), m.cells
+        h_min = min(m.inner_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
+    else:
+        ctrl, cells = mapgeom.refined_shape([m.knots.x, m.knots.y], m.refine)
+        periodic, key = m.periodic, "domain.map.refine"
+        h_min = _nurbs_h_min(m, cells)
+    shape = [ctrl[0] - 1 if periodic else ctrl[0], ctrl[1]]
+    return MapSize(ctrl=ctrl, cells=cells, shape=shape, h_min=h_min, key=key)
+
+
+def _nurbs_h_min(m, cells) -> float:
+    """The smallest refined cell edge (MappedGrid's h_min) on the given net: the chords between the refined
+    corners (the same points: refinement does not change the map) up to EXACT_CORNERS of them; beyond, cells
+    are so fine that a chord is |dx/dxi| x its parameter width, sampled at FOLD_SAMPLES^2 points."""
+    from .config import FOLD_SAMPLES
+
+    knots = [mapgeom.scaled_knots(t, n) for t, n in zip((m.knots.x, m.knots.y), cells)]
+    P = np.asarray(m.control_points, float)
+    w = np.ones(P.shape[:2]) if m.weights is None else np.asarray(m.weights, float)
+    if math.prod(n + 1 for n in cells) <= EXACT_CORNERS:
+        breaks = []
+        for t, k in zip(knots, m.refine):
+            b = np.unique(t)
+            breaks.append(np.unique(np.concatenate([np.linspace(lo, hi, k + 1) for lo, hi in zip(b[:-1], b[1:])])))
+        return mapgeom.cell_sizes(knots, [2, 2], P, w, breaks)[0]
+    s = [np.linspace(0.0, n, FOLD_SAMPLES + 1) for n in cells]
+    xi = np.stack(np.meshgrid(*s, indexing="ij"), -1).reshape(-1, 2)
+    _, J = mapgeom.surface(knots, [2, 2], P, w, xi)
+    width = [float(np.diff(np.unique(t)).min()) / k for t, k in zip(knots, m.refine)]   # the narrowest refined span
+    return float(min((np.linalg.norm(J[:, :, a], axis=1) * width[a]).min() for a in range(2)))
+
+
+def grid_layout(cfg: Config, mapped: MapSize | None = None) -> dict:
     """Nodes per axis and, for a sparse grid, the pointer levels as `grid.Grid` builds them. A mapped grid's
     nodes are its control points (parameter space), not the box divided by domain.dx."""
     d = cfg.dim
     basis = make_basis(cfg.solver.basis, grid_knots(cfg))
-    mapped = mapped if mapped is not None else _mapped(cfg)
+    mapped = mapped if mapped is not None else map_size(cfg)
     if mapped is not None:
-        cells, nodes = [int(c) for c in mapped.map.n_cells], list(mapped.shape)
+        cells, nodes = list(mapped.cells), list(mapped.shape)
     else:
         cells = [round((u - l) / cfg.domain.dx) for l, u in zip(cfg.domain.lower, cfg.domain.upper)]
         nodes = [basis.axis(a).nodes(c) for a, c in enumerate(cells)]
@@ -182,7 +247,7 @@ def _active_blocks(cfg: Config, layout: dict, base_dir) -> tuple[int, int]:
     return min(leaves, math.prod(layout["blocks"])), min(tops, math.prod(layout["levels"][0]))
 
 
-def _grid_bytes(cfg: Config, base_dir, mapped: MappedGrid | None = None) -> tuple[int, str, list[int]]:
+def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None) -> tuple[int, str, list[int]]:
     d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
     layout = grid_layout(cfg, mapped)
     map_bytes = mapped.field_floats() * size if mapped is not None else 0
@@ -213,29 +278,113 @@ def _grid_bytes(cfg: Config, base_dir, mapped: MappedGrid | None = None) -> tupl
     return total, f"sparse, {top_slots:.3g} top pointers, ~{leaves:,} active blocks", layout["cells"]
 
 
-def _time_step(cfg: Config, base_dir, mapped: MappedGrid | None = None) -> tuple[float, str]:
-    s = cfg.solver
-    if s.dt is not None:
-        return s.dt, "from solver.dt"
-    c, which = max((wave_speed(cfg.materials[b.material]), b.material) for b in cfg.bodies)
-    vmax, fastest = 0.0, None
+def _modulus_key(m) -> str:
+    return "E" if "E" in type(m).model_fields else "K"
+
+
+def _initial_speed(cfg: Config, base_dir) -> tuple[float, str | None]:
+    """The largest initial particle speed the config states (velocity, spin about the body's centre, numeric grip
+    velocities) and its key; an expression of position counts with its largest magnitude over 5 points per axis
+    of the body's box (expressions.largest_magnitude), grip expressions of time as 0."""
+    from .config import SPACE
+    from .expressions import largest_magnitude
+
+    vmax, key = 0.0, None
     for i, b in enumerate(cfg.bodies):
-        # expression components (functions of position) are not known before the particles exist: counted as 0
+        at = {}
+        if b.velocity is not None and any(isinstance(c, str) for c in b.velocity):
+            lo, hi = shape_bounds(b.shape, cfg.dim, base_dir, f"bodies.{i}.shape")
+            grid = np.meshgrid(*[np.linspace(l, h, 5) for l, h in zip(lo, hi)], indexing="ij")
+            at = {SPACE[a]: g.ravel() for a, g in enumerate(grid)}
         with np.errstate(over="ignore"):
-            v = float(np.linalg.norm([c for c in b.velocity if not isinstance(c, str)] or [0.0])) \
+            v = float(np.linalg.norm([largest_magnitude(c, SPACE, **at) for c in b.velocity] or [0.0])) \
                 if b.velocity is not None else 0.0
             if b.angular_velocity is not None:
                 lo, hi = shape_bounds(b.shape, cfg.dim, base_dir, f"bodies.{i}.shape")
                 v += float(np.linalg.norm(np.atleast_1d(b.angular_velocity))) * 0.5 * float(np.linalg.norm(hi - lo))
-        if fastest is None or v > vmax:
-            vmax, fastest = v, i
-    h = mapped.h_min if mapped is not None else smallest_span(cfg)   # the map's smallest cell, else dx or a knot span
-    dt = s.cfl * h / (c + vmax)
-    if not dt > 0:  # a speed (or wave speed) so large that the step underflows: found by tests/test_fuzz.py
-        key = f"bodies.{fastest}.velocity" if vmax >= c else f"materials.{which}"
-        raise ConfigError(f"the CFL time step underflows to zero (wave speed {c:.3g} m/s, body speed {vmax:.3g} m/s, "
-                          f"domain.dx = {cfg.domain.dx:g}): check the units", key=key)
-    return dt, f"from the CFL rule: wave speed {c:.3g} m/s of material '{which}'"
+        if v > vmax or key is None:
+            vmax, key = v, f"bodies.{i}.{'velocity' if b.velocity is not None else 'angular_velocity'}"
+        for j, g in enumerate(b.prescribed_velocity):
+            with np.errstate(over="ignore"):
+                vg = float(np.linalg.norm([c for c in g.velocity if isinstance(c, (int, float))] or [0.0]))
+            if vg > vmax:
+                vmax, key = vg, f"bodies.{i}.prescribed_velocity.{j}.velocity"
+    return vmax, key
+
+
+def _cell(cfg: Config, mapped: MapSize | None) -> tuple[float, str]:
+    """The CFL rule's cell size (Simulation.h_cfl) and its key: a map's smallest cell, else dx or the shortest
+    knot span of domain.knots."""
+    if mapped is not None:
+        return mapped.h_min, mapped.key
+    h = smallest_span(cfg)
+    if h < cfg.domain.dx:
+        spans = [(smallest_span_axis(cfg, a), a) for a in range(cfg.dim)]
+        return h, f"domain.knots.{'xyz'[min(spans)[1]]}"
+    return h, "domain.dx"
+
+
+def smallest_span_axis(cfg: Config, a: int) -> float:
+    t = (grid_knots(cfg) or [None] * cfg.dim)[a]
+    if t is None:
+        return cfg.domain.dx
+    spans = np.diff(t)
+    return float(spans[spans > 0].min()) * cfg.domain.dx
+
+
+def dt_limits(cfg: Config, base_dir=None, mapped: MapSize | None = None) -> dict:
+    """The time-step bound of every rate at t = 0 (seconds), with the keys that set it, from the config alone: the
+    rule of Simulation.dt_limits (solver.py) with the config's values. elastic / speed: cfl h / (c + |v|max), c the
+    fastest P-wave speed (snow: hardened to max_hardening); gravity: cfl sqrt(h / |g|); viscosity:
+    cfl rho h^2 / (VISCOUS_DIFFUSION d mu). h: the smallest cell (domain.dx, a knot span, a map's cell)."""
+    from .solver import VISCOUS_DIFFUSION   # the solver imports this module
+
+    base_dir = base_dir_of(cfg) if base_dir is None else base_dir
+    mapped = map_size(cfg) if mapped is None and cfg.domain.map is not None else mapped
+    cfl, (h, h_key) = cfg.solver.cfl, _cell(cfg, mapped)
+    used = dict.fromkeys(b.material for b in cfg.bodies)
+    with np.errstate(over="ignore", invalid="ignore"):
+        c, which = max((wave_speed(cfg.materials[name]), name) for name in used)
+    v, v_key = _initial_speed(cfg, base_dir)
+    mat = cfg.materials[which]
+    keys = (f"materials.{which}.{_modulus_key(mat)}", f"materials.{which}.density", h_key)
+    if h_key.startswith("domain.knots"):   # a knot span shorter than dx: the unusual one of the three
+        keys = (h_key,) + keys[:2]
+    out = {}
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        if c >= v:
+            out["elastic"] = (cfl * h / (c + v) if c + v > 0 else math.inf, keys)
+        else:
+            out["speed"] = (cfl * h / (c + v), (v_key, h_key))
+        g = float(np.linalg.norm(cfg.gravity))
+        if g > 0:
+            out["gravity"] = (cfl * math.sqrt(h / g), ("solver.gravity", h_key))
+        for name in used:
+            m = cfg.materials[name]
+            mu = getattr(m, "viscosity", 0.0)
+            if mu > 0:
+                dt_v = cfl * m.density * h * h / (VISCOUS_DIFFUSION * cfg.dim * mu)
+                if dt_v < out.get("viscosity", (math.inf,))[0]:
+                    out["viscosity"] = (dt_v, (f"materials.{name}.viscosity", f"materials.{name}.density", h_key))
+    return out
+
+
+def _time_step(cfg: Config, base_dir, mapped: MapSize | None = None) -> tuple[float, str, dict]:
+    limits = dt_limits(cfg, base_dir, mapped)
+    s = cfg.solver
+    if s.dt is not None:
+        return s.dt, "from solver.dt", limits
+    rate = min(limits, key=lambda k: limits[k][0])
+    dt, keys = limits[rate]
+    if not dt > 0 or not math.isfinite(dt):   # so fast a rate that the step underflows (found by tests/test_fuzz.py)
+        c = max(wave_speed(cfg.materials[b.material]) for b in cfg.bodies)
+        raise ConfigError(f"the time step underflows to zero ({rate} limit: wave speed {c:.3g} m/s, "
+                          f"domain.dx = {cfg.domain.dx:g}; set by {', '.join(keys)}): check the units", key=keys[0])
+    if rate == "elastic":
+        which = next(k.split(".")[1] for k in keys if k.startswith("materials."))
+        c = wave_speed(cfg.materials[which])
+        return dt, f"from the CFL rule: wave speed {c:.3g} m/s of material '{which}'", limits
+    return dt, f"from the CFL rule: {rate} limit ({', '.join(keys[:-1])})", limits
 
 
 def estimate(cfg: Config, body_force: bool = False) -> Estimate:
@@ -253,9 +402,9 @@ def estimate(cfg: Config, body_force: bool = False) -> Estimate:
         per_body.append(int(round(count)))
         lo, hi = shape_bounds(b.shape, d, base_dir, key)
         lattice = max(lattice, math.prod(int(math.ceil(e / h)) + 1 for e in hi - lo) * d * 8 * 3)
-    mapped = _mapped(cfg)
+    mapped = map_size(cfg)
     grid_bytes, grid_detail, cells = _grid_bytes(cfg, base_dir, mapped)
-    dt, dt_source = _time_step(cfg, base_dir, mapped)
+    dt, dt_source, limits = _time_step(cfg, base_dir, mapped)
     steps = cfg.solver.end_time / dt
     if cfg.solver.max_steps is not None and cfg.solver.max_steps < steps:
         steps, dt_source = float(cfg.solver.max_steps), dt_source + "; capped by solver.max_steps"
@@ -266,34 +415,43 @@ def estimate(cfg: Config, body_force: bool = False) -> Estimate:
                     grid_cells=cells, grid_bytes=grid_bytes, grid_detail=grid_detail, lattice_bytes=lattice,
                     dt=dt, dt_source=dt_source, steps=steps,
                     outputs=math.floor(cfg.solver.end_time / cfg.output.every) + 1.0,
-                    limit_bytes=limit, limit_source=source)
+                    limit_bytes=limit, limit_source=source,
+                    map_build_bytes=mapped.build_bytes() if mapped is not None else 0, dt_limits=limits,
+                    grid_key=mapped.key if mapped is not None else "domain.dx")
 
 
 def check(cfg: Config, body_force: bool = False, warn: bool = True) -> Estimate:
-    """Refuse a run that does not fit (ConfigError naming the key that drives its size and the override);
-    with `warn`, SizeWarning for absurdly many steps or outputs. Returns the estimate."""
+    """Refuse a run that does not fit or would not end (ConfigError naming the key that drives its size or
+    length, and the override); with `warn`, SizeWarning for absurdly many steps or outputs. Returns the estimate."""
     est = estimate(cfg, body_force)
     big = int(np.argmax(est.per_body))
     ppc_key = f"bodies.{big}.particles_per_cell"
+    grid_key = est.grid_key
     sizes = (f"particles: {est.particles:.3g} ({_gb(est.particle_bytes)}); grid: {_gb(est.grid_bytes)}, "
              f"{est.grid_detail}")
-    drivers = (f"the size follows domain.dx = {cfg.domain.dx:g}, domain.sparse = {str(cfg.domain.sparse).lower()} "
+    if est.map_build_bytes:
+        sizes += f"; building the mapped grid: {_gb(est.map_build_bytes)}"
+    grid_size = (f"{grid_key} = {_value(cfg, grid_key)}" if grid_key != "domain.dx"
+                 else f"domain.dx = {cfg.domain.dx:g}")
+    drivers = (f"the size follows {grid_size}, domain.sparse = {str(cfg.domain.sparse).lower()} "
                f"and {ppc_key} = {cfg.bodies[big].particles_per_cell}")
 
     def fix(grid_led: bool) -> str:
         if grid_led:
+            if grid_key != "domain.dx":
+                return f"a smaller {grid_key}"
             return "a coarser domain.dx" + (" or domain.sparse: true" if not cfg.domain.sparse else "")
         return f"fewer {ppc_key}, a coarser domain.dx or smaller bodies"
 
     layout = grid_layout(cfg)
     top = math.prod(layout["levels"][0] if cfg.domain.sparse else layout["nodes"])
-    if est.particles > MAX_ELEMENTS or top > MAX_ELEMENTS:
-        grid_led = top > MAX_ELEMENTS
+    grid_led = top > MAX_ELEMENTS or (grid_key != "domain.dx" and math.prod(layout["nodes"]) > MAX_ELEMENTS)
+    if est.particles > MAX_ELEMENTS or grid_led:
         raise ConfigError(f"{'the grid' if grid_led else 'the particles'} would need more than 2^31 elements in one "
                           f"field, more than Taichi can index ({sizes}); {drivers}: use {fix(grid_led)}",
-                          key="domain.dx" if grid_led else ppc_key)
-    grid_led = est.grid_bytes >= est.particles * est.device_bytes_per_particle
-    key = "domain.dx" if grid_led else ppc_key
+                          key=grid_key if grid_led else ppc_key)
+    grid_led = est.grid_bytes + est.map_build_bytes >= est.particles * est.device_bytes_per_particle
+    key = grid_key if grid_led else ppc_key
     problems = []
     if est.limit_bytes is not None and est.total_bytes > est.limit_bytes:
         problems.append(f"the run needs about {_gb(est.total_bytes)} of memory ({sizes}), more than the limit of "
@@ -306,10 +464,42 @@ def check(cfg: Config, body_force: bool = False, warn: bool = True) -> Estimate:
                               "--allow-large (limits.allow_large: true) to run anyway", key=key)
         if warn:
             warnings.warn(f"key '{key}': {message}; running anyway (limits.allow_large)", SizeWarning, stacklevel=2)
+    _check_length(cfg, est, warn)
     if warn:
         for message in size_warnings(cfg, est):
             warnings.warn(message, SizeWarning, stacklevel=2)
     return est
+
+
+def _value(cfg: Config, key: str):
+    node = cfg
+    for part in key.split("."):
+        node = node[int(part)] if isinstance(node, list) else getattr(node, part, None)
+    return node
+
+
+def _check_length(cfg: Config, est: Estimate, warn: bool):
+    """Refuse a run of more steps than limits.steps (default RUN_STEPS): a rate far beyond the scene's (a unit slip
+    in E, a viscosity, a knot span, an initial speed) would otherwise run until killed. The message names the keys
+    of the rate that sets dt."""
+    allowed = cfg.limits.steps if cfg.limits.steps is not None else RUN_STEPS
+    if not est.steps > allowed:
+        return
+    limits = est.dt_limits or {}
+    if cfg.solver.dt is not None:
+        keys, why = ("solver.dt", "solver.end_time"), f"solver.dt = {cfg.solver.dt:g}"
+    else:
+        rate = min(limits, key=lambda k: limits[k][0])
+        keys = limits[rate][1] + ("solver.end_time",)
+        why = f"the {rate} limit of the time step (set by {', '.join(limits[rate][1])})"
+    message = (f"about {est.steps:.3g} steps to solver.end_time = {cfg.solver.end_time:g} (dt {est.dt:.3g} from "
+               f"{why}), more than {'limits.steps' if cfg.limits.steps is not None else 'the limit'} of "
+               f"{allowed:.3g}: check the units of {', '.join(k for k in keys if k != 'solver.end_time')}")
+    if not cfg.limits.allow_large:
+        raise ConfigError(f"{message}; a shorter solver.end_time, solver.max_steps (stops the run there), "
+                          f"limits.steps or --allow-large (limits.allow_large: true) runs it anyway", key=keys[0])
+    if warn:
+        warnings.warn(f"key '{keys[0]}': {message}; running anyway (limits.allow_large)", SizeWarning, stacklevel=3)
 
 
 def size_warnings(cfg: Config, est: Estimate) -> list[str]:

@@ -10,6 +10,7 @@ import math
 import os
 import reprlib
 import re
+import warnings
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional, Union
 
@@ -20,10 +21,14 @@ from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapte
 
 from .errors import ConfigError
 from .knots import DEGREE as KNOT_DEGREE, knot_problem
-from .expressions import parse as parse_expression
+from .expressions import largest_magnitude, parse as parse_expression
 
 from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
 from . import materials as material_models
+
+
+class ConfigWarning(UserWarning):
+    """A setting that does nothing in this config but is legitimately there (docs/reliability.md)."""
 
 
 SPACE, TIME = ("x", "y", "z"), ("t",)  # the variables of initial fields and of time functions
@@ -65,6 +70,18 @@ FIELDS = ("velocity", "stress", "von_mises", "J", "body", "damage", "speed", "pr
 
 
 MAX_NAME = 100
+MAX_INDEX = 2**31 - 1   # Taichi indexes fields with i32 (budget.MAX_ELEMENTS): no count of cells may pass it
+# samples of a nurbs map's checks: det J at DET_SAMPLES + 1 points per refined cell and axis up to FOLD_SAMPLES
+# cells per axis (beyond, per span of the given net: the same map), its faces at 8 points per cell up to
+# EDGE_SAMPLES; a check costs at most ~FOLD_SAMPLES^2 DET_SAMPLES^2 evaluations whatever `refine` says
+FOLD_SAMPLES, EDGE_SAMPLES = 64, 8192
+
+# magnitudes an input may have in each precision (0 aside): the solver squares them (norms, energies, the yield
+# checks) and multiplies two of them (stress x volume / dx, mass x velocity), so they stay within the square root
+# of the float's range; derived sizes (particle volume and mass) within its range over its epsilon
+PRECISION_RANGE = {"f32": (1e-18, 1e18), "f64": (1e-150, 1e150)}
+DERIVED_RANGE = {"f32": (1e-30, 1e30), "f64": (1e-290, 1e290)}
+RANGE_UNITS = ("Pa", "kg/m^3", "Pa s", "J/m^2")   # material keys of these units are range checked
 
 
 def plain_name(v) -> bool:
@@ -227,7 +244,9 @@ class AnnulusMap(Strict):
     outer_radius: PositiveFloat
     angle: Annotated[float, Field(gt=0, le=360)] = 360.0    # degrees, counter-clockwise from +x
     center: Vec = [0.0, 0.0]
-    cells: list[Annotated[int, Field(gt=0, le=4096)]]    # [along the angle, across the radius]
+    # [along the angle, across the radius]; sized by the budget (budget.map_size: memory, limits.memory_gb,
+    # limits.allow_large) before anything is built, at most what Taichi can index
+    cells: list[Annotated[int, Field(gt=0, le=MAX_INDEX)]]
 
 
 class MapKnots(Strict):
@@ -244,7 +263,8 @@ class NurbsMap(Strict):
     control_points: list[list[Vec]]
     weights: Optional[list[list[Real]]] = None        # null: all 1 (a B-spline map)
     periodic: bool = False                             # x wraps around: the last column is the first
-    refine: list[Annotated[int, Field(gt=0, le=256)]] = [1, 1]   # cells per knot span (knot insertion)
+    # cells per knot span (knot insertion); the refined net is sized by the budget as the annulus' cells
+    refine: list[Annotated[int, Field(gt=0, le=MAX_INDEX)]] = [1, 1]
 
 
 class Domain(Strict):
@@ -497,6 +517,8 @@ class Limits(Strict):
     """Resource limits checked before anything is allocated (taichi_mpm/budget.py)."""
     memory_gb: Optional[PositiveFloat] = None        # default: half of this machine's physical memory
     particles: Optional[Annotated[int, Field(gt=0)]] = None  # default: only the memory limit
+    # estimated steps to solver.end_time above which a run is refused (default 1e8: budget.RUN_STEPS)
+    steps: Optional[Annotated[float, BeforeValidator(_no_bool), Field(gt=0)]] = None
     allow_large: bool = False                        # --allow-large: run anyway (the estimate still prints)
 
 
@@ -526,6 +548,27 @@ class Config(Strict):
 
     @model_validator(mode="after")
     def _consistent(self):
+        """Cross-field checks, in order (the first problem found is the one reported)."""
+        self._check_domain_box()
+        self._check_knots()
+        self._check_map()
+        self._check_scatter()
+        if self.solver.gravity is not None:
+            _need_len("solver.gravity", self.solver.gravity, self.dim)
+        for i, b in enumerate(self.bodies):
+            self._check_body(i, b)
+        self._check_velocity_walls()
+        self._check_crack_combinations()
+        self._check_unused_settings()
+        if self.solver.basis == "cpdi" and self.solver.cpdi.variant == "cpdi2":
+            raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
+                                                  "2013) is not implemented yet; use cpdi1")
+        self._check_probes()
+        self._check_ranges()
+        return self
+
+    def _check_domain_box(self):
+        """domain.lower / upper of the scene's dimension, ordered, a whole number of cells of dx along each axis."""
         d = self.dim
         _need_len("domain.lower", self.domain.lower, d)
         _need_len("domain.upper", self.domain.upper, d)
@@ -540,37 +583,33 @@ class Config(Strict):
                 raise _Located("domain.dx", f"the domain extent {u - l:g} along {'xyz'[a]} is not a whole number of "
                                             f"cells of dx={self.domain.dx:g} ({n:.4g} cells); "
                                             f"choose e.g. dx={(u - l) / max(1, round(n)):.6g}")
-        self._check_knots()
-        self._check_map()
+
+    def _check_scatter(self):
         if self.solver.scatter == "coloured" and (self.solver.basis == "cpdi" or self.domain.map is not None):
             raise _Located("solver.scatter", "coloured needs a tensor-product basis on a box grid (linear, gimp, "
                                              "quadratic, cubic, ddmp): cpdi's particle domains and a mapped grid's "
                                              "stencil can reach any node, so they add atomically (scatter: auto)")
-        if self.solver.gravity is not None:
-            _need_len("solver.gravity", self.solver.gravity, d)
-        for i, b in enumerate(self.bodies):
-            key = f"bodies.{i}"
-            if b.material not in self.materials:
-                raise _Located(f"{key}.material", f"undefined material '{b.material}' (defined: {', '.join(self.materials) or 'none'})")
-            if b.velocity is not None:
-                _need_len(f"{key}.velocity", b.velocity, d)
-            if b.angular_velocity is not None:
-                if d == 1:
-                    raise _Located(f"{key}.angular_velocity", "has no meaning in 1D")
-                if d == 2 and not isinstance(b.angular_velocity, (int, float)):
-                    raise _Located(f"{key}.angular_velocity", "must be a scalar in 2D")
-                if d == 3 and isinstance(b.angular_velocity, (int, float)):
-                    raise _Located(f"{key}.angular_velocity", "must be a vector [wx, wy, wz] in 3D")
-                if d == 3:
-                    _need_len(f"{key}.angular_velocity", b.angular_velocity, 3)
-            _check_shape(f"{key}.shape", b.shape, d)
-            for j, r in enumerate(b.damage_regions):
-                _check_shape(f"{key}.damage_regions.{j}.shape", r.shape, d)
-            _check_loads(key, b, d)
-            if self.crack is not None and b.prescribed_velocity:
-                raise _Located(f"{key}.prescribed_velocity", "prescribed velocities are not available with a crack "
-                                                             "section (the crack finder has its own grid update)")
-        for a in range(d):
+
+    def _check_body(self, i, b):
+        """One body: its material exists, its vectors and shapes fit the dimension, its loads are consistent."""
+        d, key = self.dim, f"bodies.{i}"
+        if b.material not in self.materials:
+            raise _Located(f"{key}.material", f"undefined material '{b.material}' (defined: {', '.join(self.materials) or 'none'})")
+        if b.velocity is not None:
+            _need_len(f"{key}.velocity", b.velocity, d)
+        if b.angular_velocity is not None:
+            _check_angular_velocity(f"{key}.angular_velocity", b.angular_velocity, d)
+        _check_shape(f"{key}.shape", b.shape, d)
+        for j, r in enumerate(b.damage_regions):
+            _check_shape(f"{key}.damage_regions.{j}.shape", r.shape, d)
+        _check_loads(key, b, d)
+        if self.crack is not None and b.prescribed_velocity:
+            raise _Located(f"{key}.prescribed_velocity", "prescribed velocities are not available with a crack "
+                                                         "section (the crack finder has its own grid update)")
+
+    def _check_velocity_walls(self):
+        """A velocity wall's vector has the scene's dimension; not with the crack finder."""
+        for a in range(self.dim):
             for side in (0, 1):
                 face = FACES[2 * a + side]
                 vel = self.domain.boundaries.velocity(a, side)
@@ -578,10 +617,13 @@ class Config(Strict):
                     continue
                 named = getattr(self.domain.boundaries, face) is not None
                 fkey = f"domain.boundaries.{face if named else 'default'}.velocity"
-                _need_len(fkey, vel, d)
+                _need_len(fkey, vel, self.dim)
                 if self.crack is not None:
                     raise _Located(fkey, "velocity walls are not available with a crack section (the crack finder "
                                          "has its own grid update)")
+
+    def _check_crack_combinations(self):
+        """Options the crack finder cannot be combined with."""
         if self.crack is not None and self.solver.volumetric == "fbar":
             raise _Located("solver.volumetric", "fbar cannot be combined with the crack finder (section 'crack'): "
                                                 "its modified shape functions are not averaged; use standard")
@@ -589,13 +631,38 @@ class Config(Strict):
             raise _Located("crack", "the crack finder does not support basis ddmp: two interface blocks pulled apart "
                                     "kept only 0.185 of their 0.2 m/s (measured; the finder's separation bound is "
                                     "5 %); use cpdi, quadratic, cubic, gimp or linear with a crack section")
-        if self.solver.basis == "cpdi" and self.solver.cpdi.variant == "cpdi2":
-            raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
-                                                  "2013) is not implemented yet; use cpdi1")
-        self._check_probes()
-        if self.crack is None and any(b.interface or b.damage_regions for b in self.bodies):
-            pass  # allowed: damage/interface flags are stored but only act with a crack section
-        return self
+
+    def _check_unused_settings(self):
+        """Settings given that nothing would read: an error at validation rather than a run that ignores them."""
+        s = self.solver
+        # (a default value written out, as Config.to_dict does, is no setting: only other values are refused)
+        if s.cpdi != Cpdi() and s.basis != "cpdi":
+            raise _Located("solver.cpdi", f"is read by solver.basis cpdi only (the basis is {s.basis}): remove it "
+                                          "or use basis cpdi")
+        if s.basis != "gimp" and s.gimp_domain != "uniform":
+            raise _Located("solver.gimp_domain", f"is read by solver.basis gimp only (the basis is {s.basis}): "
+                                                 "remove it or use basis gimp")
+        if self.crack is None:
+            why = "acts through the crack finder only: add a `crack:` section (docs/crack_finder.md) or remove it"
+            for name, m in self.materials.items():
+                if getattr(m, "tensile_strength", None) is not None:
+                    raise _Located(f"materials.{name}.tensile_strength", f"material '{name}': the damage law {why}")
+            for i, b in enumerate(self.bodies):   # harmless (a crack section switched off to compare): warned
+                for key, what in (("damage_regions", "initial damage"), ("interface", "an interface body")):
+                    if getattr(b, key):
+                        warnings.warn(f"key 'bodies.{i}.{key}': {what} acts through the crack finder only, and "
+                                      "the config has no `crack:` section: it is ignored in this run",
+                                      ConfigWarning, stacklevel=2)
+        for name, m in self.materials.items():
+            if getattr(m, "volume_correction", False) and getattr(m, "dilatancy", 0.0) > 0:
+                # the return corrects volume-preserving flow only (materials/drucker_prager.py): ignored otherwise
+                raise _Located(f"materials.{name}.volume_correction", f"material '{name}': the volume correction "
+                               f"takes dilatancy 0 only (J_p - 1 is then all loosening; with dilatancy "
+                               f"{m.dilatancy:g} it is also the shear dilation, which stays): set dilatancy: 0 or "
+                               "volume_correction: false")
+            if getattr(m, "fracture_energy", None) is not None and getattr(m, "tensile_strength", None) is None:
+                raise _Located(f"materials.{name}.fracture_energy", f"material '{name}': the softening needs "
+                                                                    "tensile_strength (where damage starts)")
 
     def _check_knots(self):
         if self.domain.knots is None:
@@ -686,22 +753,93 @@ class Config(Strict):
                 raise _Located("domain.map.periodic", "a periodic map closes on itself: its last row of control "
                                "points and weights must equal the first")
         _need_len("domain.map.refine", m.refine, 2)
-        knots, P, w = mapgeom.refine([m.knots.x, m.knots.y], P, w, m.refine)    # the grid the solver will use
-        det, where = mapgeom.fold(knots, [2, 2], P, w)
+        # the refined map is the given one (knot insertion changes the grid, not the map): checked on the given
+        # net with its knots scaled to the refined cells, so the check costs the same at any `refine` (the
+        # refined net's size is budget.py's to estimate and refuse, before anything is built)
+        _, cells = mapgeom.refined_shape([m.knots.x, m.knots.y], m.refine)
+        knots = [mapgeom.scaled_knots(t, n) for t, n in zip((m.knots.x, m.knots.y), cells)]
+        det, where = mapgeom.fold(knots, [2, 2], P, w, [mapgeom.DET_SAMPLES * min(k, max(1, FOLD_SAMPLES * k // n))
+                                                      for k, n in zip(m.refine, cells)])
         if det <= 1e-9:
             raise _Located("domain.map.control_points", f"the map folds or pinches: det J = {det:.3g} (relative) at "
                            f"parameters ({where[0]:g}, {where[1]:g}) cells; control points must keep each cell "
                            "turning the same way (det J of one sign everywhere)")
         # a map that does not fold is one-to-one, so its extremes lie on its boundary: sample the four faces
-        s = [np.linspace(0.0, t[-1], 8 * int(round(t[-1])) + 1) for t in knots]
-        edges = [np.stack([s[0], np.full_like(s[0], e)], -1) for e in (0.0, knots[1][-1])]
-        edges += [np.stack([np.full_like(s[1], e), s[1]], -1) for e in (0.0, knots[0][-1])]
+        s = [np.linspace(0.0, n, min(8 * n, EDGE_SAMPLES) + 1) for n in cells]
+        edges = [np.stack([s[0], np.full_like(s[0], e)], -1) for e in (0.0, cells[1])]
+        edges += [np.stack([np.full_like(s[1], e), s[1]], -1) for e in (0.0, cells[0])]
         pts = mapgeom.surface(knots, [2, 2], P, w, np.concatenate(edges))[0]
         for a in range(2):
             lo, hi = pts[:, a].min(), pts[:, a].max()
             if self.domain.lower[a] > lo or self.domain.upper[a] < hi:
                 raise _Located("domain.upper", f"the domain box must hold the map: [{lo:g}, {hi:g}] along "
                                                f"{'xy'[a]}")
+
+    def _check_ranges(self):
+        """Inputs (and the sizes they give) whose magnitude the precision cannot carry through a step: a density
+        of 1e-300 is 0 in f32 (a body that never moves), a stress of 1e40 is infinite, a velocity of 1e30 squared
+        overflows. ConfigError naming the key and the precision."""
+        check = _InRange(self.precision)
+        for name, m in self.materials.items():
+            _check_material_range(check, name, m)
+        for a, g in enumerate(self.solver.gravity or []):
+            check(f"solver.gravity.{a}", g, "m/s^2")
+        for i, b in enumerate(self.bodies):
+            self._check_body_range(check, i, b)
+        for a in range(self.dim):
+            for side in (0, 1):
+                face = FACES[2 * a + side]
+                fkey = f"domain.boundaries.{face if getattr(self.domain.boundaries, face) is not None else 'default'}"
+                for c, v in enumerate(self.domain.boundaries.velocity(a, side) or []):
+                    check(f"{fkey}.velocity.{c}", largest_magnitude(v, TIME, t=self._time_samples), "m/s")
+
+    def _check_body_range(self, check, i, b):
+        """A body's initial fields (expressions sampled over its box), loads, grips, particle volume and mass."""
+        key, at = f"bodies.{i}", self._space_samples(b.shape)
+        for a, v in enumerate(b.velocity or []):
+            check(f"{key}.velocity.{a}", largest_magnitude(v, SPACE, **at), "m/s")
+        w = b.angular_velocity
+        for a, wa in enumerate(np.atleast_1d(w if w is not None else [])):
+            check(f"{key}.angular_velocity" + (f".{a}" if isinstance(w, list) else ""), wa, "1/s")
+        for idx, v in _flat(b.stress or []):
+            check(f"{key}.stress.{idx}", largest_magnitude(v, SPACE, **at), "Pa")
+        for j, t in enumerate(b.tractions):
+            tkey, ramp = f"{key}.tractions.{j}", max(largest_magnitude(t.ramp, TIME, t=self._time_samples), 1e-300)
+            for a, v in enumerate(t.traction or []):
+                check(f"{tkey}.traction.{a}", v, "Pa")
+            check(f"{tkey}.pressure", t.pressure, "Pa")
+            for v, what in [(v, "traction") for v in t.traction or []] + [(t.pressure or 0.0, "pressure")]:
+                check(f"{tkey}.ramp", v * ramp, "Pa", f"{what} x ramp, {v * ramp:.3g}")
+        for j, g in enumerate(b.prescribed_velocity):
+            for a, v in enumerate(g.velocity):
+                check(f"{key}.prescribed_velocity.{j}.velocity.{a}", largest_magnitude(v, TIME, t=self._time_samples),
+                      "m/s")
+        with np.errstate(all="ignore"):
+            volume = float(np.float64(self.domain.dx / b.particles_per_cell) ** self.dim)
+        check(f"{key}.particles_per_cell", volume, "m^3", f"the particle volume (domain.dx / particles_per_cell)"
+              f"^{self.dim} = {volume:.3g}", derived=True)
+        if b.material in self.materials:
+            with np.errstate(all="ignore"):
+                mass = float(np.float64(volume) * self.materials[b.material].density)
+            check(f"materials.{b.material}.density", mass, "kg", f"the particle mass of body {i} (density x "
+                  f"volume {volume:.3g}), {mass:.3g}", derived=True)
+
+    @property
+    def _time_samples(self) -> np.ndarray:
+        return np.linspace(0.0, self.solver.end_time, 65)
+
+    def _space_samples(self, shape) -> dict:
+        """x, y, z at 5 points per axis over a shape's bounding box (the domain's for a mesh)."""
+        lo, hi = np.asarray(self.domain.lower, float), np.asarray(self.domain.upper, float)
+        if not isinstance(shape, Mesh):
+            from .scene import shape_bounds   # (scene imports this module)
+            try:
+                lo, hi = shape_bounds(shape, self.dim)
+            except Exception:   # a shape of the wrong dimension: its own check reports it
+                pass
+        axes = [np.linspace(l, h, 5) for l, h in zip(lo, hi)]
+        grid = np.meshgrid(*axes, indexing="ij")
+        return {SPACE[a]: g.ravel() for a, g in enumerate(grid)}
 
     def _check_probes(self):
         d, names = self.dim, set()
@@ -728,9 +866,30 @@ class Config(Strict):
                                               "entries (numbered from 0 over all bodies in order)")
             if p.face is not None and "xyz".index(p.face[0]) >= d:
                 raise _Located(f"{key}.face", f"no face {p.face} in {d}D (faces: {', '.join(FACES[:2 * d])})")
+            self._check_probe_reach(key, p)
         if any(p.type == "wall" for p in self.output.probes) and self.crack is not None:
             raise _Located("output.probes", "wall probes are not available with a crack section (the crack finder "
                                             "has its own grid update)")
+
+    def _check_probe_reach(self, key, p):
+        """A point probe inside the domain; a region probe that meets some body's box (a region beside every body
+        selects no particle: found at validation, not when the run starts)."""
+        lo, hi = np.asarray(self.domain.lower, float), np.asarray(self.domain.upper, float)
+        if p.point is not None and (np.any(np.asarray(p.point) < lo) or np.any(np.asarray(p.point) > hi)):
+            raise _Located(f"{key}.point", f"the point {p.point} lies outside the domain {lo.tolist()}..{hi.tolist()}")
+        if p.region is None:
+            return
+        from .scene import shape_bounds   # (scene imports this module)
+
+        r_lo, r_hi = shape_bounds(p.region, self.dim)
+        for b in self.bodies:
+            if isinstance(b.shape, Mesh):
+                return   # its box needs the file: the probe's own selection reports an empty region
+            b_lo, b_hi = shape_bounds(b.shape, self.dim)
+            if np.all(r_lo <= b_hi) and np.all(b_lo <= r_hi):
+                return
+        raise _Located(f"{key}.region", f"the probe '{p.name}' selects no particle: its region (box "
+                                        f"{r_lo.tolist()}..{r_hi.tolist()}) meets no body's bounding box")
 
     # resolved values --------------------------------------------------
     @property
@@ -779,6 +938,47 @@ def _check_names(key, value, d):
                                 f"(axes: {', '.join(SPACE[:d])})")
 
 
+class _InRange:
+    """check(key, value, unit, what): a ConfigError naming the key and the precision when a nonzero value's
+    magnitude is outside PRECISION_RANGE (DERIVED_RANGE for derived sizes)."""
+
+    def __init__(self, precision):
+        self.precision = precision
+        self.fix = "use precision: f64 or check the units" if precision == "f32" else "check the units"
+
+    def __call__(self, key, value, unit="", what="", derived=False):
+        if value is None or value == 0:
+            return
+        lo, hi = (DERIVED_RANGE if derived else PRECISION_RANGE)[self.precision]
+        if not lo <= abs(value) <= hi:
+            raise _Located(key, f"{what or _brief(value)}{' ' + unit if unit else ''} is outside what precision "
+                                f"{self.precision} carries through a step (magnitudes {lo:g} to {hi:g}, or 0): "
+                                f"{self.fix}")
+
+
+def _check_material_range(check, name, m):
+    """Material keys in RANGE_UNITS, and the stiffest modulus (snow: max_hardening x the P-wave modulus)."""
+    for field, info in type(m).model_fields.items():
+        unit = (info.json_schema_extra or {}).get("unit")
+        if unit in RANGE_UNITS:
+            check(f"materials.{name}.{field}", getattr(m, field), unit)
+    c = material_models.wave_speed(m)
+    stiffest = c * c * m.density
+    if stiffest > PRECISION_RANGE[check.precision][1]:
+        key = f"materials.{name}.{'max_hardening' if hasattr(m, 'max_hardening') else 'density'}"
+        check(key, stiffest, "Pa", f"the stiffest modulus of material '{name}', {stiffest:.3g}")
+
+
+def _flat(stress):
+    """(index text, value) of a Voigt list or a matrix of stress components."""
+    for i, row in enumerate(stress):
+        if isinstance(row, list):
+            for j, v in enumerate(row):
+                yield f"{i}.{j}", v
+        else:
+            yield str(i), row
+
+
 def _check_region(key, region, d):
     if region is None:
         return
@@ -825,6 +1025,17 @@ def _check_loads(key, b, d):
         _need_len(f"{gkey}.velocity", g.velocity, d)
         if all(v is None for v in g.velocity):
             raise _Located(f"{gkey}.velocity", "prescribes no component (every one is null)")
+
+
+def _check_angular_velocity(key, w, d):
+    if d == 1:
+        raise _Located(key, "has no meaning in 1D")
+    if d == 2 and not isinstance(w, (int, float)):
+        raise _Located(key, "must be a scalar in 2D")
+    if d == 3 and isinstance(w, (int, float)):
+        raise _Located(key, "must be a vector [wx, wy, wz] in 3D")
+    if d == 3:
+        _need_len(key, w, 3)
 
 
 def _check_shape(key, s, d):

@@ -61,11 +61,13 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "domain.map.knots.y": ("", "knots of the second parameter (the points within a row)"),
     "domain.map.control_points": ("m", "control_points[i][j] = [x, y]: len(knots.x) - 3 rows of len(knots.y) - 3 "
                                        "points; the map must not fold (det J of one sign, checked at 5 x 5 points "
-                                       "per cell) and must lie inside domain.lower/upper"),
+                                       "per cell, up to 64 cells per axis) and must lie inside domain.lower/upper; "
+                                       "bodies must lie inside the map"),
     "domain.map.weights": ("1", "one positive weight per control point, same layout; null: all 1 (a B-spline map)"),
     "domain.map.refine": ("", "[cells per knot span along x, along y]: each nonzero knot span is split evenly by "
                               "knot insertion (the geometry stays exactly the same; give the coarse exact shape, "
-                              "refine for the grid)"),
+                              "refine for the grid); the refined net's size is estimated from the knots and "
+                              "checked against limits.memory_gb before anything is built (docs/reliability.md)"),
     "domain.map.periodic": ("", "the first parameter wraps around (a full ring): the last row of control points "
                                 "and weights must equal the first, and there are no x_min/x_max faces"),
     "domain.map.inner_radius": ("m", "radius of the inner circle"),
@@ -73,7 +75,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "domain.map.angle": ("deg", "angular span counter-clockwise from +x; 360: a full ring, periodic in the angle"),
     "domain.map.center": ("m", "centre of the circles"),
     "domain.map.cells": ("", "[cells along the angle, cells across the radius]; the first a multiple of the "
-                             "number of quarter turns (rational pieces) the angle spans"),
+                             "number of quarter turns (rational pieces) the angle spans; sized against "
+                             "limits.memory_gb before anything is built (docs/reliability.md)"),
     "solver": ("", "time integration and the MPM scheme"),
     "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines, cpdi (CPDI1 "
                          "particle domains over linear grid functions) or ddmp (linear functions, dual-domain "
@@ -178,7 +181,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "limits": ("", "resource limits checked before anything is allocated"),
     "limits.memory_gb": ("GB", "largest estimated memory of a run; null: half of this machine's physical memory"),
     "limits.particles": ("", "largest particle count; null: only the memory limit"),
-    "limits.allow_large": ("", "run past the limits (the estimate still prints); same as --allow-large"),
+    "limits.steps": ("", "largest estimated number of steps to solver.end_time (dt from every rate of the CFL rule "
+                         "at t = 0); null: 1e8"),
+    "limits.allow_large": ("", "run past the limits (memory, particles, steps; the estimate still prints); same as "
+                               "--allow-large"),
     "output": ("", "what a run writes into its folder"),
     "output.dir": ("", "run folder; {name} is replaced by the scene name"),
     "output.every": ("s", "simulated time between outputs"),

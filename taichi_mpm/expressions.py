@@ -113,54 +113,74 @@ def parse(text: str, variables: Iterable[str], key: str | None = None) -> ast.Ex
 
 
 def _check(node, allowed, text, key):
+    """One syntax node against the grammar: a ConfigError naming the key for anything else."""
     def bad(why):
         raise ConfigError(f"expression {_brief(text)}: {why}", key=key)
 
     if isinstance(node, (ast.Expression, ast.Load, ast.IfExp, ast.BoolOp, ast.And, ast.Or, ast.Not, ast.USub,
                          ast.UAdd)):
         return
-    if isinstance(node, ast.Constant):
-        if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
-            bad(f"only numbers are allowed, not {node.value!r}")
-        try:
-            if not math.isfinite(float(node.value)):
-                bad(f"the number {node.value!r} is not finite")
-        except OverflowError:
-            bad("a number is too large")
-    elif isinstance(node, ast.Name):
-        if node.id not in allowed and node.id not in CONSTANTS:
-            if node.id in FUNCTIONS:
-                bad(f"'{node.id}' is a function: write {node.id}(...)")
-            names = ", ".join(list(allowed) + list(CONSTANTS))
-            bad(f"unknown name '{node.id}' (allowed here: {names}; functions: {', '.join(FUNCTIONS)})")
-    elif isinstance(node, ast.BinOp):
-        if type(node.op) not in _BINARY:
-            bad(f"operator {_OP_TEXT.get(type(node.op), type(node.op).__name__)} is not allowed")
-        if isinstance(node.op, ast.Pow):
-            p = _constant_value(node.right)
-            if p is not None and abs(p) > MAX_EXPONENT:
-                bad(f"exponent {p:g} is larger than {MAX_EXPONENT}")
-    elif isinstance(node, ast.UnaryOp):
-        if type(node.op) not in (ast.USub, ast.UAdd, ast.Not):
-            bad(f"operator {_OP_TEXT.get(type(node.op), type(node.op).__name__)} is not allowed")
-    elif isinstance(node, ast.Compare):
-        if any(type(op) not in _COMPARE for op in node.ops):
-            bad("only the comparisons < <= > >= == != are allowed")
-    elif isinstance(node, ast.Call):
-        if not isinstance(node.func, ast.Name) or node.func.id not in FUNCTIONS:
-            name = node.func.id if isinstance(node.func, ast.Name) else ast.dump(node.func)[:30]
-            bad(f"unknown function {name!r} (functions: {', '.join(FUNCTIONS)})")
-        if node.keywords or any(isinstance(a, ast.Starred) for a in node.args):
-            bad(f"{node.func.id}() takes plain arguments only")
-        _, lo, hi = FUNCTIONS[node.func.id]
-        if not lo <= len(node.args) <= hi:
-            want = f"{lo}" if lo == hi else f"{lo} to {hi}"
-            bad(f"{node.func.id}() takes {want} argument{'s' if hi > 1 else ''}, got {len(node.args)}")
+    check = _NODE_CHECKS.get(type(node))
+    if check is not None:
+        check(node, allowed, bad)
     elif isinstance(node, (ast.Lt, ast.LtE, ast.Gt, ast.GtE, ast.Eq, ast.NotEq)) or type(node) in _BINARY:
         return
     else:
         bad(f"{type(node).__name__} is not allowed (numbers, names, arithmetic, comparisons, "
             f"'a if c else b' and functions only)")
+
+
+def _check_constant(node, allowed, bad):
+    if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
+        bad(f"only numbers are allowed, not {node.value!r}")
+    try:
+        if not math.isfinite(float(node.value)):
+            bad(f"the number {node.value!r} is not finite")
+    except OverflowError:
+        bad("a number is too large")
+
+
+def _check_name(node, allowed, bad):
+    if node.id not in allowed and node.id not in CONSTANTS:
+        if node.id in FUNCTIONS:
+            bad(f"'{node.id}' is a function: write {node.id}(...)")
+        names = ", ".join(list(allowed) + list(CONSTANTS))
+        bad(f"unknown name '{node.id}' (allowed here: {names}; functions: {', '.join(FUNCTIONS)})")
+
+
+def _check_binop(node, allowed, bad):
+    if type(node.op) not in _BINARY:
+        bad(f"operator {_OP_TEXT.get(type(node.op), type(node.op).__name__)} is not allowed")
+    if isinstance(node.op, ast.Pow):
+        p = _constant_value(node.right)
+        if p is not None and abs(p) > MAX_EXPONENT:
+            bad(f"exponent {p:g} is larger than {MAX_EXPONENT}")
+
+
+def _check_unary(node, allowed, bad):
+    if type(node.op) not in (ast.USub, ast.UAdd, ast.Not):
+        bad(f"operator {_OP_TEXT.get(type(node.op), type(node.op).__name__)} is not allowed")
+
+
+def _check_compare(node, allowed, bad):
+    if any(type(op) not in _COMPARE for op in node.ops):
+        bad("only the comparisons < <= > >= == != are allowed")
+
+
+def _check_call(node, allowed, bad):
+    if not isinstance(node.func, ast.Name) or node.func.id not in FUNCTIONS:
+        name = node.func.id if isinstance(node.func, ast.Name) else ast.dump(node.func)[:30]
+        bad(f"unknown function {name!r} (functions: {', '.join(FUNCTIONS)})")
+    if node.keywords or any(isinstance(a, ast.Starred) for a in node.args):
+        bad(f"{node.func.id}() takes plain arguments only")
+    _, lo, hi = FUNCTIONS[node.func.id]
+    if not lo <= len(node.args) <= hi:
+        want = f"{lo}" if lo == hi else f"{lo} to {hi}"
+        bad(f"{node.func.id}() takes {want} argument{'s' if hi > 1 else ''}, got {len(node.args)}")
+
+
+_NODE_CHECKS = {ast.Constant: _check_constant, ast.Name: _check_name, ast.BinOp: _check_binop,
+                ast.UnaryOp: _check_unary, ast.Compare: _check_compare, ast.Call: _check_call}
 
 
 def _constant_value(node):
@@ -229,3 +249,20 @@ def evaluate(value, key: str | None, variables: Iterable[str], **values):
     arrays = [np.asarray(v) for v in values.values()]
     shape = np.broadcast_shapes(*[a.shape for a in arrays]) if arrays else ()
     return np.full(shape, float(value)) if shape else float(value)
+
+
+def largest_magnitude(value, variables: Iterable[str], **values) -> float:
+    """The largest finite |value| of a number (None: 0) or an expression over sample points (non-finite samples are left
+    out: where they matter the evaluation at the particles reports them). Config checks of magnitudes."""
+    if value is None:   # a free component
+        return 0.0
+    if not isinstance(value, str):
+        return abs(float(value))
+    try:
+        tree = parse(value, tuple(variables))
+        with np.errstate(all="ignore"):
+            out = np.abs(np.asarray(_eval(tree.body, values, None), dtype=np.float64))
+    except (ConfigError, ArithmeticError, ValueError, TypeError):
+        return 0.0
+    out = out[np.isfinite(out)]
+    return float(out.max()) if out.size else 0.0

@@ -80,17 +80,50 @@ def cartesian(Pw: np.ndarray):
 def refine(knots, P, w, per_span):
     """The patch the solver's grid uses: every nonzero knot span of axis a split into per_span[a] equal spans by
     knot insertion (degree 2 per axis), the knots then scaled to cells (cell_knots). The map is exactly the same;
-    only the grid is finer."""
+    only the grid is finer. The insertions are made once per axis on the identity (the refinement matrix of that
+    axis, refined rows x given rows), then applied to the net: the cost grows with the refined net, not with the
+    refined net times the number of knots inserted."""
     Pw = homogeneous(np.asarray(P, float), np.asarray(w, float))
     knots = [np.asarray(t, float) for t in knots]
     for axis, k in enumerate(per_span):
-        b = np.unique(knots[axis])
+        t, T = knots[axis], np.eye(Pw.shape[axis])
+        b = np.unique(t)
         for lo, hi in zip(b[:-1], b[1:]):
             for j in range(1, k):
-                knots[axis], Pw = insert_knot(knots[axis], 2, Pw, lo + (hi - lo) * j / k, axis)
+                t, T = insert_knot(t, 2, T, lo + (hi - lo) * j / k, 0)
+        knots[axis] = t
+        Pw = np.moveaxis(np.tensordot(T, Pw, axes=(1, axis)), 0, axis)
     P, w = cartesian(Pw)
     return [cell_knots(t) for t in knots], P, w
 
+
+def refined_shape(knots, per_span) -> tuple[list[int], list[int]]:
+    """(control points, cells) per axis of `refine(knots, ..., per_span)`, from the knots alone (nothing built):
+    each of the S nonzero spans of an axis gains per_span - 1 knots, so n + S (per_span - 1) control points and
+    S per_span cells."""
+    ctrl, cells = [], []
+    for t, k in zip(knots, per_span):
+        t = np.asarray(t, float)
+        spans = int(np.count_nonzero(np.diff(t) > 0))
+        ctrl.append(len(t) - 3 + spans * (int(k) - 1))
+        cells.append(spans * int(k))
+    return ctrl, cells
+
+
+def annulus_shape(angle_deg: float, cells) -> tuple[list[int], list[int]]:
+    """(control points, cells) per axis of the built-in annulus (nurbs.annulus), from its config alone: the arc
+    is one rational piece per quarter turn (double knots between them), n_angle + pieces + 1 control points;
+    the radius n_radial + 2 (a full ring stores its seam column once: one fewer along the angle)."""
+    pieces = max(1, int(np.ceil(angle_deg / 90.0 - 1e-9)))
+    n_angle, n_radial = (int(c) for c in cells)
+    return [n_angle + pieces + 1, n_radial + 2], [n_angle, n_radial]
+
+
+def scaled_knots(t, cells: int) -> np.ndarray:
+    """The knot vector t affinely scaled to [0, cells]: the same spline as its refinement scaled by cell_knots,
+    so a refined map can be evaluated (and checked) on its coarse control net."""
+    t = np.asarray(t, float)
+    return (t - t[0]) * (cells / (t[-1] - t[0]))
 
 def cell_knots(t) -> np.ndarray:
     """A knot vector scaled to cells: from 0 to its number of nonzero spans (uniform spans become unit cells)."""
@@ -99,19 +132,62 @@ def cell_knots(t) -> np.ndarray:
     return (t - t[0]) * (spans / (t[-1] - t[0]))
 
 
+def local_basis(t, p: int, u):
+    """The p + 1 B-splines of degree p that are nonzero at each point u (M,) and their first derivatives:
+    (index of the first, values (M, p + 1), derivatives (M, p + 1)); The NURBS Book A2.2 and eq. 2.7, for all
+    points at once. The same numbers as bspline_values / bspline_derivatives (last span closed on the right), at a
+    cost that does not grow with the number of control points."""
+    t = np.asarray(t, float)
+    u = np.atleast_1d(np.asarray(u, float))
+    n = len(t) - p - 1
+    k = np.clip(np.searchsorted(t, u, side="right") - 1, p, n - 1)      # t[k] <= u < t[k + 1]
+    def basis(q):
+        N = np.zeros((len(u), q + 1))
+        N[:, 0] = 1.0
+        left = [None] + [u - t[k + 1 - j] for j in range(1, q + 1)]
+        right = [None] + [t[k + j] - u for j in range(1, q + 1)]
+        for j in range(1, q + 1):
+            saved = np.zeros(len(u))
+            for r in range(j):
+                den = right[r + 1] + left[j - r]
+                temp = np.divide(N[:, r], den, out=np.zeros(len(u)), where=den != 0)
+                N[:, r] = saved + right[r + 1] * temp
+                saved = left[j - r] * temp
+            N[:, j] = saved
+        return N
+    N = basis(p)
+    dN = np.zeros_like(N)
+    if p > 0:
+        lower = basis(p - 1)            # the degree p - 1 functions k - p + 1 .. k
+        for r in range(p + 1):
+            if r >= 1:
+                a = t[k + r] - t[k - p + r]
+                dN[:, r] += p * np.divide(lower[:, r - 1], a, out=np.zeros(len(u)), where=a > 0)
+            if r <= p - 1:
+                b = t[k + r + 1] - t[k - p + r + 1]
+                dN[:, r] -= p * np.divide(lower[:, r], b, out=np.zeros(len(u)), where=b > 0)
+    return k - p, N, dN
+
+
 def surface(knots, degrees, P, w, xi):
-    """x(xi) (M, 2) and J = dx/dxi (M, 2, 2) at parameter points xi (M, 2), by the quotient rule."""
+    """x(xi) (M, 2) and J = dx/dxi (M, 2, 2) at parameter points xi (M, 2), by the quotient rule. Each point
+    reads only its (p0 + 1) x (p1 + 1) control points (local_basis): memory and time grow with the points, not
+    with the points times the net."""
     xi = np.atleast_2d(np.asarray(xi, float))
-    N = [bspline_values(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(knots, degrees))]
-    dN = [bspline_derivatives(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(knots, degrees))]
-    Nw = np.einsum("mi,mj,ij->mij", N[0], N[1], w)
-    D0 = np.einsum("mi,mj,ij->mij", dN[0], N[1], w)
-    D1 = np.einsum("mi,mj,ij->mij", N[0], dN[1], w)
+    P, w = np.asarray(P, float), np.asarray(w, float)
+    (i0, N0, dN0), (i1, N1, dN1) = (local_basis(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(knots, degrees)))
+    I0 = i0[:, None] + np.arange(N0.shape[1])
+    I1 = i1[:, None] + np.arange(N1.shape[1])
+    wl = w[I0[:, :, None], I1[:, None, :]]                      # (M, p0 + 1, p1 + 1)
+    Pl = P[I0[:, :, None], I1[:, None, :]]                      # (M, p0 + 1, p1 + 1, 2)
+    Nw = N0[:, :, None] * N1[:, None, :] * wl
+    D0 = dN0[:, :, None] * N1[:, None, :] * wl
+    D1 = N0[:, :, None] * dN1[:, None, :] * wl
     W, W0, W1 = Nw.sum(axis=(1, 2)), D0.sum(axis=(1, 2)), D1.sum(axis=(1, 2))
-    x = np.einsum("mij,ijc->mc", Nw, P) / W[:, None]
+    x = np.einsum("mij,mijc->mc", Nw, Pl) / W[:, None]
     J = np.empty((len(xi), 2, 2))
-    J[:, :, 0] = (np.einsum("mij,ijc->mc", D0, P) - W0[:, None] * x) / W[:, None]
-    J[:, :, 1] = (np.einsum("mij,ijc->mc", D1, P) - W1[:, None] * x) / W[:, None]
+    J[:, :, 0] = (np.einsum("mij,mijc->mc", D0, Pl) - W0[:, None] * x) / W[:, None]
+    J[:, :, 1] = (np.einsum("mij,mijc->mc", D1, Pl) - W1[:, None] * x) / W[:, None]
     return x, J
 
 
@@ -121,11 +197,11 @@ def _samples(t, k):
     return np.unique(np.concatenate([np.linspace(b[i], b[i + 1], k + 1) for i in range(len(b) - 1)]))
 
 
-def fold(knots, degrees, P, w):
+def fold(knots, degrees, P, w, per_span=(DET_SAMPLES, DET_SAMPLES)):
     """(min s det J / |J|^2, the parameter point where it is smallest) over DET_SAMPLES + 1 points per cell and
     axis, s the sign of det J at most samples (either orientation is a grid: the annulus, angle first, has
     det J < 0): a map that folds or pinches (that value <= 0 somewhere) is not a grid."""
-    s = [_samples(t, DET_SAMPLES) for t in knots]
+    s = [_samples(t, k) for t, k in zip(knots, per_span)]
     xi = np.stack(np.meshgrid(*s, indexing="ij"), -1).reshape(-1, 2)
     _, J = surface(knots, degrees, P, w, xi)
     det = np.linalg.det(J)
@@ -188,13 +264,59 @@ def face_normals(knots, degrees, P, w, periodic=False) -> np.ndarray:
     return out
 
 
-def cell_sizes(knots, degrees, P, w):
+def cell_sizes(knots, degrees, P, w, breaks=None, rows=256):
     """(smallest, largest) chord between neighbouring cell corners x(knot_a, knot_b): the edges of the
-    physical cells (the annulus: an inner arc's chord and a radial cell)."""
-    b = [np.unique(t) for t in knots]
-    xi = np.stack(np.meshgrid(*b, indexing="ij"), -1)
-    x, _ = surface(knots, degrees, P, w, xi.reshape(-1, 2))
-    x = x.reshape(xi.shape)
-    edges = np.concatenate([np.linalg.norm(np.diff(x, axis=0), axis=-1).ravel(),
-                            np.linalg.norm(np.diff(x, axis=1), axis=-1).ravel()])
-    return float(edges.min()), float(edges.max())
+    physical cells (the annulus: an inner arc's chord and a radial cell). `breaks`: the corner parameters per
+    axis (default: the distinct knots; a refined map's on its coarse net: scaled_knots). Evaluated a few rows
+    of corners at a time (memory of `rows` rows' corners at most)."""
+    b = [np.unique(t) for t in knots] if breaks is None else [np.asarray(v, float) for v in breaks]
+    lo, hi, prev = np.inf, 0.0, None
+    step = max(1, rows * 1024 // max(len(b[1]), 1))
+    for start in range(0, len(b[0]), step):
+        rows_xi = b[0][start:start + step]
+        xi = np.stack(np.meshgrid(rows_xi, b[1], indexing="ij"), -1)
+        x, _ = surface(knots, degrees, P, w, xi.reshape(-1, 2))
+        x = x.reshape(xi.shape)
+        if prev is not None:
+            x = np.concatenate([prev[None], x])
+        edges = np.concatenate([np.linalg.norm(np.diff(x, axis=0), axis=-1).ravel(),
+                                np.linalg.norm(np.diff(x, axis=1), axis=-1).ravel()])
+        if len(edges):
+            lo, hi = min(lo, float(edges.min())), max(hi, float(edges.max()))
+        prev = x[-1]
+    return lo, hi
+
+
+def boundary(knots, degrees, P, w, per_cell: int = 16, most: int = 16384) -> np.ndarray:
+    """The map's boundary as a closed polygon (K, 2): its four parameter faces in turn (y_min, x_max, y_max
+    reversed, x_min reversed), `per_cell` points per cell of each face, at most `most` per face. A periodic map's
+    seam is traversed both ways, so it adds no crossing to an even-odd test (`outside`)."""
+    hi = [float(t[-1]) for t in knots]
+    s = [np.linspace(0.0, h, min(most, per_cell * max(1, int(round(h)))) + 1) for h in hi]
+    faces = [np.stack([s[0], np.zeros_like(s[0])], -1), np.stack([np.full_like(s[1], hi[0]), s[1]], -1),
+             np.stack([s[0][::-1], np.full_like(s[0], hi[1])], -1), np.stack([np.zeros_like(s[1]), s[1][::-1]], -1)]
+    return surface(knots, degrees, P, w, np.concatenate(faces))[0]
+
+
+def outside(polygon: np.ndarray, pts: np.ndarray, tol: float) -> np.ndarray:
+    """Mask of the points outside the closed polygon (even-odd rule) by more than `tol` (points within `tol` of
+    its edges count as inside: particles flush with a wall)."""
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    out = np.zeros(len(pts), bool)
+    for start in range(0, len(pts), 4096):
+        p = pts[start:start + 4096, None, :]
+        crosses = ((a[None, :, 1] > p[..., 1]) != (b[None, :, 1] > p[..., 1]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_at = a[None, :, 0] + (p[..., 1] - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (
+                b[None, :, 1] - a[None, :, 1])
+        inside = (crosses & (p[..., 0] < x_at)).sum(axis=1) % 2 == 1
+        far = ~inside
+        if far.any():
+            q = p[far]
+            e = b - a
+            L2 = np.maximum((e * e).sum(-1), 1e-300)
+            t = np.clip(((q - a[None]) * e[None]).sum(-1) / L2[None], 0.0, 1.0)
+            dist = np.linalg.norm(q - (a[None] + t[..., None] * e[None]), axis=-1).min(axis=1)
+            far[np.flatnonzero(far)] = dist > tol
+        out[start:start + 4096] = far
+    return out

@@ -174,7 +174,8 @@ class Map:
         return surface(self.knots, self.degrees, self.P, self.w, xi)
 
     def evaluate(self, xi: np.ndarray) -> np.ndarray:
-        """x(xi) for parameter points (M, 2): all B-splines of each axis from the Cox-de Boor recursion in numpy
-        (independent of the kernel's code path; for tests and drawing)."""
-        return np.einsum("mij,ijc->mc", self.rational_host(xi), self.P)
+        """x(xi) for parameter points (M, 2): the nonzero B-splines of each axis from the Cox-de Boor recursion in
+        numpy (mapgeom.surface; independent of the kernel's code path; for setup, tests and drawing). Its memory
+        grows with the points only (rational_host, every function at every point, grows with points x net)."""
+        return surface(self.knots, self.degrees, self.P, self.w, xi)[0]
 

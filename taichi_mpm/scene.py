@@ -545,6 +545,8 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     dmg = np.zeros(len(pts))
     for j, region in enumerate(body.damage_regions):
         m = inside(region.shape, pts, base_dir, f"{key}.damage_regions.{j}.shape")
+        if not m.any():   # as a grip's region: a region that damages nothing is a mistake, not a no-op
+            raise ConfigError("the damage region holds no particle of the body", key=f"{key}.damage_regions.{j}.shape")
         dmg[m] = np.maximum(dmg[m], region.value)
     grips = []
     for j, g in enumerate(body.prescribed_velocity):
@@ -566,6 +568,40 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
                 material=np.full(len(pts), mat_names.index(body.material), np.int32),
                 damage=dmg, interface=iface, spacing=np.full(len(pts), h),
                 stress=_initial_stress(body.stress, d, coords, f"{key}.stress"), loads=loads, grips=grips)
+
+
+def _inside_map(cfg, bi, pts):
+    """A mapped grid covers only its map's image, not the domain box: particles outside it cannot be located in
+    parameter space (the solver would stop at upload). ConfigError naming the body."""
+    m = cfg.domain.map
+    if m is None or not len(pts):
+        return
+    c = np.asarray(m.center if m.type == "annulus" else [0.0, 0.0], float)
+    if m.type == "annulus":
+        r = np.linalg.norm(pts - c, axis=1)
+        angle = np.degrees(np.arctan2(pts[:, 1] - c[1], pts[:, 0] - c[0])) % 360.0
+        tol = 1e-9 * m.outer_radius
+        out = (r < m.inner_radius - tol) | (r > m.outer_radius + tol)
+        if m.angle < 360.0:
+            out |= (angle > m.angle + 1e-9) & (angle < 360.0 - 1e-9)
+        what = (f"the annulus of domain.map (radii {m.inner_radius:g} to {m.outer_radius:g} about "
+                f"{m.center}" + (f", 0 to {m.angle:g} degrees)" if m.angle < 360.0 else ")"))
+    else:
+        from . import mapgeom
+
+        _, cells = mapgeom.refined_shape([m.knots.x, m.knots.y], m.refine)
+        knots = [mapgeom.scaled_knots(t, n) for t, n in zip((m.knots.x, m.knots.y), cells)]
+        P = np.asarray(m.control_points, float)
+        w = np.ones(P.shape[:2]) if m.weights is None else np.asarray(m.weights, float)
+        poly = mapgeom.boundary(knots, [2, 2], P, w)
+        size = float(np.ptp(poly, axis=0).max())
+        out = mapgeom.outside(poly, pts, 1e-6 * size)
+        what = "the nurbs map of domain.map (its image, not the domain box)"
+    if out.any():
+        first = pts[np.flatnonzero(out)[0]]
+        raise ConfigError(f"{int(out.sum())} of the body's {len(pts)} particles lie outside the mapped grid: "
+                          f"outside {what}, e.g. at {np.round(first, 6).tolist()}; a mapped grid covers its map "
+                          "only: move the body inside", key=f"bodies.{bi}.shape")
 
 
 def _initial_stress(spec, d, coords, key) -> Optional[np.ndarray]:
@@ -598,6 +634,8 @@ def build_scene(cfg: Config, seed: int = 0) -> Scene:
     rng = np.random.default_rng(seed)
     mat_names = list(dict.fromkeys(b.material for b in cfg.bodies))
     parts = [_body_particles(cfg, bi, body, mat_names, base_dir, rng) for bi, body in enumerate(cfg.bodies)]
+    for bi, p in enumerate(parts):
+        _inside_map(cfg, bi, p["x"])
     special = ("stress", "loads", "grips")
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k not in special}
     offsets = np.cumsum([0] + [len(p["x"]) for p in parts])

@@ -133,7 +133,11 @@ def test_absurd_step_and_output_counts_warn():
     cfg["materials"]["m"]["E"] = 1e16  # GPa given as Pa twice: wave speed 3e6 m/s -> 1e7+ steps
     with pytest.warns(budget.SizeWarning, match="steps"):
         budget.check(tm.load_config(cfg))
-    cfg = make_cfg(2, end_time=1.0, dt=1e-12)
+    cfg = make_cfg(2, end_time=1.0, dt=1e-12)   # beyond any sensible length: refused (issue 30), or opted in
+    with pytest.raises(tm.ConfigError, match="1e\\+12 steps") as e:
+        budget.check(tm.load_config(cfg))
+    assert e.value.key == "solver.dt"
+    cfg["limits"] = dict(allow_large=True)
     with pytest.warns(budget.SizeWarning, match="1e\\+12 steps"):
         budget.check(tm.load_config(cfg))
     cfg = make_cfg(2, end_time=1.0, max_steps=100, dt=1e-12)  # capped: fine

@@ -181,3 +181,38 @@ def test_body_outside_domain_is_located_in_the_file(tmp_path):
     with pytest.raises(tm.ConfigError) as info:
         build_scene(cfg)
     assert "--set bodies.0.shape.upper" in str(locate(info.value, cfg))
+
+
+def _mccabe(fn) -> int:
+    """McCabe complexity as issue 26 counts it (config._consistent: 40): 1 + each if/elif, loop, except,
+    conditional expression, comprehension and its conditions, and each extra operand of and/or; nested
+    functions and classes are counted on their own."""
+    import ast
+
+    n = 1
+    stack = list(ast.iter_child_nodes(fn))
+    while stack:
+        node = stack.pop()
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)):
+            continue
+        if isinstance(node, (ast.If, ast.For, ast.AsyncFor, ast.While, ast.IfExp, ast.ExceptHandler, ast.match_case)):
+            n += 1
+        elif isinstance(node, ast.comprehension):
+            n += 1 + len(node.ifs)
+        elif isinstance(node, ast.BoolOp):
+            n += len(node.values) - 1
+        stack.extend(ast.iter_child_nodes(node))
+    return n
+
+
+@pytest.mark.parametrize("module", ["config", "budget", "mapgeom", "expressions", "scene"])
+def test_no_function_over_complexity_30(module):
+    """Issue 26: no function over complexity 30 (config._consistent was 40: its checks now have one job each)."""
+    import ast
+    import importlib
+    import inspect
+
+    tree = ast.parse(inspect.getsource(importlib.import_module(f"taichi_mpm.{module}")))
+    over = {f.name: _mccabe(f) for f in ast.walk(tree)
+            if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)) and _mccabe(f) > 30}
+    assert not over, over

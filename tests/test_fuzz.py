@@ -16,6 +16,7 @@ import math
 import os
 import random
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -554,7 +555,18 @@ VALID_STUDIES = [   # small valid studies (each case is validated by building it
     dict(study="bar.1", problem={"type": "vibrating_bar", "cells": 8}, set={"arch": "cpu"}, convergence_key="domain.dx",
          description="a bar", vary={"problem.v0": [0.1, 0.2], "precision": ["f32"]}),
     dict(study="base-cfg", base="block.yaml", vary={"solver.transfer": ["pic", "flip"]}, metric="energy_drift"),
+    # the new areas through a study: knots, a plastic material, a grip, probes observed (issue 30)
+    dict(study="areas", base="areas.yaml", vary={"solver.transfer": ["pic", "apic"],
+                                                 "materials.m.yield_stress": [1e3, 1e4]}, observe="p.vy@max"),
 ]
+AREAS_BASE = dict(name="areas", dim=2, arch="cpu", domain=dict(lower=[0, 0], upper=[1, 1], dx=0.25,
+                                                                knots=dict(x=[0, 0, 0, 0, 0.5, 1, 1, 1, 1])),
+                  solver=dict(basis="cubic", end_time=0.01),
+                  materials=dict(m=dict(model="von_mises", density=1000.0, E=1e4, yield_stress=1e3)),
+                  bodies=[dict(shape=dict(type="box", lower=[0.25, 0.25], upper=[0.75, 0.75]), material="m",
+                               prescribed_velocity=[dict(region=dict(type="box", lower=[0.25, 0.25],
+                                                                     upper=[0.75, 0.4]), velocity=[None, 0.0])])],
+                  output=dict(probes=[dict(name="p", type="point", point=[0.5, 0.7]), dict(name="g", type="grip", grip=0)]))
 STUDY_NAMES = st.one_of(st.sampled_from(["..", ".", "a/b", "a\\b", "", "x" * 120, ".hidden", "a\x00b"]), NAMES, SCALARS)
 # problem types that are not the project's: must never be imported or called (the factory in EVIL writes a file)
 FOREIGN = st.sampled_from(["os:system", "subprocess:run", "builtins:exec", "builtins:eval", "evil_fuzz_problem:make",
@@ -585,6 +597,7 @@ def test_study_files_dry_run(tmp_path, monkeypatch):
     (tmp_path / "evil_fuzz_problem.py").write_text(EVIL)
     from conftest import make_cfg
     (tmp_path / "block.yaml").write_text(yaml.safe_dump(make_cfg(2, dx=0.25)))
+    (tmp_path / "areas.yaml").write_text(yaml.safe_dump(AREAS_BASE))
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.chdir(tmp_path)
     path = tmp_path / "study.yaml"
@@ -607,3 +620,213 @@ def test_study_files_dry_run(tmp_path, monkeypatch):
     print(f"study files: {seen[0]} valid, {seen[2]} refused")
     assert sum(seen.values()) >= N_STUDY and seen[0] > 10 and seen[2] > N_STUDY // 2, seen
     assert sorted(p.name for p in tmp_path.rglob("*")) == before   # a dry run writes nothing
+
+
+# ---------------------------------------------------------------- the new config areas (issue 30)
+# Knots, mapped grids, plasticity, loads, grips, expressions and probes (observe): a small valid 2D/3D scene with
+# one area filled in from a seed, then zero to three mutations inside that area's subtree (where the area's own
+# checks must catch them); advise command lines with observe/tolerance/reference specs. Derandomized, fast
+# (a few hundred examples each; no simulation runs: advise is stopped where its sweep would start).
+N_AREA, N_AREA_CLI, N_ADVISE = 400, 120, 120
+AREAS = ("knots", "map", "plasticity", "loads", "grips", "expressions", "observe")
+EXPR_TOKENS = ["x", "y", "z", "t", "pi", "e", "1", "0.5", "1e30", "1e-30", "1e308", "-", "+", "*", "/", "**", "%",
+               "(", ")", "sin(", "exp(", "log(", "sqrt(", "min(", "max(", "clip(", "step(", ",", " if ", " else ",
+               " and ", " not ", "<", "==", "__import__", "os", ".", "[", "]", "lambda", ":", "'", "9" * 40, "**64",
+               "**65", "open(", "x**x**x"]
+
+
+def _expression_text(rng) -> str:
+    if rng.random() < 0.5:   # well-formed
+        return rng.choice(["0.1 * sin(pi * x)", "min(t / 0.01, 1)", "exp(-x**2) * 1e3", "x if x > 0.5 else -x",
+                           "clip(t, 0, 1) * 2", "1e30 * x", "log(x)", "sqrt(-1 - t)", "1 / (t - 0.005)",
+                           "exp(1e3 * t)", "x ** 64", "step(x - 0.5)"])
+    return "".join(rng.choice(EXPR_TOKENS) for _ in range(rng.randint(1, 8)))
+
+
+def area_config(area, seed) -> tuple[dict, tuple]:
+    """A small valid scene with `area` filled in, and the path of the area's subtree (for the mutations)."""
+    rng = random.Random(seed)
+    dim = 2 if area == "map" else rng.choice([2, 2, 3])
+    dx, n = 0.125, 8
+    body_lo, body_hi = [0.25] * dim, [0.625] * dim
+    mat = dict(model="neo_hookean", density=1000.0, E=rng.choice([1e4, 1e6]))
+    body = dict(shape=dict(type="box", lower=body_lo, upper=body_hi), material="m", particles_per_cell=2)
+    cfg = dict(name="area", dim=dim, precision=rng.choice(["f32", "f64"]), arch="cpu",
+               domain=dict(lower=[0.0] * dim, upper=[n * dx] * dim, dx=dx), materials=dict(m=mat), bodies=[body],
+               solver=dict(end_time=rng.choice([0.01, 0.1])))
+    region = dict(type="box", lower=body_lo, upper=[0.4] * dim)
+    path: tuple = ()
+    if area == "knots":
+        basis = rng.choice(["linear", "quadratic", "cubic"])
+        p = {"linear": 1, "quadratic": 2, "cubic": 3}[basis]
+        cfg["solver"]["basis"] = basis
+        inner = sorted(rng.choice([0.25, 0.5, 0.5, 0.75, 0.5 + 1e-9]) for _ in range(rng.randint(0, 3)))
+        cfg["domain"]["knots"] = {"xyz"[rng.randrange(dim)]: [0.0] * (p + 1) + inner + [1.0] * (p + 1)}
+        path = ("domain", "knots")
+    elif area == "map":
+        if rng.random() < 0.5:
+            angle = rng.choice([90.0, 180.0, 360.0])
+            pieces = max(1, math.ceil(angle / 90 - 1e-9))
+            cfg["domain"].update(lower=[-1.125, -1.125], upper=[1.125, 1.125])
+            cfg["domain"]["map"] = dict(type="annulus", inner_radius=0.5, outer_radius=1.0, angle=angle,
+                                        cells=[pieces * rng.randint(1, 4), rng.randint(1, 4)])
+            body["shape"] = dict(type="sphere", center=[0.52, 0.52], radius=0.1)
+        else:
+            net = [[[0.05 + 0.45 * i, 0.05 + 0.45 * j] for j in range(3)] for i in range(3)]
+            cfg["domain"]["map"] = dict(type="nurbs", knots=dict(x=[0, 0, 0, 1, 1, 1], y=[0, 0, 0, 1, 1, 1]),
+                                        control_points=net, refine=[rng.randint(1, 6), rng.randint(1, 6)])
+        path = ("domain", "map")
+    elif area == "plasticity":
+        model = rng.choice(["von_mises", "drucker_prager", "snow"])
+        cfg["materials"]["m"] = {"von_mises": dict(model="von_mises", density=1000.0, E=1e6, yield_stress=1e4,
+                                                   hardening=rng.choice([0.0, 1e5])),
+                                 "drucker_prager": dict(model="drucker_prager", density=1600.0, E=1e6,
+                                                        friction_angle=30.0, cohesion=rng.choice([0.0, 1e3]),
+                                                        dilatancy=rng.choice([0.0, 10.0]),
+                                                        fit=rng.choice(["compression", "plane_strain", "simple_shear"])),
+                                 "snow": dict(model="snow", density=400.0, E=1.4e5, hardening=10.0,
+                                              max_hardening=rng.choice([1.0, 10.0, 1e3]))}[model]
+        path = ("materials", "m")
+    elif area == "loads":
+        body["tractions"] = [dict(region=region, pressure=rng.choice([1e2, -1e3]), ramp=_expression_text(rng)),
+                             dict(traction=[rng.choice([0.0, 1e3]) for _ in range(dim)], faces=["y_max"])]
+        path = ("bodies", 0, "tractions")
+    elif area == "grips":
+        body["prescribed_velocity"] = [dict(region=region, velocity=[None] * (dim - 1) + [rng.choice([0.0, "0.1 * t"])])]
+        cfg["output"] = dict(probes=[dict(name="g", type="grip", grip=0)])
+        path = ("bodies", 0, "prescribed_velocity")
+    elif area == "expressions":
+        body["velocity"] = [_expression_text(rng) for _ in range(dim)]
+        body["stress"] = [_expression_text(rng) if rng.random() < 0.3 else 0.0 for _ in range({2: 3, 3: 6}[dim])]
+        cfg["domain"]["boundaries"] = dict(default="slip", y_max=dict(type="velocity", velocity=[
+            _expression_text(rng) if rng.random() < 0.5 else None for _ in range(dim)]))
+        path = ("bodies", 0)
+    else:   # observe: probes of every type
+        cfg["output"] = dict(probes=[dict(name="p", type="point", point=[0.3] * dim), dict(name="b", type="body", body=0),
+                                     dict(name="r", type="region", region=region), dict(name="w", type="wall", face="y_min"),
+                                     dict(name="c", type="contact", body=0)][: rng.randint(1, 5)],
+                             probe_every=rng.choice([None, "step", 0.001]))
+        path = ("output",)
+    return cfg, path
+
+
+@st.composite
+def area_configs(draw):
+    area = draw(st.sampled_from(AREAS))
+    cfg, path = area_config(area, draw(st.integers(0, 2**32)))
+    n = draw(st.integers(0, 3))
+    if n:   # inside the area's subtree (held in a mapping, so that it may be replaced or deleted whole)
+        parent, key = _at(cfg, path[:-1]), path[-1]
+        holder = {"area": parent[key]}
+        mutate(draw, holder, n)
+        if "area" in holder:
+            parent[key] = holder["area"]
+        else:
+            del parent[key]
+    return cfg
+
+
+def test_new_config_areas_as_dicts(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    seen = {0: 0, 2: 0}
+
+    @fuzz_settings(N_AREA)
+    @given(area_configs())
+    def check(data):
+        with WATCH.around(tmp_path), warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # ConfigWarning / SizeWarning: said, and allowed
+            code = validate_dict(data)
+        assert not WATCH.outside and not WATCH.launched
+        seen[code] += 1
+
+    check()
+    print(f"new areas (dicts): {seen[0]} valid, {seen[2]} refused")
+    assert sum(seen.values()) >= N_AREA and seen[0] > N_AREA // 10 and seen[2] > N_AREA // 10, seen
+
+
+def test_new_config_areas_through_the_cli(tmp_path, monkeypatch, guarded):
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "config.yaml"
+    seen = {0: 0, 2: 0}
+
+    @fuzz_settings(N_AREA_CLI)
+    @given(area_configs(), st.lists(OVERRIDES, max_size=1))
+    def check(data, overrides):
+        path.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=True, default_flow_style=None))
+        code, out, err = run_cli(["validate", str(path), *(f"--set={o}" for o in overrides)], tmp_path)
+        check_exit(code, err)
+        seen[code] += 1
+
+    check()
+    print(f"new areas (cli): {seen[0]} valid, {seen[2]} refused")
+    assert sum(seen.values()) >= N_AREA_CLI and seen[0] > 5 and seen[2] > 5, seen
+
+
+# each part is drawn from valid values two times in three, so that a fair share of lines passes every check
+def _mostly(valid, invalid):
+    return st.one_of(st.sampled_from(valid), st.sampled_from(valid), invalid)
+
+
+OBSERVE = _mostly(["kinetic_energy", "kinetic_energy@max", "strain_energy@maxabs", "momentum_x@end"],
+                  st.one_of(st.sampled_from(["p.x@end", "b.vy@mean", "error_rel", "os:system", "p.", "@max",
+                                             "kinetic_energy@bogus", "mypkg.obs:tip", "", "\x00", "w.fy", "nope.col"]),
+                            TEXT))
+TOLERANCES = _mostly(["1%", "0.01", "5%"], st.sampled_from(["1e-30", "0", "-1", "nan", "inf", "abc", "100%", "1e400",
+                                                            "", "5 %"]))
+REFERENCES = _mostly([None, "finest", "richardson"], st.sampled_from(["exact", "0.5", "nan", "1e999", "bogus", "-0"]))
+
+
+@st.composite
+def advise_lines(draw):
+    argv = ["advise"]
+    if draw(st.integers(0, 5)):
+        argv.append(draw(_mostly(["block.yaml", "probed.yaml"], st.sampled_from(["missing.yaml", "empty.yaml"]))))
+    else:
+        argv += ["--problem", draw(st.sampled_from(["vibrating_bar", "{type: impact, mach: 0.1}", "os:system", "{",
+                                                    "{type: vibrating_bar, cells: 1e9}", "nope"]))]
+    argv += ["--observe", draw(OBSERVE), "--tolerance", draw(TOLERANCES)]
+    ref = draw(REFERENCES)
+    if ref is not None:
+        argv += ["--reference", ref]
+    for flag, values in (("--bases", ["linear,cubic", "quadratic", "bogus", ""]), ("--transfers", ["apic", "pic,x"]),
+                         ("--ppc", ["1,2", "0", "9", "a"]), ("--levels", ["2", "0", "9", "x"]),
+                         ("--cost", ["work", "wall_time", "bogus"]), ("--set", ["domain.dx=0.125", "bogus", "dim=7"])):
+        if draw(st.integers(0, 5)) == 0:
+            argv += [flag, draw(st.sampled_from(values))]
+    return argv
+
+
+class _WouldRun(ConfigError):
+    pass
+
+
+def test_advise_command_lines(tmp_path, monkeypatch):
+    """Everything advise checks before its sweep; a line that passes them is stopped where the sweep would
+    write its folder (counted as valid): no case runs, nothing is written, no process starts."""
+    from conftest import make_cfg
+    from taichi_mpm import advise as advise_mod
+
+    def stop(*a, **k):
+        raise _WouldRun("fuzz: the sweep would start here")
+
+    monkeypatch.setattr(advise_mod, "_prepare_out", stop)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "block.yaml").write_text(yaml.safe_dump(make_cfg(2, dx=0.25)))
+    probed = make_cfg(2, dx=0.25)
+    probed["output"] = dict(probes=[dict(name="p", type="point", point=[0.4, 0.4]), dict(name="b", type="body", body=0)])
+    (tmp_path / "probed.yaml").write_text(yaml.safe_dump(probed))
+    (tmp_path / "empty.yaml").write_text("")
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    seen = {"would run": 0, 2: 0, 0: 0}
+
+    @fuzz_settings(N_ADVISE)
+    @given(advise_lines())
+    def check(argv):
+        code, out, err = run_cli(argv, tmp_path)
+        check_exit(code, err)
+        seen["would run" if "the sweep would start here" in err else code] += 1
+
+    check()
+    print(f"advise lines: {seen}")
+    assert sum(seen.values()) >= N_ADVISE and seen["would run"] > 3 and seen[2] > N_ADVISE // 3, seen
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before

@@ -39,7 +39,7 @@ from typing import Annotated, Literal
 
 from pydantic import BeforeValidator, model_validator
 
-from ..schema import _no_bool
+from ..schema import Located, _no_bool
 from .base import use_taichi, ElasticModuli, Funcs, Model, NonNegative, State, finish, param, register
 from .von_mises import HELD_STRETCH, PLASTIC_STRAIN
 
@@ -87,7 +87,8 @@ class DruckerPrager(Model):
         @model_validator(mode="after")
         def _dilatancy_below_friction(self):
             if self.dilatancy > self.friction_angle:
-                raise ValueError(f"dilatancy {self.dilatancy:g} must not exceed friction_angle {self.friction_angle:g}")
+                raise Located("dilatancy", f"dilatancy {self.dilatancy:g} must not exceed friction_angle "
+                                           f"{self.friction_angle:g}")
             return self
 
         @property
