@@ -26,7 +26,7 @@ from . import budget
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid, make_locate
-from .stencils import KernelContext, make_corner_check, make_stencil
+from .stencils import KernelContext, make_corner_check, make_stencil, make_wall_hold
 from .sums import ChunkSums, Slots
 from . import jit, scatter
 from .config import Config, ConfigError, load_config
@@ -398,6 +398,7 @@ class Simulation:
             self._locate, self._locate_from = make_locate(ctx, self.mapped, self.fail, _CODES, 6)
         outer, inner = sten.outer, sten.inner
         corner_outside = make_corner_check(ctx)
+        keep_inside = make_wall_hold(ctx)   # B-spline particles in a holding face's wall layer stay inside
 
         @ti.func
         def density(p):
@@ -807,7 +808,7 @@ class Simulation:
                         else:
                             C[p] = B  # store_B
                 if ti.static(deform):
-                    xp = x[p] + dt * v_pic
+                    xp = keep_inside(p, x[p], x[p] + dt * v_pic)
                     Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
                     J = Fp.determinant()
                     if is_fluid(p):
