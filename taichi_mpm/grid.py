@@ -183,4 +183,9 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
         return conditions(I, v, m, True)
 
     apply.measured = apply_measured
+    # per axis (lower, upper): does the face forbid flow out of the domain (slip, roller, sticky, a velocity wall
+    # with its normal component prescribed)? B-spline particles next to such a face are transferred from a point
+    # inside it and kept inside (stencils.py, make_wall_hold; docs/bases.md "Bodies flush against walls")
+    apply.holds = [tuple(on_box and (codes[a][s] in (1, 2, 3) or (codes[a][s] == 4 and given[2 * a + s][a]))
+                         for s in (0, 1)) for a in range(dim)]
     return apply

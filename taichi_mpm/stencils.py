@@ -165,6 +165,53 @@ def _domain_half_width(ctx: KernelContext):
     return lp
 
 
+# B-spline particles within WALL_LAYER x r0 (r0: half the initial particle spacing) of a face that holds material
+# are transferred from that depth; the scene seeds the outer particles of a body flush against a face at r0, so only
+# particles placed on a face (set_particles) or compressed to half their spacing against it are affected
+WALL_LAYER = 0.5
+CPDI_CORNER_TOL = 0.01   # cells: how far a CPDI domain corner may lie beyond a wall (make_corner_check)
+BSPLINES = ("linear", "quadratic", "cubic")
+
+
+def wall_holds(ctx: KernelContext):
+    """Per axis (lower, upper): the faces that hold material (grid.make_wall_condition's `holds`), for the B-spline
+    bases on the box; None otherwise (gimp cuts its domain at the walls instead; cpdi, ddmp and mapped grids keep
+    their own rules)."""
+    holds = getattr(ctx.wall, "holds", None)
+    if ctx.basis.kind != "tensor" or ctx.basis.name not in BSPLINES or holds is None or not any(map(any, holds)):
+        return None
+    return holds
+
+
+def make_wall_hold(ctx: KernelContext):
+    """@ti.func (p, x_old, x_new) -> x_new, clamped onto a face that holds material for a particle that started in
+    its wall layer (transferred from WALL_LAYER r0 inside, it moves with the velocity there, which may point
+    through the face while the particle is on it); every other position as it is. The identity unless a B-spline
+    basis meets such a face."""
+    holds, dim, inv_dx, lower = wall_holds(ctx), ctx.dim, 1.0 / ctx.dx, ctx.lower
+    n_cells, dx = ctx.n_cells, ctx.dx
+    half_width = _domain_half_width(ctx)
+    active = holds is not None
+    holds = holds or [(False, False)] * dim
+
+    @ti.func
+    def keep_inside(p, x_old, x_new):
+        res = x_new
+        if ti.static(active):
+            depth = WALL_LAYER * half_width(p)
+            u_old = (x_old - lower) * inv_dx
+            u_new = (x_new - lower) * inv_dx
+            for a in ti.static(range(dim)):
+                if ti.static(holds[a][0]):
+                    if u_old[a] < depth and u_new[a] < 0.0:
+                        res[a] = lower[a]
+                if ti.static(holds[a][1]):
+                    if u_old[a] > n_cells[a] - depth and u_new[a] > n_cells[a]:
+                        res[a] = lower[a] + n_cells[a] * dx
+        return res
+    return keep_inside
+
+
 def _tensor_stencil(ctx: KernelContext) -> Stencil:
     dim, dx, inv_dx = ctx.dim, ctx.dx, 1.0 / ctx.dx
     basis, n_cells, lower = ctx.basis, ctx.n_cells, ctx.lower
@@ -174,6 +221,7 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     gimp, gimp_deforming = basis.name == "gimp", ctx.gimp_deforming
     smooth = basis.smooth_1d is not None   # ddmp
     half_width = _domain_half_width(ctx)
+    holds = wall_holds(ctx)   # B-splines: per axis and side, transfer from at least WALL_LAYER r0 inside
     d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * dx * dx  # smallest D_p entry inverted
     span = [S] * dim
     outer, inner = _loops(span, ctx.unroll, auto_inner=AUTO_INNER)
@@ -193,21 +241,35 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
         alpha = 1.0
         for a in range(dim):
             ua = traced.at(u, a)
+            # the weights of a particle a hair beyond a wall (round-off, at most the solver's out_tol) are those on
+            # the wall: extrapolated ones would carry it further out (docs/bases.md, "Bodies flush against walls")
+            uw = traced.local(ti.min(ti.max(ua, 0.0), ti.cast(n_cells[a], float)))
+            if holds is not None and any(holds[a]):
+                # a B-spline particle closer than WALL_LAYER r0 to a face that holds is transferred from that depth
+                # (weights, gradients and offsets alike): on the face itself its weight on the first interior
+                # control point is 0 while its gradient there is p / dx, so its stress pushed a node it gave no
+                # mass (docs/bases.md "Bodies flush against walls"); make_wall_hold keeps it inside
+                depth = WALL_LAYER * half_width(p)
+                if holds[a][0]:
+                    uw = ti.max(uw, depth)
+                if holds[a][1]:
+                    uw = ti.min(uw, n_cells[a] - depth)
             lp = 0.0
             if gimp:
                 lp = half_width(p)
                 if gimp_deforming:
                     lp = ti.min(lp * ti.abs(traced.at(traced.at(F, p), a, a)), 0.5)
                 # a particle's domain ends at the walls: otherwise interior nodes keep weight on a particle
-                # at the wall and carry it through (sticky wall: out at step 1; slip floor at Mach 3)
-                lp = ti.max(ti.min(lp, ua, n_cells[a] - ua), 1e-6)
-            b, w, dw = (traced.local(v) for v in axes[a].weights_1d(ua, n_cells[a], lp))   # axes[a]: its knots
+                # at the wall and carry it through (sticky wall: out at step 1; slip floor at Mach 3). On a wall
+                # the cut leaves 0, whose limit (the linear hat, gradient inside the domain) weights_1d takes.
+                lp = ti.min(lp, uw, n_cells[a] - uw)
+            b, w, dw = (traced.local(v) for v in axes[a].weights_1d(uw, n_cells[a], lp))   # axes[a]: its knots
             base.append(b)
             W.append([traced.at(w, k) for k in range(S)])
             DW.append([traced.at(dw, k) * inv_dx for k in range(S)])
-            R.append([(axes[a].coord(b + k, n_cells[a]) - ua) * dx for k in range(S)])
+            R.append([(axes[a].coord(b + k, n_cells[a]) - uw) * dx for k in range(S)])
             if smooth:
-                ws, ds, al = (traced.local(v) for v in basis.smooth_1d(ua, n_cells[a]))
+                ws, ds, al = (traced.local(v) for v in basis.smooth_1d(uw, n_cells[a]))
                 alpha = alpha * al
                 WS[a] = [traced.at(ws, k) for k in range(S)]
                 DS[a] = [traced.at(ds, k) * inv_dx for k in range(S)]
@@ -369,7 +431,11 @@ def _cpdi_stencil(ctx: KernelContext) -> Stencil:
             u = (xp + A @ s - lower) * inv_dx
             g = G @ s
             for a in ti.static(range(dim)):
-                b, w, dw = basis.weights_1d(u[a], n_cells[a], 0.0)
+                # a corner further beyond a wall than the corner check admits is weighted at that distance: the
+                # check stops the run in this step's G2P, and extrapolating further (a domain on a face reaches r0
+                # past it: weights 1.25 / -0.25) made D_p indefinite, a NaN before the check could name the cause
+                ua = ti.min(ti.max(u[a], -CPDI_CORNER_TOL), n_cells[a] + CPDI_CORNER_TOL)
+                b, w, dw = basis.weights_1d(ua, n_cells[a], 0.0)
                 base[c, a] = b
                 W0[c, a] = w[0]
                 GS[c, a] = g[a]
@@ -484,7 +550,7 @@ def make_corner_check(ctx: KernelContext):
     # pressed against a sticky wall has such corners: x_p - F_p r0 misses the material point on the wall by the
     # displacement's curvature, u'' r0^2 / 2 (G = 0.05 manufactured solution: 5e-5 dx at 16 cells, ~dx^2).
     # A hundredth of a cell admits that and still stops a domain that has truly crossed.
-    tol = 0.01 * dx
+    tol = CPDI_CORNER_TOL * dx
 
     @ti.func
     def outside(p, xp, Fp):

@@ -117,3 +117,33 @@ def test_interior_matches_uniform_bsplines():
         assert np.abs(w - ref(u[:, None] - xi)).max() < 1e-12
         h = 1e-6
         assert np.abs(dw - (ref(u[:, None] + h - xi) - ref(u[:, None] - h - xi)) / (2 * h)).max() < 1e-5  # FD error at the knots
+
+
+def test_gimp_domain_cut_at_a_wall_is_the_linear_hat_with_no_ghost_weight():
+    """A GIMP domain cut at a wall (half-width min(lp, u, n - u), as stencils.py does) lies inside the cell: its
+    weights are the linear hats at u with gradients -1, +1, and the ghost node beyond the wall gets nothing. On the
+    wall (l = 0) that is the formulas' limit, taken exactly; the earlier floor l >= 1e-6 put l/4 on the ghost and on
+    the interior node (a particle on a sticky wall crept out) and a gradient of 1/2 on the ghost."""
+    near = np.array([0.0, 1e-13, 1e-7, 1e-6, 1e-3, 0.1, 0.2])
+    u = np.concatenate([near, N_CELLS - near])
+    lp = np.minimum(0.25, np.minimum(u, N_CELLS - u))
+    basis, first, w, dw = evaluate("gimp", u, lp)
+    nodes = first[:, None] + np.arange(3)[None, :] - 1          # storage index i holds node i - 1
+    hat = np.clip(1 - np.abs(u[:, None] - nodes), 0, None)
+    assert np.abs(w - hat).max() < 1e-9                          # the formula at l = u equals it to round-off
+    ghost = (nodes < 0) | (nodes > N_CELLS)
+    assert np.abs(w[ghost]).max() < 1e-12 and np.abs(dw[ghost]).max() < 1e-9
+    assert np.abs(dw.sum(1)).max() < 1e-9 and np.abs((dw * nodes).sum(1) - 1).max() < 1e-9
+    on_wall = np.isin(u, [0.0, N_CELLS])
+    assert np.all(w[on_wall].max(1) == 1.0)                      # exactly on the wall node: it moves with it
+
+
+def test_open_knot_wall_functions_have_weight_zero_and_gradient_p_on_the_first_interior_point():
+    """The cause of the cubic inversion for particles on a sticky wall (docs/bases.md, "Bodies flush against
+    walls"): on the wall N_0 = 1, N_1 = 0 but N_1' = p (grid units), and N_1 ~ p u next to it, so a particle there
+    pushes control point 1 while giving it no mass."""
+    for name, p in (("linear", 1), ("quadratic", 2), ("cubic", 3)):
+        basis, first, w, dw = evaluate(name, np.array([0.0, 1e-4]), np.zeros(2))
+        assert first[0] == 0 and w[0, 0] == 1.0 and w[0, 1] == 0.0
+        assert dw[0, 1] == pytest.approx(p, rel=1e-12) and dw[0, 0] == pytest.approx(-p, rel=1e-12)
+        assert w[1, 1] == pytest.approx(p * 1e-4, rel=1e-3)

@@ -10,7 +10,7 @@ Physics code only: no CLI, rendering or file I/O here.
 
 import taichi as ti
 
-from ..stencils import make_corner_check
+from ..stencils import make_corner_check, make_wall_hold
 
 FLUID_J_MIN = 0.2           # a weakly compressible fluid squeezed below this volume ratio has collapsed
 
@@ -152,6 +152,7 @@ def make_g2p(ctx, mf, af, external_force):
     out_tol = 1e-6 * ctx.dx  # a particle on a wall that round-off moves a hair beyond it has not left the domain
     fluid_j_min = FLUID_J_MIN
     corner_outside = make_corner_check(ctx)
+    keep_inside = make_wall_hold(ctx)   # B-spline particles in a holding face's wall layer stay inside
     is_fluid, project = mf.is_fluid, mf.project
 
     @ti.func
@@ -213,7 +214,7 @@ def make_g2p(ctx, mf, af, external_force):
     @ti.func
     def deform_particle(p, dt, v_pic, G):
         """Positions x += dt v_grid, F = (I + dt grad v) F (fluids keep only J), return mapping, checks."""
-        xp = x[p] + dt * v_pic
+        xp = keep_inside(p, x[p], x[p] + dt * v_pic)
         Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
         J = Fp.determinant()
         if is_fluid(p):
