@@ -17,7 +17,7 @@ from common import block_config, parser, peak_rss_mb, report, time_steps  # noqa
 REFERENCE = "fixed_corotated"
 # keys besides E, nu and density (block_config's E = 400 Pa, density 1): yield under the landing
 EXTRA = {"fluid": {}, "von_mises": {"yield_stress": 2.0, "hardening": 40.0},
-         "drucker_prager": {"friction_angle": 30.0}, "snow": {}}
+         "drucker_prager": {"friction_angle": 30.0}, "snow": {}, "mohr_coulomb": {"friction_angle": 30.0}}
 
 
 def material_config(dim, n_grid, model, precision, arch):

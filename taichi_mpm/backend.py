@@ -179,10 +179,11 @@ def vulkan_device() -> VulkanDevice | None:
 
 
 # ---------------------------------------------------------------- the choice
-def _gpu_problem(arch: str, cfg: Config | None) -> str | None:
+def _gpu_problem(arch: str, cfg: Config | None, size_check=None) -> str | None:
     """What keeps `arch` (vulkan or metal) from running this scene, or None. Both lack pointer SNodes (the scene
     then gets a dense grid, checked against the memory limit here); the solver's diagnostics sum in f64, the crack
-    finder indexes nodes in i64 and a scene of several materials keeps u8 ids."""
+    finder indexes nodes in i64 and a scene of several materials keeps u8 ids. size_check(cfg) raises ConfigError
+    when a run does not fit (budget.check, passed in by the caller: budget asks this module for the arch)."""
     if arch == "metal":
         return "Taichi's metal backend has no f64, which the solver's energy and momentum sums use"
     device = vulkan_device()
@@ -197,14 +198,12 @@ def _gpu_problem(arch: str, cfg: Config | None) -> str | None:
         return None
     if cfg.crack is not None and cfg.crack.normal_refresh > 0:
         return "the crack finder's node-normal cache (crack.normal_refresh > 0) needs a sparse grid (pointer SNodes)"
-    if cfg.domain.sparse:
-        from . import budget
-
+    if cfg.domain.sparse and size_check is not None:
         dense = cfg.model_copy(update={"arch": "cpu", "domain": cfg.domain.model_copy(update={"sparse": False})})
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                budget.check(dense, warn=False)
+                size_check(dense)
         except ConfigError as e:
             return f"the dense grid it would need does not fit: {e.message}"
     return None
@@ -218,9 +217,9 @@ def _dense_grid(arch: str, cfg: Config) -> str | None:
             "domain.sparse on cpu or cuda)")
 
 
-def choose(cfg: Config) -> Backend:
+def choose(cfg: Config, size_check=None) -> Backend:
     """The backend and grid this scene gets on this machine (see the module docstring); ConfigError (key `arch`)
-    for an explicit arch that cannot run it."""
+    for an explicit arch that cannot run it. size_check: see _gpu_problem (without it a dense grid is not sized)."""
     arch = cfg.arch
     if arch == "cpu":
         return Backend("cpu", cfg.domain.sparse)
@@ -231,7 +230,7 @@ def choose(cfg: Config) -> Backend:
                               "use arch: auto or cpu", key="arch")
         if arch == "cuda":
             return Backend("cuda", cfg.domain.sparse)
-        problem = _gpu_problem(arch, cfg)
+        problem = _gpu_problem(arch, cfg, size_check)
         if problem:
             raise ConfigError(f"arch {arch} cannot run this scene: {problem}; use arch: auto or cpu", key="arch")
         said = [_dense_grid(arch, cfg)]
@@ -250,7 +249,7 @@ def choose(cfg: Config) -> Backend:
         if device is not None and device.emulated:
             skipped.append(f"{gpu} skipped ({device.name} is a CPU-emulated GPU, slower than Taichi's cpu backend)")
             continue
-        problem = _gpu_problem(gpu, cfg)
+        problem = _gpu_problem(gpu, cfg, size_check)
         if problem:
             skipped.append(f"{gpu} skipped ({problem})")
             continue
@@ -260,12 +259,12 @@ def choose(cfg: Config) -> Backend:
     return Backend("cpu", cfg.domain.sparse, ("arch auto: cpu; " + "; ".join(skipped)) if skipped else None)
 
 
-def resolve_arch(arch: str, cfg: Config | None = None) -> str:
+def resolve_arch(arch: str, cfg: Config | None = None, size_check=None) -> str:
     """The arch name a config's `arch` gets here: `choose(cfg).arch` with a config. Without one, auto's choice
     before the scene's own needs (cuda, else a real GPU's vulkan with f64 and i64 shaders, else cpu); an explicit
     arch this machine lacks is a ConfigError (key `arch`)."""
     if cfg is not None:
-        return choose(cfg).arch
+        return choose(cfg, size_check).arch
     if arch == "cpu":
         return arch
     found = available_archs()

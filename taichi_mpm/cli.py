@@ -364,7 +364,7 @@ def cmd_validate(args) -> int:
         if cfg.arch not in ("auto", "cpu"):  # an arch named explicitly must exist here, as for `run`
             from .backend import resolve_arch
 
-            resolve_arch(cfg.arch, cfg)   # and can run this scene (backend.py)
+            resolve_arch(cfg.arch, cfg, lambda c: budget.check(c, warn=False))   # and can run this scene
         estimate = budget.check(cfg)  # before the scene: an absurd size is refused, not generated
         scene = build_scene(cfg)
     except ConfigError as e:

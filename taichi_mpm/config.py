@@ -24,6 +24,7 @@ from .knots import DEGREE as KNOT_DEGREE, knot_problem
 from .expressions import largest_magnitude, parse as parse_expression
 
 from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
+from . import geometry
 from . import materials as material_models
 
 
@@ -832,9 +833,8 @@ class Config(Strict):
         """x, y, z at 5 points per axis over a shape's bounding box (the domain's for a mesh)."""
         lo, hi = np.asarray(self.domain.lower, float), np.asarray(self.domain.upper, float)
         if not isinstance(shape, Mesh):
-            from .scene import shape_bounds   # (scene imports this module)
             try:
-                lo, hi = shape_bounds(shape, self.dim)
+                lo, hi = geometry.bounds(shape, self.dim)
             except Exception:   # a shape of the wrong dimension: its own check reports it
                 pass
         axes = [np.linspace(l, h, 5) for l, h in zip(lo, hi)]
@@ -879,13 +879,11 @@ class Config(Strict):
             raise _Located(f"{key}.point", f"the point {p.point} lies outside the domain {lo.tolist()}..{hi.tolist()}")
         if p.region is None:
             return
-        from .scene import shape_bounds   # (scene imports this module)
-
-        r_lo, r_hi = shape_bounds(p.region, self.dim)
+        r_lo, r_hi = geometry.bounds(p.region, self.dim)
         for b in self.bodies:
             if isinstance(b.shape, Mesh):
                 return   # its box needs the file: the probe's own selection reports an empty region
-            b_lo, b_hi = shape_bounds(b.shape, self.dim)
+            b_lo, b_hi = geometry.bounds(b.shape, self.dim)
             if np.all(r_lo <= b_hi) and np.all(b_lo <= r_hi):
                 return
         raise _Located(f"{key}.region", f"the probe '{p.name}' selects no particle: its region (box "

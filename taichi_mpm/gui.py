@@ -493,12 +493,12 @@ class Session:
 
 def run_gui(cfg, max_frames=None, screenshot=None, show=True, script=None, view: str | None = None):
     """Open the interactive window for a config (path, dict or Config); returns the simulation shown last (a basis
-    or transfer switch replaces it); NoDisplay where no window can open (show=True). A 3D scene opens Taichi's GGUI scene where a Vulkan device exists (ggui.py),
-    else the ti.GUI projection; `view` ('ggui' or 'projection') overrides the choice, and the title says which. With `max_frames` the window closes by itself after that many frames; `screenshot` saves the last frame as a PNG. `script` (for tests and
-    demos): {frame: [action, ...]} applied before that frame's events, an action being ("slider", label, value)
-    (moves a slider widget, read back like a hand's move) or ("event", name) (a key or a button's event name)."""
-    import taichi as ti
-
+    or transfer switch replaces it); NoDisplay where no window can open (show=True). A 3D scene opens Taichi's GGUI
+    scene where a Vulkan device exists (ggui.py), else the ti.GUI projection; `view` ('ggui' or 'projection')
+    overrides the choice, and the title says which. With `max_frames` the window closes by itself after that many
+    frames; `screenshot` saves the last frame as a PNG. `script` (for tests and demos): {frame: [action, ...]}
+    applied before that frame's events, an action being ("slider", label, value) (moves a slider widget, read back
+    like a hand's move) or ("event", name) (a key or a button's event name)."""
     from .config import load_config
     from .runner import Simulation  # resolves arch auto without Taichi's crashing OpenGL probe
 

@@ -16,6 +16,7 @@ from typing import Optional
 import numpy as np
 
 from .config import SPACE, TIME, Body, Box, Config, ConfigError, Cylinder, Mesh, Ring, Sphere
+from . import geometry
 from .expressions import evaluate
 
 
@@ -57,20 +58,6 @@ class Scene:
         return len(self.x)
 
 
-def _rotation(rot, d):
-    """Rotation matrix from degrees: scalar (2D) or [rx, ry, rz] Euler angles (3D, applied x then y then z)."""
-    if rot is None or d == 1:
-        return np.eye(d)
-    if d == 2:
-        a = np.radians(rot if np.isscalar(rot) else rot[0])
-        return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    rx, ry, rz = np.radians(rot if not np.isscalar(rot) else [0, 0, rot])
-    Rx = np.array([[1, 0, 0], [0, np.cos(rx), -np.sin(rx)], [0, np.sin(rx), np.cos(rx)]])
-    Ry = np.array([[np.cos(ry), 0, np.sin(ry)], [0, 1, 0], [-np.sin(ry), 0, np.cos(ry)]])
-    Rz = np.array([[np.cos(rz), -np.sin(rz), 0], [np.sin(rz), np.cos(rz), 0], [0, 0, 1]])
-    return Rz @ Ry @ Rx
-
-
 def shape_center(shape, d, base_dir=None, key="shape") -> np.ndarray:
     if isinstance(shape, Box):
         return 0.5 * (np.asarray(shape.lower) + np.asarray(shape.upper))
@@ -81,30 +68,11 @@ def shape_center(shape, d, base_dir=None, key="shape") -> np.ndarray:
 
 
 def shape_bounds(shape, d, base_dir=None, key="shape") -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounding box of a shape (rotations included)."""
-    if isinstance(shape, Box):
-        lo, hi = np.asarray(shape.lower, float), np.asarray(shape.upper, float)
-        if shape.rotation is None:
-            return lo, hi
-        c, R = 0.5 * (lo + hi), _rotation(shape.rotation, d)
-        corners = np.array(np.meshgrid(*[[l, h] for l, h in zip(lo, hi)], indexing="ij")).reshape(d, -1).T
-        pts = (corners - c) @ R.T + c
-        return pts.min(0), pts.max(0)
-    if isinstance(shape, (Sphere, Ring)):
-        r = shape.radius if isinstance(shape, Sphere) else shape.outer_radius
-        c = np.asarray(shape.center, float)
-        return c - r, c + r
-    if isinstance(shape, Cylinder):
-        # exact: along world axis i the cap circles reach |u_i| h / 2 + r sqrt(1 - u_i^2) (u: the unit axis), so a
-        # column standing on the floor fits a domain that starts at the floor
-        c = np.asarray(shape.center, float)
-        u = _rotation(shape.rotation, 3)[:, "xyz".index(shape.axis)]
-        ext = np.abs(u) * shape.height / 2 + shape.radius * np.sqrt(np.clip(1 - u**2, 0, None))
-        return c - ext, c + ext
+    """Axis-aligned bounding box of a shape (rotations included; a mesh's from its file)."""
     if isinstance(shape, Mesh):
         m = load_mesh(shape, d, base_dir, key)
         return m.lower, m.upper
-    raise TypeError(shape)
+    return geometry.bounds(shape, d)
 
 
 def shape_volume(shape, d, base_dir=None, key="shape") -> float:
@@ -129,7 +97,7 @@ def inside(shape, pts: np.ndarray, base_dir=None, key="shape") -> np.ndarray:
     if isinstance(shape, Box):
         lo, hi = np.asarray(shape.lower, float), np.asarray(shape.upper, float)
         c = 0.5 * (lo + hi)
-        local = (pts - c) @ _rotation(shape.rotation, d)  # inverse rotation (R orthogonal)
+        local = (pts - c) @ geometry.rotation(shape.rotation, d)  # inverse rotation (R orthogonal)
         return np.all(np.abs(local) <= 0.5 * (hi - lo) + 1e-12, axis=1)
     if isinstance(shape, Sphere):
         return np.sum((pts - shape.center) ** 2, axis=1) <= shape.radius**2
@@ -137,7 +105,7 @@ def inside(shape, pts: np.ndarray, base_dir=None, key="shape") -> np.ndarray:
         r2 = np.sum((pts - shape.center) ** 2, axis=1)
         return (r2 <= shape.outer_radius**2) & (r2 >= shape.inner_radius**2)
     if isinstance(shape, Cylinder):
-        R = _rotation(shape.rotation, 3)
+        R = geometry.rotation(shape.rotation, 3)
         local = (pts - shape.center) @ R
         a = "xyz".index(shape.axis)
         radial = np.delete(local, a, axis=1)

@@ -23,13 +23,14 @@ import numpy as np
 import taichi as ti
 
 from . import budget, states   # states: the API's refusals (states.py)
+from .budget import VISCOUS_DIFFUSION  # noqa: F401 (the dt rule's constant, shared with the estimate)
 from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
 from .basis import make_basis
 from .knots import grid_knots, smallest_span
 from .mapped import MappedGrid
 from .stencils import make_stencil
 from .sums import ChunkSums, Slots
-from . import jit, scatter
+from . import scatter
 from .config import Config, ConfigError, load_config
 from . import crack as crack_finder
 from . import fbar
@@ -58,10 +59,6 @@ _CODES = 8  # fail flag = solver slot * _CODES + code
 DT_LIMITS = ("elastic", "speed", "gravity", "body_force", "viscosity", "fixed")  # Simulation.dt_limit
 ENERGY_CHECK_EVERY = 4      # steps between energy-balance checks (every step while the energy is above the balance)
 FRACTURE_SPREAD = 1.3       # body spread / spread its particles' F accounts for, past which the body tore on the grid
-# explicit viscous diffusion: dt <= cfl rho dx^2 / (VISCOUS_DIFFUSION d mu), the finite-difference bound
-# dx^2 / (2 d nu). Measured (2D, dx 0.05, APIC, fixed dt, 100 steps): blow-up above 0.25-0.35 rho dx^2 / mu
-# for linear and 0.35-0.5 for quadratic, against 0.25 here at cfl 1 (0.1 at the default cfl 0.4)
-VISCOUS_DIFFUSION = 2.0
 
 
 class StabilityWarning(UserWarning):
@@ -99,7 +96,7 @@ class Simulation:
         budget.check(c, body_force=body_force is not None)  # refuse absurd sizes before allocating anything
         self.scene = scene if scene is not None else build_scene(c)
         self.n = self.scene.n
-        self.backend = choose_backend(c)   # the arch and grid this scene gets on this machine, and why (backend.py)
+        self.backend = choose_backend(c, size_check=_fits)  # arch and grid, and why
         self._id = init_taichi(self.backend, c.precision, c.solver.deterministic,
                                c.solver.deterministic and thread_independent(c, body_force is not None))
         self.basis = make_basis(c.solver.basis, grid_knots(c))   # domain.knots: per-axis knot vectors
@@ -1051,3 +1048,8 @@ def _cell_counts(lower, upper, dx) -> list[int]:
                               f"({n:.4g}); choose dx = {(u - l) / max(1, round(n)):.6g}", key="domain.dx")
         counts.append(int(round(n)))
     return counts
+
+
+def _fits(cfg: Config):
+    """backend's size check of a dense grid: budget.check without its warnings."""
+    budget.check(cfg, warn=False)

@@ -19,8 +19,8 @@ PACKAGE = ROOT / "taichi_mpm"
 LAYERS = {
     # plain building blocks: errors, schema pieces, expressions, knot and map geometry, the material registry, the
     # output-field registry and the names render settings accept, Taichi trace-time helpers
-    "foundation": ("errors", "schema", "expressions", "knots", "mapgeom", "traced", "jit", "sums", "materials",
-                   "fields", "colour_range", "render_options", "window_layout"),
+    "foundation": ("errors", "schema", "geometry", "expressions", "knots", "mapgeom", "traced", "jit", "sums",
+                   "materials", "fields", "colour_range", "render_options", "window_layout"),
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
     "physics": ("grid", "basis", "nurbs", "stencils", "mapped", "scatter", "fbar", "crack", "loads", "scene", "backend",
@@ -33,7 +33,8 @@ LAYERS = {
 }
 # the physics core, and the modules it may never import (issue 26)
 PHYSICS = ("solver", "basis", "grid", "stencils", "materials", "crack", "fbar", "mapped", "mapgeom", "nurbs", "knots",
-           "scatter", "sums", "traced", "jit", "scene", "loads", "analytic", "budget", "backend", "states", "step", "fields")
+           "scatter", "sums", "traced", "jit", "scene", "loads", "analytic", "budget", "backend", "states", "step",
+           "fields")
 TOOLS = ("cli", "render", "gui", "ggui", "io", "runner", "study", "advise", "compare", "stability", "plots", "probes",
          "observe")
 

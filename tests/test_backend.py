@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import taichi_mpm as tm
+from taichi_mpm import budget
 from conftest import make_cfg
 from taichi_mpm import backend
 from taichi_mpm.backend import Backend, BackendNote, VulkanDevice
@@ -76,7 +77,7 @@ def test_auto_skips_vulkan_when_the_dense_grid_does_not_fit(monkeypatch):
     machine(monkeypatch, ["vulkan", "cpu"], RADEON)
     c = cfg(dx=0.0005)   # 2000^2 cells: sparse blocks around a small body fit, a dense grid is over the limit
     c.limits.memory_gb = 0.05
-    b = backend.choose(c)
+    b = backend.choose(c, size_check=lambda c: budget.check(c, warn=False))
     assert b.arch == "cpu" and b.sparse and "the dense grid it would need does not fit" in b.note
 
 

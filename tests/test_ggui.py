@@ -147,7 +147,7 @@ print("STATE", json.dumps(dict(kind=kind, time=sim.time, arch=sim.backend.arch, 
 """
 
 
-def test_ggui_window_runs_under_xvfb_and_saves_an_image(tmp_path, xvfb):
+def test_ggui_window_runs_under_xvfb_and_saves_an_image(tmp_path, xvfb):  # noqa: F811 (the fixture)
     """The real GGUI loop (ti.ui.Window: lit spheres, the ImGui panel, the strip chart), the solver on the CPU
     backend: four frames of a falling block, the gravity slider set to 0 at frame 2 (the ImGui slider's setter) and
     the colour key at frame 1; the saved image is the window's size, shows the particles (saturated pixels on

@@ -12,7 +12,7 @@ MU, LAM = 3.0e3, 2.0e3
 E, NU = MU * (3 * LAM + 2 * MU) / (LAM + MU), LAM / (2 * (LAM + MU))
 # each model's keys besides the moduli (plastic ones: far from yield, so the stress is the elastic law's)
 EXTRA = {"fluid": dict(K=LAM), "von_mises": dict(yield_stress=1e9), "drucker_prager": dict(friction_angle=30.0),
-         "snow": dict(hardening=3.0)}
+         "snow": dict(hardening=3.0), "mohr_coulomb": dict(friction_angle=30.0)}
 
 
 def material(name):

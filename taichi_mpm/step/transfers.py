@@ -135,6 +135,34 @@ def make_p2g(ctx, mf, af, external_force):
     return dict(p2g=p2g, p2g_momentum=p2g_momentum)
 
 
+def make_failure_code(ctx, mf):
+    """Func failure(p, xp, Fp, J, speed2): the cause code of a failed particle after G2P."""
+    lower, upper = ctx.lower, ctx.upper
+    out_tol = 1e-6 * ctx.dx  # a particle on a wall that round-off moves a hair beyond it has not left the domain
+    fluid_j_min = FLUID_J_MIN
+    corner_outside = make_corner_check(ctx)
+    is_fluid = mf.is_fluid
+
+    @ti.func
+    def failure(p, xp, Fp, J, speed2):
+        """The cause code of a failed particle (solver.FAIL_CAUSES), 0 when it is fine."""
+        code = 0
+        if not (ti.abs(J) < 1e30 and speed2 < 1e60 and xp.norm_sqr() < 1e60):  # false for NaN too
+            code = 2
+        elif J <= 0:
+            code = 1
+        elif (xp < lower - out_tol).any() or (xp > upper + out_tol).any():
+            code = 3
+        elif corner_outside(p, xp, Fp):
+            code = 5
+        elif J < fluid_j_min:
+            if is_fluid(p):
+                code = 4
+        return code
+
+    return failure
+
+
 def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
     dim, basis = ctx.dim, ctx.basis
@@ -148,10 +176,7 @@ def make_g2p(ctx, mf, af, external_force):
     works = ctx.body_acc is not None or f.tractions
     project_here = f.plastic and not ctx.fbar   # with F-bar: after its average (project_all)
     alpha, work, fail, vmax2, n_codes = ctx.flip_blend, ctx.work, ctx.fail, ctx.vmax2, ctx.fail_codes
-    lower, upper = ctx.lower, ctx.upper
-    out_tol = 1e-6 * ctx.dx  # a particle on a wall that round-off moves a hair beyond it has not left the domain
-    fluid_j_min = FLUID_J_MIN
-    corner_outside = make_corner_check(ctx)
+    failure = make_failure_code(ctx, mf)
     keep_inside = make_wall_hold(ctx)   # B-spline particles in a holding face's wall layer stay inside
     is_fluid, project = mf.is_fluid, mf.project
 
@@ -193,23 +218,6 @@ def make_g2p(ctx, mf, af, external_force):
                 C[p] = G
             else:
                 C[p] = B  # store_B
-
-    @ti.func
-    def failure(p, xp, Fp, J, speed2):
-        """The cause code of a failed particle (solver.FAIL_CAUSES), 0 when it is fine."""
-        code = 0
-        if not (ti.abs(J) < 1e30 and speed2 < 1e60 and xp.norm_sqr() < 1e60):  # false for NaN too
-            code = 2
-        elif J <= 0:
-            code = 1
-        elif (xp < lower - out_tol).any() or (xp > upper + out_tol).any():
-            code = 3
-        elif corner_outside(p, xp, Fp):
-            code = 5
-        elif J < fluid_j_min:
-            if is_fluid(p):
-                code = 4
-        return code
 
     @ti.func
     def deform_particle(p, dt, v_pic, G):
