@@ -809,7 +809,7 @@ def test_advise_command_lines(tmp_path, monkeypatch):
     def stop(*a, **k):
         raise _WouldRun("fuzz: the sweep would start here")
 
-    monkeypatch.setattr(advise_mod, "_prepare_out", stop)
+    monkeypatch.setattr(advise_mod, "prepare_out", stop)
     monkeypatch.chdir(tmp_path)
     (tmp_path / "block.yaml").write_text(yaml.safe_dump(make_cfg(2, dx=0.25)))
     probed = make_cfg(2, dx=0.25)
