@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 import taichi_mpm as tm
-from taichi_mpm.probes import read_probe
+from taichi_mpm.io.probes import read_probe
 from _common import default_out, parse, run
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 import taichi_mpm as tm
 from taichi_mpm import analytic as an
-from taichi_mpm.render import FrameRenderer, _write_png, field_values, grid_lines, sequence_limits
+from taichi_mpm.io.render import FrameRenderer, _write_png, field_values, grid_lines, sequence_limits
 
 GRIDS = ("cartesian", "polar")
 

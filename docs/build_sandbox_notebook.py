@@ -26,7 +26,7 @@ runs in seconds once Taichi has compiled its kernels (the first run of a setting
     ("code", """import numpy as np
 import matplotlib.pyplot as plt
 import taichi_mpm as tm
-from taichi_mpm.render import FrameRenderer, field_values, sequence_limits
+from taichi_mpm.io.render import FrameRenderer, field_values, sequence_limits
 
 cfg = tm.load_config("configs/colliding_disks.yaml",
                      overrides={"domain.dx": 0.04, "solver.end_time": 3.0, "output.every": 0.5})
@@ -53,10 +53,10 @@ plt.tight_layout()
 plt.show()"""),
     ("markdown", """## A small study: what the transfer does to the energy
 
-`taichi_mpm.compare.compare` runs the scene once per value of a key and writes side-by-side frames, a movie, curves
+`taichi_mpm.tools.compare.compare` runs the scene once per value of a key and writes side-by-side frames, a movie, curves
 and a summary (the `taichi-mpm compare` command). Here PIC against APIC: PIC's averaging dissipates kinetic energy
 that APIC keeps; the curves come from the returned variants."""),
-    ("code", """from taichi_mpm.compare import compare
+    ("code", """from taichi_mpm.tools.compare import compare
 
 res = compare(cfg, "solver.transfer=pic,apic", out="runs/notebook_compare", overwrite=True, movie=False)
 fig, ax = plt.subplots(figsize=(6, 3))

@@ -12,7 +12,7 @@ __version__ = "0.1.0"
 
 def __getattr__(name):
     if name == "Simulation":
-        from .runner import Simulation  # the solver's Simulation whose run() writes outputs
+        from .io.runner import Simulation  # the solver's Simulation whose run() writes outputs
 
         globals()["Simulation"] = Simulation
         return Simulation

@@ -20,14 +20,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import scatter
+from .extensions import scatter
 from .backend import resolve_arch
-from .basis import make_basis
-from .crack import grid_fields as crack_grid_fields
-from .crack import particle_bytes as crack_particle_bytes
-from .knots import grid_knots, smallest_span
-from . import mapgeom
-from .mapped import MappedGrid
+from .bases.shape_functions import make_basis
+from .extensions.crack import grid_fields as crack_grid_fields
+from .extensions.crack import particle_bytes as crack_particle_bytes
+from .bases.knots import grid_knots, smallest_span
+from .bases import mapgeom
+from .bases.mapped import MappedGrid
 from .config import Config, ConfigError
 from .grid import LEAF, MAX_TOP_POINTERS, _pow2
 from . import materials as material_models

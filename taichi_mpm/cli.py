@@ -305,8 +305,8 @@ def _run_config(cfg, args) -> int:
 
 
 def _run(cfg, args) -> int:
-    from . import io
-    from .runner import Interrupted, Run, Simulation, output_dir
+    from .io import files as io
+    from .io.runner import Interrupted, Run, Simulation, output_dir
 
     if args.resume:  # an unreadable checkpoint is refused before anything is allocated
         checkpoint = output_dir(cfg, args.out) / io.CHECKPOINT_NAME
@@ -331,7 +331,7 @@ def _run(cfg, args) -> int:
         _err(f"interrupted: {e}" if e.signal_name == "SIGINT" else f"stopped by {e.signal_name}: {e}")
         return 128 + e.signum   # 130 for Ctrl-C, 143 for SIGTERM
     except OSError as e:  # disk full, file-size limit, ...: the checkpoint is only ever replaced by a complete one
-        from .io import describe
+        from .io.files import describe
 
         t = run.checkpoint_time
         kept = (f"the last checkpoint (t={t:.6g}) is {run.out_dir / io.CHECKPOINT_NAME}: fix the cause and continue "
@@ -356,7 +356,8 @@ def cmd_run(args) -> int:
 def cmd_validate(args) -> int:
     import yaml
 
-    from . import budget, io
+    from . import budget
+    from .io import files as io
     from .scene import build_scene
 
     cfg = _load(args.config, args)
@@ -399,7 +400,7 @@ def cmd_render(args) -> int:
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         raise _InputError(f"run directory not found: {run_dir}")
-    from .render import render_run
+    from .io.render import render_run
 
     try:
         result = render_run(run_dir, color_by=args.color_by, size=args.size, camera=args.camera, movie=args.movie)
@@ -415,7 +416,7 @@ def cmd_render(args) -> int:
 def cmd_compare(args) -> int:
     if not Path(args.config).is_file():
         raise _InputError(f"config file not found: {args.config}")
-    from .compare import compare
+    from .tools.compare import compare
 
     overrides = parse_overrides(args.overrides)
     if args.arch:
@@ -432,7 +433,7 @@ def cmd_compare(args) -> int:
 
 def cmd_gui(args) -> int:
     cfg = _load(args.config, args)
-    from .gui import NoDisplay, run_gui
+    from .tools.gui import NoDisplay, run_gui
 
     try:
         run_gui(cfg, max_frames=args.max_frames, screenshot=args.screenshot,
@@ -449,7 +450,7 @@ def cmd_study(args) -> int:
     path = Path(args.study)
     if not path.is_file():
         raise _InputError(f"study file not found: {path}")
-    from .study import print_progress, run_study
+    from .tools.study import print_progress, run_study
 
     out = run_study(path, out=args.out, jobs=args.jobs, scheduler=args.scheduler, resume=args.resume,
                     overwrite=args.overwrite, allow_problems=args.allow_problems, dry_run=args.dry_run,
@@ -462,7 +463,7 @@ def cmd_study(args) -> int:
 def cmd_advise(args) -> int:
     if args.config is not None and not Path(args.config).is_file():
         raise _InputError(f"config file not found: {args.config}")
-    from .advise import main_cli
+    from .tools.advise import main_cli
 
     return main_cli(args)
 
@@ -471,7 +472,7 @@ def cmd_plot(args) -> int:
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         raise _InputError(f"run directory not found: {run_dir}")
-    from .plots import plot_run
+    from .io.plots import plot_run
 
     try:
         written = plot_run(run_dir, probe=args.probe, out=args.out)
@@ -514,7 +515,7 @@ def main(argv=None) -> int:
         os.dup2(devnull, sys.stdout.fileno())  # so that the interpreter's final flush does not fail again
         return EXIT_OK
     except OSError as e:  # disk full, file-size limit, permission, a link or a file in the way: one line, exit 4
-        from .io import FileError
+        from .io.files import FileError
 
         if isinstance(e, FileError):
             _err(e.message)

@@ -20,7 +20,7 @@ from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapte
                       field_validator, model_serializer, model_validator)
 
 from .errors import ConfigError
-from .knots import DEGREE as KNOT_DEGREE, knot_problem
+from .bases.knots import DEGREE as KNOT_DEGREE, knot_problem
 from .expressions import largest_magnitude, parse as parse_expression
 
 from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
@@ -230,7 +230,7 @@ class Boundaries(Strict):
 
 class Knots(Strict):
     """Knot vectors per axis (m, from domain.lower to domain.upper, open: each end p + 1 times); an axis left out
-    keeps the uniform open knot vector of domain.dx (taichi_mpm/knots.py)."""
+    keeps the uniform open knot vector of domain.dx (taichi_mpm/bases/knots.py)."""
     x: Optional[list[Real]] = None
     y: Optional[list[Real]] = None
     z: Optional[list[Real]] = None
@@ -238,7 +238,7 @@ class Knots(Strict):
 
 class AnnulusMap(Strict):
     """domain.map: a curvilinear grid on an annulus (or a sector of one), exact circles through NURBS weights
-    (taichi_mpm/mapped.py); the parameter faces are x_min / x_max (the straight edges at angle 0 and `angle`,
+    (taichi_mpm/bases/mapped.py); the parameter faces are x_min / x_max (the straight edges at angle 0 and `angle`,
     none for a full ring) and y_min / y_max (the inner and outer circles)."""
     type: Literal["annulus"]
     inner_radius: PositiveFloat
@@ -257,7 +257,7 @@ class MapKnots(Strict):
 
 
 class NurbsMap(Strict):
-    """domain.map of type nurbs: a quadratic x quadratic NURBS patch given as data (taichi_mpm/mapgeom.py):
+    """domain.map of type nurbs: a quadratic x quadratic NURBS patch given as data (taichi_mpm/bases/mapgeom.py):
     control_points[i][j] = [x, y], i along the knots x (faces x_min / x_max: i first and last), j along y."""
     type: Literal["nurbs"]
     knots: MapKnots
@@ -425,7 +425,7 @@ class Render(Strict):
 
     @model_validator(mode="after")
     def _lengths(self):
-        from .render_options import CAMERAS, color_fields  # (light: the field registry, no pyvista)
+        from .io.render_options import CAMERAS, color_fields  # (light: the field registry, no pyvista)
 
         if self.camera not in CAMERAS:
             raise _Located("camera", f"unknown camera {self.camera!r} (choose from {', '.join(CAMERAS)}; "
@@ -475,7 +475,7 @@ def _probe_every(v):
 
 
 class Probe(Strict):
-    """A quantity sampled over time into probes/NAME.csv (taichi_mpm/probes.py)."""
+    """A quantity sampled over time into probes/NAME.csv (taichi_mpm/io/probes.py)."""
     name: str
     type: Literal[PROBE_TYPES]
     point: Optional[Vec] = None                      # point: the particle nearest this point at t = 0
@@ -728,7 +728,7 @@ class Config(Strict):
                                                f"{'xy'[a]}")
 
     def _check_nurbs_map(self, m):
-        from . import mapgeom
+        from .bases import mapgeom
         for axis in "xy":
             t = getattr(m.knots, axis)
             problem = knot_problem(t, 2, t[0], t[-1]) if t else "is empty"

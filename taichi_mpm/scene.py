@@ -555,7 +555,7 @@ def _inside_map(cfg, bi, pts):
         what = (f"the annulus of domain.map (radii {m.inner_radius:g} to {m.outer_radius:g} about "
                 f"{m.center}" + (f", 0 to {m.angle:g} degrees)" if m.angle < 360.0 else ")"))
     else:
-        from . import mapgeom
+        from .bases import mapgeom
 
         _, cells = mapgeom.refined_shape([m.knots.x, m.knots.y], m.refine)
         knots = [mapgeom.scaled_knots(t, n) for t, n in zip((m.knots.x, m.knots.y), cells)]

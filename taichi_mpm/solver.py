@@ -25,15 +25,15 @@ import taichi as ti
 from . import budget, states   # states: the API's refusals (states.py)
 from .budget import VISCOUS_DIFFUSION  # noqa: F401 (the dt rule's constant, shared with the estimate)
 from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
-from .basis import make_basis
-from .knots import grid_knots, smallest_span
-from .mapped import MappedGrid
-from .stencils import make_stencil
+from .bases.shape_functions import make_basis
+from .bases.knots import grid_knots, smallest_span
+from .bases.mapped import MappedGrid
+from .bases.stencils import make_stencil
 from .sums import ChunkSums, Slots
-from . import scatter
+from .extensions import scatter
 from .config import Config, ConfigError, load_config
-from . import crack as crack_finder
-from . import fbar
+from .extensions import crack as crack_finder
+from .extensions import fbar
 from .errors import InstabilityError
 from .grid import Grid, make_wall_condition
 from .loads import Loads

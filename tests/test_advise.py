@@ -10,12 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from taichi_mpm import observe as obs
-from taichi_mpm.advise import advise, parse_problem, parse_tolerance
+from taichi_mpm.tools import observe as obs
+from taichi_mpm.tools.advise import advise, parse_problem, parse_tolerance
 from taichi_mpm.analytic import VibratingBar
 from taichi_mpm.cli import main
 from taichi_mpm.config import ConfigError
-from taichi_mpm.study import load_study, run_study
+from taichi_mpm.tools.study import load_study, run_study
 
 REPO = Path(__file__).resolve().parents[1]
 BAR_PROBE = {"output.probes": [{"name": "bar", "type": "body", "body": "bar"}]}
@@ -232,7 +232,7 @@ def _fake_records(observed):
 def test_an_impossible_tolerance_has_no_feasible_candidate(tmp_path, monkeypatch, capsys, levels):
     """1e-30 is below any run's error. With fewer than three levels Richardson cannot extrapolate and the
     reference is the finest run's own value: that run (error 0 by construction) must not count as meeting it."""
-    import taichi_mpm.advise as advise_mod
+    import taichi_mpm.tools.advise as advise_mod
     monkeypatch.setattr(advise_mod, "run_cases", _fake_records(lambda dx: 1.0 + 0.01 * dx**2))
     result = advise(problem={"type": "vibrating_bar", "cells": 8}, observe="bar.vx", tolerance=1e-30,
                     bases=("linear", "quadratic"), transfers=("apic",), levels=levels, overrides=BAR_PROBE,
@@ -248,7 +248,7 @@ def test_an_impossible_tolerance_has_no_feasible_candidate(tmp_path, monkeypatch
 def test_a_reachable_tolerance_is_still_met(tmp_path, monkeypatch):
     """The same fake runs at 1 %: the coarse linear run's error against the Richardson limit 1.0 is 0.01 * 3.125^2
     / 1 > 1 %, the next level's 0.024 > 1 %, the finest 0.006: the cheapest candidate at the finest level wins."""
-    import taichi_mpm.advise as advise_mod
+    import taichi_mpm.tools.advise as advise_mod
     monkeypatch.setattr(advise_mod, "run_cases", _fake_records(lambda dx: 1.0 + 0.001 * dx**2))
     result = advise(problem={"type": "vibrating_bar", "cells": 8}, observe="bar.vx", tolerance=0.01,
                     bases=("linear", "quadratic"), transfers=("apic",), levels=3, overrides=BAR_PROBE,

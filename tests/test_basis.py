@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_mpm.basis import TENSOR_BASES as BASES, make_basis
+from taichi_mpm.bases.shape_functions import TENSOR_BASES as BASES, make_basis
 
 N_CELLS = 8
 

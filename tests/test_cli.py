@@ -15,7 +15,7 @@ import yaml
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm import io
+from taichi_mpm.io import files as io
 from taichi_mpm.cli import configs_dir, main
 from taichi_mpm.scene import build_scene
 
@@ -209,7 +209,7 @@ def test_resume_refuses_a_different_config(tmp_path, capsys):
 
 
 def test_ctrl_c_keeps_checkpoint_and_resume_matches(tmp_path, full_run):
-    from taichi_mpm.runner import Interrupted, Run
+    from taichi_mpm.io.runner import Interrupted, Run
 
     path = scene_cfg(tmp_path, **{"solver.end_time": "0.08"})
     cfg = tm.load_config(path)
@@ -239,7 +239,7 @@ def test_run_restores_an_ignored_sigint(tmp_path):
     """Started where SIGINT is ignored (a background job of a script: Python then keeps SIG_IGN), a run keeps it
     ignored, as a background job should be (docs/contract.md: a signal ignored when the run starts stays ignored):
     a SIGINT at step 2 does not stop it, and SIG_IGN is what it leaves behind, not Python's default handler."""
-    from taichi_mpm.runner import Run
+    from taichi_mpm.io.runner import Run
 
     sim = tm.Simulation(tm.load_config(scene_cfg(tmp_path, **{"solver.end_time": "0.08"})))
 

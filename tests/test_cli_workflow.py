@@ -14,7 +14,7 @@ import yaml
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm import io
+from taichi_mpm.io import files as io
 from taichi_mpm.cli import main
 
 REPO = Path(__file__).resolve().parents[1]

@@ -7,7 +7,7 @@ import pytest
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm.compare import _out_dir, compare, parse_vary, split_values
+from taichi_mpm.tools.compare import _out_dir, compare, parse_vary, split_values
 from taichi_mpm.errors import ConfigError
 
 imageio = pytest.importorskip("imageio.v2")
@@ -89,7 +89,7 @@ def test_compare_on_a_mapped_grid(tmp_path, monkeypatch):
     both runs finish, and each panel's renderer gets the curved grid's cell edges (25 spokes and 5 circles;
     that the renderer draws them is tests/test_mapped.py::test_the_curved_grid_is_drawn; counting grey pixels
     here separated them poorly: 281 against 177 without the lines, the colour bar being grey too)."""
-    import taichi_mpm.render as render
+    import taichi_mpm.io.render as render
     from test_mapped import ring_cfg
 
     given = []
@@ -143,7 +143,7 @@ def test_cli_compare_on_the_round_tank(tmp_path):
 
 def test_vary_takes_a_bounded_number_of_values(tmp_path, monkeypatch, capsys):
     """1000 values are refused up front (exit 2, naming --vary and the cap), before any config is loaded or run."""
-    from taichi_mpm import compare as compare_mod
+    from taichi_mpm.tools import compare as compare_mod
     from taichi_mpm.cli import main
 
     many = "solver.cfl=" + ",".join(f"{0.1 + 1e-4 * i:.4f}" for i in range(1000))
@@ -168,7 +168,7 @@ def test_the_work_is_estimated_before_any_variant_runs(tmp_path, monkeypatch):
     """The log's first line says how much will run (variants, particles x steps, frames), from the size estimate,
     before the first variant starts; a comparison estimated beyond the work limit is refused naming --vary."""
     from taichi_mpm import budget
-    from taichi_mpm import compare as compare_mod
+    from taichi_mpm.tools import compare as compare_mod
 
     lines = []
     monkeypatch.setattr(compare_mod, "run_variant", lambda v, field, log=None: lines.append(f"ran {v.label}"))

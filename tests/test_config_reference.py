@@ -5,22 +5,23 @@ from pathlib import Path
 
 import yaml
 
-from taichi_mpm import config_reference as ref
-from taichi_mpm import fields, io
+from taichi_mpm.tools import config_reference as ref
+from taichi_mpm import fields
+from taichi_mpm.io import files as io
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "config.md"
 
 
 def test_config_md_is_current():
     assert DOC.read_text() == ref.render(), \
-        "docs/config.md is stale: regenerate it with `python -m taichi_mpm.config_reference > docs/config.md`"
+        "docs/config.md is stale: regenerate it with `python -m taichi_mpm.tools.config_reference > docs/config.md`"
 
 
 def test_every_key_has_a_description():
     keys = ref.keys()
     assert len(keys) == len(set(keys))
     missing = [k for k in keys if k not in ref.DESCRIPTIONS]
-    assert not missing, f"schema keys without a description in taichi_mpm/config_reference.py: {missing}"
+    assert not missing, f"schema keys without a description in taichi_mpm/tools/config_reference.py: {missing}"
     stale = [k for k in ref.DESCRIPTIONS if k not in keys]
     assert not stale, f"descriptions of keys the schema no longer has: {stale}"
     for key, (unit, meaning) in ref.DESCRIPTIONS.items():

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from conftest import make_cfg
-from taichi_mpm.probes import read_probe
-from taichi_mpm.runner import Run, Simulation
+from taichi_mpm.io.probes import read_probe
+from taichi_mpm.io.runner import Run, Simulation
 
 G = 10.0
 

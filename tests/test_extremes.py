@@ -247,8 +247,8 @@ def test_old_cfl_table_values_over_24_transits_are_never_silent(basis, transfer,
     stopped with J <= 0. The impact scenario of docs/accuracy.md's CFL table (stability.cfl.CFL_SPEC), run through the
     study machinery: its own check calls a finished run with energy > 1.1 x initial 'undetected', which must not
     happen."""
-    from taichi_mpm.stability.cfl import CFL_SPEC, cfl_case
-    from taichi_mpm.study import run_case_inline
+    from taichi_mpm.tools.stability.cfl import CFL_SPEC, cfl_case
+    from taichi_mpm.tools.study import run_case_inline
 
     rec = run_case_inline(cfl_case(basis, transfer, cfl, CFL_SPEC, energy_limit=1.1))
     assert rec["outcome"] in ("ok", "unstable"), rec.get("message")

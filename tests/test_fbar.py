@@ -1,4 +1,4 @@
-"""F-bar against volumetric locking (solver.volumetric: fbar, taichi_mpm/fbar.py).
+"""F-bar against volumetric locking (solver.volumetric: fbar, taichi_mpm/extensions/fbar.py).
 
 Locking test: a nearly incompressible block (nu = 0.4999) released under gravity on a slip floor, free sides,
 settles; its pressure, averaged over each particle row, must be smooth. The standard method's rows alternate

@@ -25,7 +25,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from taichi_mpm.cli import main  # (first: it keeps Taichi's banner off stdout)
-from taichi_mpm import analytic, stability  # noqa: F401,I001 - imported (Taichi runs uname, opens /dev/null) unwatched
+from taichi_mpm import analytic
+from taichi_mpm.tools import stability  # noqa: F401,I001 - imported (Taichi runs uname, opens /dev/null) unwatched
 from taichi_mpm import scene as scene_mod
 from taichi_mpm.config import ConfigError, load_config
 from taichi_mpm.scene import build_scene, shape_bounds
@@ -804,7 +805,7 @@ def test_advise_command_lines(tmp_path, monkeypatch):
     """Everything advise checks before its sweep; a line that passes them is stopped where the sweep would
     write its folder (counted as valid): no case runs, nothing is written, no process starts."""
     from conftest import make_cfg
-    from taichi_mpm import advise as advise_mod
+    from taichi_mpm.tools import advise as advise_mod
 
     def stop(*a, **k):
         raise _WouldRun("fuzz: the sweep would start here")

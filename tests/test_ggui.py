@@ -11,8 +11,8 @@ import pytest
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm import gui
-from taichi_mpm.ggui import CHART_VERTICES, PerspectiveView, box_vertices, chart_vertices, particle_data
+from taichi_mpm.tools import gui
+from taichi_mpm.tools.ggui import CHART_VERTICES, PerspectiveView, box_vertices, chart_vertices, particle_data
 from test_gui import xvfb  # noqa: F401 (the private X server fixture)
 
 
@@ -34,7 +34,7 @@ def test_view_choice_and_title(support, kind, says):
 def test_run_gui_opens_the_ggui_window_where_vulkan_answers(monkeypatch):
     """The dispatch: with GGUI and a device (faked here) a 3D scene goes to ggui.run_ggui with a title naming the GGUI
     scene; without a device, or in 2D, it stays in ti.GUI (the window itself runs under Xvfb in test_gui.py)."""
-    import taichi_mpm.ggui as ggui
+    import taichi_mpm.tools.ggui as ggui
 
     calls = []
     monkeypatch.setattr(gui, "ggui_support", lambda: (True, True))
@@ -136,7 +136,7 @@ def test_cli_gui_view_option(tmp_path, monkeypatch):
 GGUI_SCRIPT = """
 import json, sys
 import taichi_mpm as tm
-from taichi_mpm import gui
+from taichi_mpm.tools import gui
 cfg = tm.load_config(json.loads(sys.argv[1]))
 script = {int(k): [tuple(a) for a in v] for k, v in json.loads(sys.argv[3]).items()}
 kind = gui.view_3d_kind()

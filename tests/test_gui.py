@@ -13,7 +13,7 @@ import pytest
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm.gui import Session, View, push_particles
+from taichi_mpm.tools.gui import Session, View, push_particles
 
 
 def test_view_2d_maps_domain_into_window_and_back():
@@ -125,7 +125,7 @@ def xvfb():
 GUI_SCRIPT = """
 import json, sys
 import taichi_mpm as tm
-from taichi_mpm.gui import run_gui
+from taichi_mpm.tools.gui import run_gui
 cfg = tm.load_config(json.loads(sys.argv[1]))
 script = {int(k): [tuple(a) for a in v] for k, v in json.loads(sys.argv[3]).items()}
 sim = run_gui(cfg, max_frames=4, screenshot=sys.argv[2], script=script)
@@ -200,7 +200,7 @@ def test_session_sliders_switch_and_energy_chart():
     assert total == pytest.approx(s.chart[0][2], rel=1e-3)        # a free elastic block: energy is conserved
     lines = s.chart_lines()
     assert set(lines) == {"kinetic", "strain", "total"} and lines["kinetic"][0].shape == (2, 2)
-    x0, y0, x1, y1 = __import__("taichi_mpm.gui", fromlist=["CHART"]).CHART
+    x0, y0, x1, y1 = __import__("taichi_mpm.tools.gui", fromlist=["CHART"]).CHART
     for begin, end in lines.values():
         assert np.all(begin[:, 0] >= x0) and np.all(end[:, 0] <= x1) and np.all(begin[:, 1] <= y1 + 1e-12)
     # push strength: half strength moves the particle under the cursor half way to the drag velocity
@@ -311,7 +311,7 @@ def test_gui_without_a_display_says_what_is_missing_and_exits_2(tmp_path, monkey
     GLFW), one line naming what is missing and what to do instead (Xvfb, `render`, `compare`), exit 2."""
     import yaml
 
-    from taichi_mpm import gui
+    from taichi_mpm.tools import gui
     from taichi_mpm.cli import main
 
     for name in ("DISPLAY", "WAYLAND_DISPLAY"):

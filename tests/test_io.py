@@ -3,8 +3,8 @@ von Mises stress, diagnostics rows kept on resume, checkpoints, resume compatibi
 import numpy as np
 import pytest
 
-from taichi_mpm import io
-from taichi_mpm.runner import config_changes
+from taichi_mpm.io import files as io
+from taichi_mpm.io.runner import config_changes
 
 
 def state(dim, n=7, seed=1):

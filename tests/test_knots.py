@@ -9,7 +9,7 @@ import taichi as ti
 
 import taichi_mpm as tm
 from taichi_mpm import analytic as an
-from taichi_mpm.basis import make_knot_bspline
+from taichi_mpm.bases.shape_functions import make_knot_bspline
 from taichi_mpm.errors import ConfigError
 from conftest import make_cfg
 

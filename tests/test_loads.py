@@ -10,7 +10,7 @@ import pytest
 
 import taichi_mpm as tm
 from taichi_mpm.analytic import VibratingBar
-from taichi_mpm.probes import read_probe
+from taichi_mpm.io.probes import read_probe
 from taichi_mpm.scene import build_scene
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -30,7 +30,7 @@ def ring_cfg(angle=360.0, cells=(24, 4), walls="slip", model="fluid", body=(0.55
 def as_nurbs(cfg, coarse=False):
     """The same config with its annulus given as a generic `nurbs` map: the annulus' own knots, control points
     and weights (coarse: its 4 rational quarter pieces x 1 radial cell, refined by knot insertion instead)."""
-    from taichi_mpm.nurbs import annulus
+    from taichi_mpm.bases.nurbs import annulus
     m = cfg["domain"]["map"]
     n0, n1 = m["cells"]
     pieces = max(1, math.ceil(m["angle"] / 90.0 - 1e-9))
@@ -77,7 +77,7 @@ def test_generic_nurbs_map_of_the_annulus_data_is_the_annulus():
     round-off, the same wall normals, and the same simulation: 6 steps of a spinning, expanding solid at a fixed
     dt agree in x, v and F to 1e-12 (the same kernels on the same data; round-off of the refinement ~1e-16).
     The normals on the circles are radial to 1e-14 (no torque from slip walls)."""
-    from taichi_mpm.mapped import MappedGrid
+    from taichi_mpm.bases.mapped import MappedGrid
     cfg = ring_cfg(walls="free", model="neo_hookean")
     cfg["solver"]["dt"] = 2e-3
     ref = MappedGrid(tm.load_config(cfg))
@@ -429,7 +429,7 @@ def test_the_curved_grid_is_drawn():
     """render.grid_lines: the parameter lines through every knot of the annulus (25 spokes at the angular knots,
     then 5 lines at the radial knots), those 5 on the circles r = 0.5 + 0.125 k (1e-14: exact circles), and a
     frame drawn with them differs from the frame without them in the line pixels."""
-    from taichi_mpm.render import FrameRenderer, grid_lines
+    from taichi_mpm.io.render import FrameRenderer, grid_lines
     cfg = tm.load_config(ring_cfg())
     lines = grid_lines(cfg)
     assert len(lines) == 25 + 5

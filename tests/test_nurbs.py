@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_mpm.nurbs import Map, annulus, arc, bspline_values
+from taichi_mpm.bases.nurbs import Map, annulus, arc, bspline_values
 
 
 def init():
@@ -165,7 +165,7 @@ def test_host_geometry_derivatives_normals_and_refinement():
     the face normals of a rotated rectangle with a bumpy interior net are its four edge normals (1e-14); the
     plain rectangle refined to 8 x 4 has cells of 0.25."""
     from scipy.interpolate import BSpline
-    from taichi_mpm import mapgeom
+    from taichi_mpm.bases import mapgeom
 
     rng = np.random.default_rng(7)
     t = np.array([0, 0, 0, 0, 1.3, 2, 2, 3, 3, 3, 3], float)

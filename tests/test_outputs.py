@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 import taichi_mpm as tm
-from taichi_mpm import config, fields, io
-from taichi_mpm.render import field_values
+from taichi_mpm import config, fields
+from taichi_mpm.io import files as io
+from taichi_mpm.io.render import field_values
 from conftest import make_cfg
 
 E, NU, K, RHO = 1.0e4, 0.3, 2.0e4, 1000.0

@@ -376,7 +376,7 @@ def test_checkpoint_carries_the_plastic_state(model, tmp_path):
     """get_state / checkpoint file / set_state carry the material state (plastic strain, J_p, the held stretch of
     plane strain) and the dissipation so far: a resumed run is bit-identical to an uninterrupted one (deterministic
     mode). A state without material_state is refused."""
-    from taichi_mpm import io
+    from taichi_mpm.io import files as io
 
     cfg = plastic_cfg(model, dim=2)
     cfg["solver"].update(deterministic=True, gravity=[0.0, -9.81])

@@ -10,8 +10,8 @@ from conftest import make_cfg
 from taichi_mpm.analytic import VibratingBar
 from taichi_mpm.cli import main
 from taichi_mpm.config import ConfigError, load_config
-from taichi_mpm.probes import read_probe
-from taichi_mpm.runner import Run, Simulation
+from taichi_mpm.io.probes import read_probe
+from taichi_mpm.io.runner import Run, Simulation
 
 G = 10.0
 DT = 0.01

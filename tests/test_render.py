@@ -5,7 +5,7 @@ import pytest
 imageio = pytest.importorskip("imageio.v2")
 meshio = pytest.importorskip("meshio")
 
-from taichi_mpm.render import FrameRenderer, field_values, make_movie, render_run, von_mises  # noqa: E402
+from taichi_mpm.io.render import FrameRenderer, field_values, make_movie, render_run, von_mises  # noqa: E402
 
 
 def particle_dict(dim, n_side=12, seed=0):
@@ -193,7 +193,7 @@ def test_robust_colour_range_spreads_particles_over_the_map(tmp_path, dim):
     """Issue 13's check: the particle pixels of a frame span at least 40 % of the colour map for a heavy-tailed
     field, with the range the renderer chooses for the whole sequence; the min-max range of the old renderer
     puts nearly all of them into the bottom bin (so the check can fail)."""
-    from taichi_mpm.render import FrameRenderer, sequence_bounds, sequence_limits
+    from taichi_mpm.io.render import FrameRenderer, sequence_bounds, sequence_limits
 
     states = impact_states(dim)
     rc = {"color_by": "von_mises", "size": [400, 300], "colormap": "viridis"}
@@ -217,7 +217,7 @@ def test_robust_colour_range_spreads_particles_over_the_map(tmp_path, dim):
 
 
 def test_log_scale_limits_and_positions():
-    from taichi_mpm.colour_range import normalise, robust_limits
+    from taichi_mpm.io.colour_range import normalise, robust_limits
 
     v = np.concatenate([np.logspace(0, 5, 1001), [0.0, -1.0]])       # a log-uniform field with zeros
     lo, hi = robust_limits([v], "von_mises", "log", (0, 100))
@@ -292,7 +292,7 @@ def test_run_renders_its_frames_at_the_end_with_one_colour_range(tmp_path):
 def test_surface_particles_of_a_solid_cube():
     """A 10^3 lattice: the particles within two layers of its faces are drawn, the 6^3 core is not; a cube with a
     hollow middle shows its cavity's walls too (they border an empty voxel)."""
-    from taichi_mpm.render import surface_particles
+    from taichi_mpm.io.render import surface_particles
 
     h = 0.1
     ijk = np.stack(np.meshgrid(*[np.arange(10)] * 3, indexing="ij"), -1).reshape(-1, 3)

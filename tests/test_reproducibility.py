@@ -13,7 +13,7 @@ import yaml
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm import io
+from taichi_mpm.io import files as io
 from taichi_mpm.cli import main
 from taichi_mpm.solver import GPU_ARCHS, available_archs, resolve_arch
 

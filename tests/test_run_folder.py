@@ -15,10 +15,10 @@ import yaml
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm import io
+from taichi_mpm.io import files as io
 from taichi_mpm.cli import main
 from taichi_mpm.config import ConfigError
-from taichi_mpm.runner import LOCK_NAME, FolderLock
+from taichi_mpm.io.runner import LOCK_NAME, FolderLock
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from conftest import make_cfg
-from taichi_mpm import io
+from taichi_mpm.io import files as io
 from taichi_mpm.cli import EXIT_IO, main
-from taichi_mpm.runner import LOCK_NAME, FolderLock, Interrupted, Run, Simulation
+from taichi_mpm.io.runner import LOCK_NAME, FolderLock, Interrupted, Run, Simulation
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -249,7 +249,7 @@ def test_disk_full_in_any_writer_mid_run_is_exit_4_and_the_checkpoint_stays_vali
         monkeypatch.setattr(io.np, "savez", _failing(np.savez, 2))    # the checkpoint at t = 0.02
         name = out / "checkpoint.npz"
     elif where == "probe row":
-        import taichi_mpm.probes as probes
+        import taichi_mpm.io.probes as probes
 
         real = probes.Probes.sample
         calls = []
@@ -405,7 +405,7 @@ def test_a_frame_size_vtk_cannot_allocate_is_refused_before_vtk(finished, tmp_pa
     code, err = run(capsys, "run", path, "--quiet", "--out", tmp_path / "big")
     assert code == 2 and "too large to render" in err and "output.render.size" in err, err
     assert not (tmp_path / "big" / "checkpoint.npz").exists()
-    from taichi_mpm.render import FrameRenderer
+    from taichi_mpm.io.render import FrameRenderer
 
     with pytest.raises(ValueError, match="too large"):
         FrameRenderer({"size": [int(w), int(h)]}, 2, [0, 0], [1, 1])

@@ -8,10 +8,10 @@ import pytest
 import yaml
 
 from taichi_mpm.solver import CAUSES, NUMERICAL_FRACTURE
-from taichi_mpm.stability import SCENARIOS, make_scenario
-from taichi_mpm.stability.cfl import largest_stable_cfl
-from taichi_mpm.stability.picture import plot_map
-from taichi_mpm.study import run_study
+from taichi_mpm.tools.stability import SCENARIOS, make_scenario
+from taichi_mpm.tools.stability.cfl import largest_stable_cfl
+from taichi_mpm.tools.stability.picture import plot_map
+from taichi_mpm.tools.study import run_study
 
 ROOT = Path(__file__).resolve().parents[1]
 LIMIT = 1.1

@@ -10,7 +10,7 @@ import yaml
 
 from taichi_mpm.cli import main
 from taichi_mpm.config import ConfigError
-from taichi_mpm.study import convergence_rates, load_study, pareto_front, run_study
+from taichi_mpm.tools.study import convergence_rates, load_study, pareto_front, run_study
 
 HERE = Path(__file__).parent
 MMS_1D = {"type": "mms_axis_aligned", "dim": 1, "amplitude": 0.001}   # taichi_mpm.analytic
@@ -241,8 +241,9 @@ def test_allow_problem_opts_in(tmp_path, monkeypatch, capsys):
 
 
 def test_metrics_table_covers_every_project_problem():
-    from taichi_mpm import analytic, stability
-    from taichi_mpm.study import PROBLEM_METRICS
+    from taichi_mpm import analytic
+    from taichi_mpm.tools import stability
+    from taichi_mpm.tools.study import PROBLEM_METRICS
     assert set(PROBLEM_METRICS) == set(analytic.PROBLEMS) | set(stability.SCENARIOS)
 
 
@@ -307,7 +308,7 @@ def _fake_case(case, timeout=None, threads=None, paths=None):
 
 def test_output_folder_is_not_overwritten_unasked(tmp_path, monkeypatch, capsys):
     """Cases are stubbed (no simulation): this checks the folder rules and the progress lines only."""
-    import taichi_mpm.study as study_mod
+    import taichi_mpm.tools.study as study_mod
     monkeypatch.setattr(study_mod, "execute_case", _fake_case)
     monkeypatch.chdir(tmp_path)
     path = _write(tmp_path, dict(study="folder", problem=MMS_1D, vary={"domain.dx": [0.0625, 0.03125]}))

@@ -10,7 +10,8 @@ import yaml
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm import budget, mapgeom
+from taichi_mpm import budget
+from taichi_mpm.bases import mapgeom
 from taichi_mpm.config import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,7 +36,8 @@ def ring(cells, angle=360.0):
 @pytest.fixture
 def nothing_built(monkeypatch):
     """Fail if a mapped grid's net is refined, an annulus built, a MappedGrid made or a scene generated."""
-    from taichi_mpm import mapped, nurbs, scene, solver  # noqa: F401 (imported first: it binds the names it imports)
+    from taichi_mpm.bases import mapped, nurbs
+    from taichi_mpm import scene, solver  # noqa: F401 (imported first: it binds the names it imports)
 
     def refuse(*a, **k):
         raise AssertionError("built before the size was checked")
@@ -104,7 +106,7 @@ def test_map_sizes_past_the_old_schema_maxima_are_the_budgets_to_refuse(nothing_
 
 @pytest.mark.parametrize("angle,cells", [(360.0, (24, 4)), (180.0, (8, 3)), (100.0, (6, 5)), (45.0, (3, 2))])
 def test_map_sizes_from_the_config_equal_the_built_maps(angle, cells):
-    from taichi_mpm.mapped import MappedGrid
+    from taichi_mpm.bases.mapped import MappedGrid
 
     cfg = tm.load_config(ring(cells, angle))
     size, grid = budget.map_size(cfg), MappedGrid(cfg)

@@ -8,7 +8,7 @@ Physics code only: no CLI, rendering or file I/O here.
 from dataclasses import dataclass
 from typing import Any, Optional
 
-from ..stencils import KernelContext
+from ..bases.stencils import KernelContext
 
 
 @dataclass

@@ -18,7 +18,7 @@ import numpy as np
 import taichi as ti
 
 from ..errors import ConfigError
-from ..mapped import make_locate
+from ..bases.mapped import make_locate
 
 
 class Extension:

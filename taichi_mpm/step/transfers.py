@@ -10,7 +10,7 @@ Physics code only: no CLI, rendering or file I/O here.
 
 import taichi as ti
 
-from ..stencils import make_corner_check, make_wall_hold
+from ..bases.stencils import make_corner_check, make_wall_hold
 
 FLUID_J_MIN = 0.2           # a weakly compressible fluid squeezed below this volume ratio has collapsed
 

@@ -1,0 +1,153 @@
+"""Mapped (curvilinear) grids, `domain.map` (issue 12, step 3): the grid lives in the parameter space of a NURBS
+map x(xi) (nurbs.py), its nodes are the map's control points, and each particle keeps its parametric coordinates
+xi_p next to its physical position x_p.
+
+A particle's stencil is the rational basis R_i at xi_p, with physical gradients through the map's Jacobian,
+    grad_x R_i = J^-T grad_xi R_i,   J = sum_i P_i (x) grad_xi R_i,
+and node offsets P_i - x_p (control points are the nodes: sum R_i P_i = x_p and sum P_i (x) grad_x R_i = I, so
+APIC, linear reproduction and the F update hold as on the Cartesian grid). After every position update xi_p is
+found again by Newton's method on x(xi) = x_p from the old xi_p (`locate`); a particle that leaves the mapped
+region or whose iteration fails stops the run (InstabilityError, cause "particle left the mapped grid"). The
+stencil itself is built in stencils.py (kind `mapped`); this module holds the grid, xi_p and `locate`.
+
+The map is the built-in annulus or a `nurbs` patch given as data (`build_map`; host geometry in mapgeom.py). A
+full ring (or a `periodic` patch) wraps in its first parameter: its last control-point column coincides with the
+first and is stored as that same node (the seam is a C0 joint, like the rational pieces' double knots).
+
+Walls (grid.make_wall_condition) act on the control points of the parameter faces along their outward normals
+(`normal`, from mapgeom.face_normals; on a circle radial, so a slip or roller circle gives every node an impulse
+through the centre and no torque): sticky v = 0, slip: no outward normal velocity, roller: no normal velocity,
+Coulomb friction on slip and roller faces. Bodies are given in physical space.
+Physics code only: no CLI, rendering or file I/O here.
+"""
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from .shape_functions import Basis, make_bspline
+from . import mapgeom
+from .nurbs import Map, annulus
+
+LOCATE_TOL = {"f32": 1e-4, "f64": 1e-13}      # Newton's residual |x(xi) - x_p|, relative to the smallest cell (f32: sums of 9 terms of ~|x| carry ~1e-7 |x| of round-off)
+
+
+def build_map(m):
+    """(nurbs.Map, periodic) of a `domain.map` config: the built-in annulus, or a `nurbs` map given as knots,
+    control points and weights (degree 2 per axis), refined by knot insertion (`refine`), knots scaled to cells."""
+    if m.type == "annulus":
+        angle = math.radians(m.angle)
+        n_angle, n_radial = m.cells
+        return annulus(m.inner_radius, m.outer_radius, angle, n_angle, n_radial, tuple(m.center)), m.angle >= 360.0
+    w = np.ones(np.shape(m.control_points)[:2]) if m.weights is None else np.asarray(m.weights, float)
+    knots, P, w = mapgeom.refine([m.knots.x, m.knots.y], m.control_points, w, m.refine)
+    return Map(knots, [2, 2], P, w), m.periodic
+
+
+class MappedGrid:
+    """Host side of a mapped grid: the NURBS map, node count, wall normals and the smallest cell (for the CFL
+    rule). `materialize()` allocates its fields after ti.init."""
+
+    def __init__(self, cfg):
+        m = cfg.domain.map
+        self.cfg = cfg
+        self.map, self.periodic = build_map(m)
+        self.map.periodic = self.periodic
+        n0, n1 = self.map.w.shape
+        self.shape = [n0 - 1 if self.periodic else n0, n1]   # the seam column is the first one
+        mp = self.map
+        if m.type == "annulus":
+            # an inner arc of one angular cell, or one radial cell (the annulus' own sizes, as the CFL rule used
+            # before the generic map: its measured runs keep their steps)
+            angle = math.radians(m.angle)
+            n_angle, n_radial = m.cells
+            self.h_max = max(m.outer_radius * 2 * math.sin(0.5 * angle / n_angle),
+                             (m.outer_radius - m.inner_radius) / n_radial)
+            self.h_min = min(m.inner_radius * 2 * math.sin(0.5 * angle / n_angle),
+                             (m.outer_radius - m.inner_radius) / n_radial)
+        else:
+            self.h_min, self.h_max = mapgeom.cell_sizes(mp.knots, mp.degrees, mp.P, mp.w)
+        self.normals = mapgeom.face_normals(mp.knots, mp.degrees, mp.P, mp.w, self.periodic)[: self.shape[0]]
+        self.xi = None
+
+    def basis(self) -> Basis:
+        """The solver's view: quadratic (3 nodes per axis, APIC with B_p D_p^-1), contributions built here."""
+        from dataclasses import replace
+        return replace(make_bspline(2, "quadratic"), kind="mapped")
+
+    def materialize(self):
+        self.map.materialize()
+        self.normal = ti.Vector.field(2, float, tuple(self.shape) + (4,))
+        self.normal.from_numpy(self.normals)
+
+    def allocate_particles(self, n: int):
+        self.xi = ti.Vector.field(2, float, max(n, 1))
+
+    PARTICLE_FLOATS = 2    # xi_p, per particle (budget.py counts it)
+
+    def field_floats(self) -> int:
+        """Floats of the map's own fields: control points (2) and weights (1) per control point, the wall normals
+        (4 faces x 2 per node); the knot vectors' few floats are left out. budget.py counts them."""
+        return 3 * int(np.prod(self.map.w.shape)) + 8 * int(np.prod(self.shape))
+
+    def initial_guess(self, x: np.ndarray) -> np.ndarray:
+        """Per physical point, the parameters of the nearest of 3 x 3 samples per cell (Newton starts there,
+        within a third of a cell of the answer). Points are sorted into the cells of a coarse box grid first, and
+        each is compared with the samples of its own box cell and the neighbouring ones only."""
+        n0, n1 = self.map.n_cells
+        k = 3
+        s0 = (np.arange(int(k * n0)) + 0.5) / k
+        s1 = (np.arange(int(k * n1)) + 0.5) / k
+        xi = np.stack(np.meshgrid(s0, s1, indexing="ij"), -1).reshape(-1, 2)
+        pts = self.map.evaluate(xi)
+        lo = np.minimum(pts.min(axis=0), x.min(axis=0)) if len(x) else pts.min(axis=0)
+        h = 2.0 * self.h_max
+        key = lambda q: np.floor((q - lo) / h).astype(np.int64)
+        buckets = {}
+        for i, c in enumerate(map(tuple, key(pts))):
+            buckets.setdefault(c, []).append(i)
+        out = np.empty((len(x), 2))
+        cells = key(x)
+        for c in set(map(tuple, cells)):
+            mine = np.nonzero((cells == c).all(axis=1))[0]
+            near = [i for d0 in (-1, 0, 1) for d1 in (-1, 0, 1) for i in buckets.get((c[0] + d0, c[1] + d1), [])]
+            if not near:        # far from the annulus: any start; Newton will report it
+                out[mine] = xi[0]
+                continue
+            near = np.asarray(near)
+            d = ((x[mine, None, :] - pts[None, near]) ** 2).sum(-1)
+            out[mine] = xi[near[d.argmin(axis=1)]]
+        return out
+
+
+def make_locate(ctx, mapped: MappedGrid, fail, n_codes: int, code: int):
+    """Kernels: `locate()` finds every particle's xi again after its position update (Newton from the old xi);
+    a failure sets the fail flag with `code`. `start(guess)` does it from host guesses at upload and returns
+    how many particles were not found."""
+    mp, xi, x = mapped.map, mapped.xi, ctx.x
+    tol = LOCATE_TOL[ctx.precision] * mapped.h_min
+    missed = ti.field(ti.i32, ())
+
+    @ti.kernel
+    def locate():
+        for p in x:
+            q, ok = mp.invert(x[p], xi[p], tol)
+            xi[p] = q
+            if not ok:
+                ti.atomic_min(fail[None], p * n_codes + code)
+
+    @ti.kernel
+    def start_kernel(guess: ti.types.ndarray()):
+        for p in x:
+            q, ok = mp.invert(x[p], ti.Vector([guess[p, 0], guess[p, 1]]), tol)
+            xi[p] = q
+            if not ok:
+                missed[None] += 1
+
+    def start(guess: np.ndarray) -> int:
+        missed[None] = 0
+        start_kernel(np.ascontiguousarray(guess, np.float64))
+        return int(missed[None])
+
+    return locate, start

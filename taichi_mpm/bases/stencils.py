@@ -1,0 +1,566 @@
+"""A particle's stencil as (node, weight, gradient, offset) contributions, and the context kernel builders share.
+
+Every kernel that couples particles and nodes loops over a particle's contributions:
+
+    st = ctx.stencil.at(p)                                  # per-particle data, computed once
+    for o in ti.grouped(ti.ndrange(*ctx.stencil.outer)):
+        for k in ti.static(range(len(ctx.stencil.inner))):
+            I, w, grad, r = ctx.stencil.node(st, o + ctx.stencil.inner[k])   # r = x_i - x_p
+
+so that transfers, F-bar and the crack finder are written once for every basis. A node may appear in several
+contributions (CPDI: once per corner that reaches it); sums over contributions are what the method defines.
+
+- tensor (linear, gimp, quadratic, cubic): the contribution index is the node offset per axis; `at` computes the
+  per-axis weights, derivatives and offsets once, `node` multiplies them (the same work as before this interface).
+  ddmp is a tensor stencil too (4 nodes per axis) whose gradient blends the linear one with the dual-domain one:
+      grad_a S_ip = alpha dN_a prod_{b != a} N_b + (1 - alpha) Ds_a prod_{b != a} Ns_b,  alpha = prod_a 4 t_a (1 - t_a)
+  (basis.make_ddmp; derivation in docs/bases.md). Where a node of the smoothed stencil has a partly filled dual
+  domain (free surfaces), the blend moves to the linear gradient: alpha_p = max(alpha_p, 1 - min fill), fill =
+  sum_q V_q N_j(x_q) / (the dual domain's volume), from a nodal-volume pass before P2G (`Stencil.prepare`), so that
+  no node without material receives force.
+- cpdi (CPDI1, Sadeghirad, Brannon & Burghardt 2011, IJNME 86): the particle domain is the parallelogram /
+  parallelepiped x_p + A xi, xi in [-1, 1]^d, with half-edge vectors A = F A0 (A0 = half the initial spacing per
+  axis; full F, rotation included). Linear grid functions N_i are replaced over the domain by their multilinear
+  interpolant from the 2^d corners x_c = x_p + A s_c (s_c in {-1, 1}^d), which gives
+      S_ip      = 2^-d sum_c N_i(x_c)
+      grad S_ip = 2^-d sum_c N_i(x_c) A^-T s_c          (the domain average of the interpolant's gradient)
+  The contribution index is (corner bits, node offset bits): 4^d contributions. While the corners are inside the
+  grid, sum S = 1, sum S x_i = x_p, sum grad S = 0 and sum x_i (x) grad S = I exactly (tests/test_cpdi.py), and
+  APIC's D_p = 2^-d sum_c diag(t (1 - t)) dx^2 + A A^T (t: corner's position in its cell) is never singular.
+- mapped (domain.map): the rational basis R_i at the particle's parametric coordinates, 3 x 3 control points, with
+  physical gradients J^-T grad_xi R_i (the grid itself, xi_p and its Newton search are in mapped.py).
+
+Physics code only: no CLI, rendering or file I/O here.
+"""
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
+
+import taichi as ti
+from taichi.lang.matrix import make_matrix
+
+from .. import traced
+
+
+@dataclass
+class KernelContext:
+    """What a kernel builder (solver, F-bar, crack finder) may use: compile-time constants, the particle and grid
+    fields, the stencil, and the solver's material and wall funcs. Built once by `Simulation._build_kernels`."""
+    dim: int
+    dx: float
+    lower: Any                       # ti.Vector, domain lower corner
+    upper: Any
+    n_cells: list
+    basis: Any                       # basis.Basis
+    feat: Any                        # step.Features: the scene's compile-time switches
+    precision: str
+    # particle fields
+    x: Any
+    v: Any
+    F: Any
+    C: Any
+    vol0: Any
+    mat: Any
+    half_width: Any                  # per-particle domain half-width (grid units) or None
+    domain_lp0: float                # domain half-width (grid units) when every particle has the same one
+    gimp_deforming: bool
+    unroll: Any                      # solver.unroll: "auto", True or False (_loops)
+    # grid
+    grid: Any
+    stencil: "Stencil" = None
+    # solver funcs (@ti.func), set once the solver has defined them
+    density: Optional[Callable] = None
+    kirchhoff: Optional[Callable] = None       # (p, F) -> Kirchhoff stress
+    wall: Optional[Callable] = None            # (I, v) -> v with wall conditions
+    gravity_kick: Any = None    # ti.func (kick_before, kick_after) -> the velocity gravity adds over a leapfrog kick
+    add: Optional[Callable] = None   # @ti.func (g, I, value): g[I] += value, plain where P2G scatters by colours
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def gm(self):
+        return self.grid.m
+
+    @property
+    def gv(self):
+        return self.grid.vec["v"]
+
+    @property
+    def gv_old(self):
+        return self.grid.vec.get("v_old")
+
+    @property
+    def gv2(self):
+        return self.grid.vec.get("v2")
+
+    @property
+    def vgrad(self):
+        """The grid velocity F's update reads: MUSL's remapped one, else the updated one."""
+        return self.gv2 if self.feat.musl else self.gv
+
+
+@dataclass
+class Stencil:
+    span: list                  # extents of the contribution index (ti.ndrange(*span) visits every contribution)
+    outer: list                 # the loop split by `unroll`: ndrange(*outer) at run time, `inner` unrolled
+    inner: list
+    at: Callable                # @ti.func (p) -> per-particle stencil data st
+    node: Callable              # @ti.func (st, off) -> (storage index I, w, grad w, x_i - x_p)
+    inertia: Callable           # @ti.func (st) -> APIC's D_p = sum w (x_i - x_p)(x_i - x_p)^T
+    inertia_inverse: Callable   # @ti.func (st) -> D_p^-1 (zero along an axis where D_p vanishes)
+    index: Callable             # @ti.func (off) -> flat contribution number 0..count-1
+    count: int
+    prepare: Optional[Callable] = None   # per step before P2G, for stencils that read grid state (ddmp)
+    origin: Optional[Callable] = None    # @ti.func (p) -> the first node of a tensor stencil (scatter.BlockBins)
+
+
+def make_stencil(ctx: KernelContext) -> Stencil:
+    build = {"tensor": _tensor_stencil, "cpdi": _cpdi_stencil, "mapped": _mapped_stencil}[ctx.basis.kind]
+    return build(ctx)
+
+
+AUTO_FULL = 16   # solver.unroll auto: stencils of at most this many contributions are unrolled whole
+AUTO_INNER = 9   # and larger tensor stencils their trailing axes, up to this many nodes per run-time iteration
+
+
+def _loops(span: list, unroll, auto_inner: int = 1):
+    """Split the contribution index into a run-time loop `outer` and a statically unrolled `inner` list (the
+    trailing axes, as many as fit in `n` contributions). Unrolled nodes keep the weights in registers but each adds
+    its code to the compile: true unrolls everything, false nothing, auto stencils of at most AUTO_FULL
+    contributions whole and larger ones up to `auto_inner` per run-time iteration (tensor stencils: their
+    trailing axes, 3D quadratic 9 of 27, cubic 4 of 64)."""
+    n = math.prod(span) if unroll is True or (unroll == "auto" and math.prod(span) <= AUTO_FULL) else 1
+    if unroll == "auto" and n == 1:
+        n = auto_inner
+    d = len(span)
+    while d > 0 and math.prod(span[d - 1:]) <= n:
+        d -= 1
+    outer = list(span[:d]) + [1] * (len(span) - d)
+    inner = [ti.Vector([0] * d + list(o)) for o in itertools.product(*[range(s) for s in span[d:]])]
+    return outer, inner
+
+
+def _flat_index(span):
+    @ti.func
+    def index(off):
+        k = 0
+        for a in ti.static(range(len(span))):
+            k = k * span[a] + off[a]
+        return k
+    return index
+
+
+def _domain_half_width(ctx: KernelContext):
+    """@ti.func (p) -> the particle's initial domain half-width in grid units."""
+    half_width, lp0 = ctx.half_width, ctx.domain_lp0
+    per_particle = half_width is not None
+
+    @ti.func
+    def lp(p):
+        res = ti.cast(lp0, float)
+        if ti.static(per_particle):
+            res = half_width[p]
+        return res
+    return lp
+
+
+# B-spline particles within WALL_LAYER x r0 (r0: half the initial particle spacing) of a face that holds material
+# are transferred from that depth; the scene seeds the outer particles of a body flush against a face at r0, so only
+# particles placed on a face (set_particles) or compressed to half their spacing against it are affected
+WALL_LAYER = 0.5
+CPDI_CORNER_TOL = 0.01   # cells: how far a CPDI domain corner may lie beyond a wall (make_corner_check)
+BSPLINES = ("linear", "quadratic", "cubic")
+
+
+def wall_holds(ctx: KernelContext):
+    """Per axis (lower, upper): the faces that hold material (grid.make_wall_condition's `holds`), for the B-spline
+    bases on the box; None otherwise (gimp cuts its domain at the walls instead; cpdi, ddmp and mapped grids keep
+    their own rules)."""
+    holds = getattr(ctx.wall, "holds", None)
+    if ctx.basis.kind != "tensor" or ctx.basis.name not in BSPLINES or holds is None or not any(map(any, holds)):
+        return None
+    return holds
+
+
+def make_wall_hold(ctx: KernelContext):
+    """@ti.func (p, x_old, x_new) -> x_new, clamped onto a face that holds material for a particle that started in
+    its wall layer (transferred from WALL_LAYER r0 inside, it moves with the velocity there, which may point
+    through the face while the particle is on it); every other position as it is. The identity unless a B-spline
+    basis meets such a face."""
+    holds, dim, inv_dx, lower = wall_holds(ctx), ctx.dim, 1.0 / ctx.dx, ctx.lower
+    n_cells, dx = ctx.n_cells, ctx.dx
+    half_width = _domain_half_width(ctx)
+    active = holds is not None
+    holds = holds or [(False, False)] * dim
+
+    @ti.func
+    def keep_inside(p, x_old, x_new):
+        res = x_new
+        if ti.static(active):
+            depth = WALL_LAYER * half_width(p)
+            u_old = (x_old - lower) * inv_dx
+            u_new = (x_new - lower) * inv_dx
+            for a in ti.static(range(dim)):
+                if ti.static(holds[a][0]):
+                    if u_old[a] < depth and u_new[a] < 0.0:
+                        res[a] = lower[a]
+                if ti.static(holds[a][1]):
+                    if u_old[a] > n_cells[a] - depth and u_new[a] > n_cells[a]:
+                        res[a] = lower[a] + n_cells[a] * dx
+        return res
+    return keep_inside
+
+
+def _tensor_stencil(ctx: KernelContext) -> Stencil:
+    dim, dx, inv_dx = ctx.dim, ctx.dx, 1.0 / ctx.dx
+    basis, n_cells, lower = ctx.basis, ctx.n_cells, ctx.lower
+    S = basis.stencil
+    axes = [basis.axis(a) for a in range(dim)]   # per-axis 1D bases (knot vectors of domain.knots)
+    x, F = ctx.x, ctx.F
+    gimp, gimp_deforming = basis.name == "gimp", ctx.gimp_deforming
+    smooth = basis.smooth_1d is not None   # ddmp
+    half_width = _domain_half_width(ctx)
+    holds = wall_holds(ctx)   # B-splines: per axis and side, transfer from at least WALL_LAYER r0 inside
+    d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * dx * dx  # smallest D_p entry inverted
+    span = [S] * dim
+    outer, inner = _loops(span, ctx.unroll, auto_inner=AUTO_INNER)
+    prepare, fill = _dual_domain_fill(ctx, span) if smooth else (None, None)
+
+    @traced.traced
+    def at(p):
+        """Stencil origin (storage index), per-axis weights W[a, k], x-derivatives DW[a, k] and node offsets
+        R[a, k] = (x_i - x_p)_a, so the node loop only multiplies. Built at trace time (traced.py)."""
+        return axes_of(p, with_fill=True)
+
+    def axes_of(p, with_fill):
+        u = traced.local((traced.at(x, p) - lower) * inv_dx)
+        base, W, DW, R = [], [], [], []
+        WS = [[0.0] * S for _ in range(dim)]   # ddmp: smoothed weights and derivatives, blend (unused otherwise)
+        DS = [[0.0] * S for _ in range(dim)]
+        alpha = 1.0
+        for a in range(dim):
+            ua = traced.at(u, a)
+            # the weights of a particle a hair beyond a wall (round-off, at most the solver's out_tol) are those on
+            # the wall: extrapolated ones would carry it further out (docs/bases.md, "Bodies flush against walls")
+            uw = traced.local(ti.min(ti.max(ua, 0.0), ti.cast(n_cells[a], float)))
+            if holds is not None and any(holds[a]):
+                # a B-spline particle closer than WALL_LAYER r0 to a face that holds is transferred from that depth
+                # (weights, gradients and offsets alike): on the face itself its weight on the first interior
+                # control point is 0 while its gradient there is p / dx, so its stress pushed a node it gave no
+                # mass (docs/bases.md "Bodies flush against walls"); make_wall_hold keeps it inside
+                depth = WALL_LAYER * half_width(p)
+                if holds[a][0]:
+                    uw = ti.max(uw, depth)
+                if holds[a][1]:
+                    uw = ti.min(uw, n_cells[a] - depth)
+            lp = 0.0
+            if gimp:
+                lp = half_width(p)
+                if gimp_deforming:
+                    lp = ti.min(lp * ti.abs(traced.at(traced.at(F, p), a, a)), 0.5)
+                # a particle's domain ends at the walls: otherwise interior nodes keep weight on a particle
+                # at the wall and carry it through (sticky wall: out at step 1; slip floor at Mach 3). On a wall
+                # the cut leaves 0, whose limit (the linear hat, gradient inside the domain) weights_1d takes.
+                lp = ti.min(lp, uw, n_cells[a] - uw)
+            b, w, dw = (traced.local(v) for v in axes[a].weights_1d(uw, n_cells[a], lp))   # axes[a]: its knots
+            base.append(b)
+            W.append([traced.at(w, k) for k in range(S)])
+            DW.append([traced.at(dw, k) * inv_dx for k in range(S)])
+            R.append([(axes[a].coord(b + k, n_cells[a]) - uw) * dx for k in range(S)])
+            if smooth:
+                ws, ds, al = (traced.local(v) for v in basis.smooth_1d(uw, n_cells[a]))
+                alpha = alpha * al
+                WS[a] = [traced.at(ws, k) for k in range(S)]
+                DS[a] = [traced.at(ds, k) * inv_dx for k in range(S)]
+        base = make_matrix(base, int)
+        if smooth and with_fill:
+            alpha = ti.max(alpha, 1.0 - fill(base))
+        return (base, make_matrix(W, float), make_matrix(DW, float), make_matrix(R, float), make_matrix(WS, float),
+                make_matrix(DS, float), alpha)
+
+    def pick(M, a, i):
+        """M[a, i]. Along an axis the run-time loop walks, next to unrolled ones, by selects: indexing a local
+        matrix at run time moves it from registers to the stack (3D quadratic, 3 nodes unrolled: G2P 23-28 against
+        14-17 ms, one thread). A loop that runs all at run time keeps the indexing (selects: G2P 16 against 13 ms)."""
+        if outer[a] > 1 and len(inner) > 1:
+            v = traced.at(M, a, 0)
+            for k in range(1, S):
+                v = traced.select(i == k, traced.at(M, a, k), v)
+            return v
+        return traced.at(M, a, i)
+
+    @traced.traced
+    def node(st, off):
+        """Built at trace time (traced.py): a func would be walked once per unrolled node of every kernel."""
+        base, W, DW, R, WS, DS, alpha = st
+        off = traced.local(off)
+        o = [traced.local(traced.at(off, a)) for a in range(dim)]
+        Wo = [traced.local(pick(W, a, o[a])) for a in range(dim)]
+        w = Wo[0]
+        for a in range(1, dim):
+            w = w * Wo[a]
+        grad = []
+        for a in range(dim):
+            g = pick(DW, a, o[a])
+            for b in range(dim):
+                if b != a:
+                    g = g * Wo[b]
+            if smooth:
+                gs = pick(DS, a, o[a])
+                for b in range(dim):
+                    if b != a:
+                        gs = gs * pick(WS, b, o[b])
+                g = alpha * g + (1.0 - alpha) * gs
+            grad.append(g)
+        r = [pick(R, a, o[a]) for a in range(dim)]
+        return base + off, w, make_matrix(grad, float), make_matrix(r, float)
+
+    @traced.traced
+    def inertia(st):
+        """D_p: diagonal for tensor-product weights."""
+        W, R = traced.local(st[1]), traced.local(st[3])
+        return traced.diagonal([traced.total([traced.at(W, a, k) * traced.at(R, a, k) * traced.at(R, a, k)
+                                              for k in range(S)]) for a in range(dim)])
+
+    @traced.traced
+    def inertia_inverse(st):
+        """D_p^-1; zero along an axis where D_p vanishes (a B-spline particle exactly on a wall sits on
+        the wall's control point: D_p = 0 there and B_p = 0 too, so the affine part is zero, not 0/0)."""
+        D = traced.local(inertia(st))
+        return traced.diagonal([traced.select(traced.at(D, a, a) > d_min, 1.0 / traced.at(D, a, a), 0.0)
+                                for a in range(dim)])
+
+    @traced.traced
+    def origin(p):
+        return axes_of(p, with_fill=False)[0]   # the weights are dead code here, removed by the compiler
+
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), S ** dim, prepare,
+                   origin)
+
+
+def _dual_domain_fill(ctx: KernelContext, span: list):
+    """ddmp: (prepare, fill). prepare() scatters the nodal volumes V_j = sum_q V_q N_j(x_q) (linear weights) onto
+    their own scalar grid; fill(base) is the smallest V_j / (geometric dual-domain volume) over the real nodes of a
+    stencil starting at `base` (1 where every dual domain is full, 0 where a node has no material)."""
+    from ..grid import Grid   # only ddmp allocates it
+
+    dim, dx, basis, n_cells, lower = ctx.dim, ctx.dx, ctx.basis, ctx.n_cells, ctx.lower
+    x, F, vol0 = ctx.x, ctx.F, ctx.vol0
+    S = span[0]
+    grid = Grid(dim, ctx.grid.shape, ctx.grid.sparse, [])
+    vol = grid.m
+    cell = float(dx ** dim)
+    inv_dx = 1.0 / dx
+
+    @ti.kernel
+    def scatter():
+        for p in x:
+            u = (x[p] - lower) * inv_dx
+            base = ti.Vector.zero(int, dim)
+            W = ti.Matrix.zero(float, dim, S)
+            for a in ti.static(range(dim)):
+                b, w, dw = basis.weights_1d(u[a], n_cells[a], 0.0)
+                base[a] = b
+                for k in ti.static(range(S)):
+                    W[a, k] = w[k]
+            Vp = vol0[p] * F[p].determinant()
+            for off in ti.static(ti.grouped(ti.ndrange(*span))):
+                w = 1.0
+                for a in ti.static(range(dim)):
+                    w *= W[a, off[a]]
+                if w > 0:
+                    vol[base + off] += w * Vp
+
+    outer, inner = _loops(span, "auto", auto_inner=S)   # 3D: 64 nodes unrolled in every `at` compiled for 20 s
+
+    @ti.func
+    def fill(base):
+        f = 1.0
+        for o in ti.grouped(ti.ndrange(*outer)):
+          for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, split as `unroll` does)
+            I = base + o + inner[k]
+            geo = cell
+            real = True
+            for a in ti.static(range(dim)):
+                c = I[a] - 1                          # storage index i holds node i - 1
+                if c < 0 or c > n_cells[a]:
+                    real = False                      # a ghost node: no dual domain, no smoothed gradient
+                elif c == 0 or c == n_cells[a]:
+                    geo *= 0.5                        # a wall node's dual domain is half a cell wide
+            if real:
+                f = ti.min(f, vol[I] / geo)
+        return ti.min(f, 1.0)
+
+    def prepare():
+        grid.clear()
+        scatter()
+
+    return prepare, fill
+
+
+def _cpdi_stencil(ctx: KernelContext) -> Stencil:
+    dim, dx, inv_dx = ctx.dim, ctx.dx, 1.0 / ctx.dx
+    basis, n_cells, lower = ctx.basis, ctx.n_cells, ctx.lower
+    nc = 2 ** dim                      # corners
+    share = 1.0 / nc
+    x, F = ctx.x, ctx.F
+    half_width = _domain_half_width(ctx)
+    # corner c = sum_a bit_a 2^a has sign s_a = 2 bit_a - 1
+    signs = ti.Matrix([[2.0 * ((c >> a) & 1) - 1.0 for a in range(dim)] for c in range(nc)])
+
+    @ti.func
+    def corner_sign(c):
+        s = ti.Vector.zero(float, dim)
+        for a in ti.static(range(dim)):
+            s[a] = signs[c, a]
+        return s
+
+    @ti.func
+    def at(p):
+        """Per corner: first node of its linear stencil (storage index), the weight of that node per axis
+        (the other node has 1 - that) and the gradient direction 2^-d A^-T s_c; the particle position."""
+        A = F[p] * (half_width(p) * dx)           # half-edge vectors r_a = F r_a0 as columns
+        G = A.inverse().transpose() * share
+        base = ti.Matrix.zero(int, nc, dim)
+        W0 = ti.Matrix.zero(float, nc, dim)
+        GS = ti.Matrix.zero(float, nc, dim)
+        xp = x[p]
+        for c in ti.static(range(nc)):
+            s = corner_sign(c)
+            u = (xp + A @ s - lower) * inv_dx
+            g = G @ s
+            for a in ti.static(range(dim)):
+                # a corner further beyond a wall than the corner check admits is weighted at that distance: the
+                # check stops the run in this step's G2P, and extrapolating further (a domain on a face reaches r0
+                # past it: weights 1.25 / -0.25) made D_p indefinite, a NaN before the check could name the cause
+                ua = ti.min(ti.max(u[a], -CPDI_CORNER_TOL), n_cells[a] + CPDI_CORNER_TOL)
+                b, w, dw = basis.weights_1d(ua, n_cells[a], 0.0)
+                base[c, a] = b
+                W0[c, a] = w[0]
+                GS[c, a] = g[a]
+        return base, W0, GS, xp, A
+
+    @ti.func
+    def node(st, off):
+        """off = (corner bits, node offset bits): node base_c + offset, w = 2^-d N_i(x_c), grad = N_i(x_c) times
+        corner c's gradient direction."""
+        base, W0, GS, xp, A = st
+        c = 0
+        for a in ti.static(range(dim)):
+            c += off[a] << a
+        I = ti.Vector.zero(int, dim)
+        N = 1.0
+        grad = ti.Vector.zero(float, dim)
+        r = ti.Vector.zero(float, dim)
+        for a in ti.static(range(dim)):
+            k = off[dim + a]
+            I[a] = base[c, a] + k
+            w0 = W0[c, a]
+            N *= w0 + ti.cast(k, float) * (1.0 - 2.0 * w0)   # k = 0: w0, k = 1: 1 - w0
+            grad[a] = GS[c, a]
+            r[a] = lower[a] + basis.coord(I[a], n_cells[a]) * dx - xp[a]
+        return I, share * N, N * grad, r
+
+    @ti.func
+    def inertia(st):
+        """D_p = 2^-d sum_c diag(t (1 - t)) dx^2 + A A^T (t: the corner's coordinate within its cell, i.e. the
+        linear hat's own second moment at x_c, plus the corners' spread about x_p)."""
+        base, W0, GS, xp, A = st
+        D = A @ A.transpose()
+        for c in ti.static(range(nc)):
+            for a in ti.static(range(dim)):
+                D[a, a] += share * W0[c, a] * (1.0 - W0[c, a]) * dx * dx
+        return D
+
+    @ti.func
+    def inertia_inverse(st):
+        return inertia(st).inverse()   # positive definite while det F > 0 (>= A A^T)
+
+    span = [2] * (2 * dim)
+    outer, inner = _loops(span, ctx.unroll)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 4 ** dim)
+
+
+def _mapped_stencil(ctx: KernelContext) -> Stencil:
+    """domain.map: the mapped grid's contributions, 3 x 3 control points per particle (mapped.MappedGrid, given
+    as ctx.extra["mapped"]: its map, the particles' xi and the smallest cell)."""
+    mapped = ctx.extra["mapped"]
+    mp, xi, x = mapped.map, mapped.xi, ctx.x
+    periodic, n_seam = mapped.periodic, mapped.shape[0]
+    d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * mapped.h_min ** 2
+    span = [3, 3]
+
+    @ti.func
+    def at(p):
+        ctrl = ti.static(mp.ctrl)
+        b, R, R0, R1 = mp.rational(xi[p])
+        J = ti.Matrix.zero(float, 2, 2)
+        for i, j in ti.static(ti.ndrange(3, 3)):
+            Pij = ctrl[b[0] + i, b[1] + j]
+            for c in ti.static(range(2)):
+                J[c, 0] += R0[i, j] * Pij[c]
+                J[c, 1] += R1[i, j] * Pij[c]
+        return b, R, R0, R1, J.inverse().transpose(), x[p]
+
+    @ti.func
+    def node(st, off):
+        ctrl = ti.static(mp.ctrl)
+        b, R, R0, R1, JiT, xp = st
+        I = b + off
+        r = ctrl[I] - xp
+        grad = JiT @ ti.Vector([R0[off[0], off[1]], R1[off[0], off[1]]])
+        if ti.static(periodic):
+            if I[0] >= n_seam:
+                I[0] -= n_seam
+        return I, R[off[0], off[1]], grad, r
+
+    @ti.func
+    def inertia(st):
+        ctrl = ti.static(mp.ctrl)
+        b, R, R0, R1, JiT, xp = st
+        D = ti.Matrix.zero(float, 2, 2)
+        for i, j in ti.static(ti.ndrange(3, 3)):
+            r = ctrl[b[0] + i, b[1] + j] - xp
+            D += R[i, j] * r.outer_product(r)
+        return D
+
+    @ti.func
+    def inertia_inverse(st):
+        """D_p^-1, regularised by d_min where D_p is (nearly) singular: a particle on a wall circle weighs only
+        the wall's row of nodes, D_p has no radial extent there, and B_p none either."""
+        D = inertia(st)
+        if D.determinant() < d_min * (D.trace() + d_min):
+            D += ti.Matrix.identity(float, 2) * d_min
+        return D.inverse()
+
+    outer, inner = _loops(span, ctx.unroll)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 9)
+
+
+def make_corner_check(ctx: KernelContext):
+    """@ti.func (p, xp, Fp) -> True when a corner of the particle's domain lies beyond a wall (by more than tol);
+    False for bases without particle domains."""
+    dim, dx = ctx.dim, ctx.dx
+    cpdi = ctx.basis.kind == "cpdi"
+    half_width = _domain_half_width(ctx)
+    lower, upper = ctx.lower, ctx.upper
+    # A corner a little past a wall is harmless: its cell is clamped to the wall cell, whose linear functions
+    # extrapolate with partition of unity and linear reproduction intact (weights down to -tol / dx). A body
+    # pressed against a sticky wall has such corners: x_p - F_p r0 misses the material point on the wall by the
+    # displacement's curvature, u'' r0^2 / 2 (G = 0.05 manufactured solution: 5e-5 dx at 16 cells, ~dx^2).
+    # A hundredth of a cell admits that and still stops a domain that has truly crossed.
+    tol = CPDI_CORNER_TOL * dx
+
+    @ti.func
+    def outside(p, xp, Fp):
+        res = False
+        if ti.static(cpdi):
+            A = Fp * (half_width(p) * dx)
+            for c in ti.static(range(2 ** dim)):
+                s = ti.Vector([2.0 * ((c >> a) & 1) - 1.0 for a in range(dim)])
+                xc = xp + A @ s
+                if (xc < lower - tol).any() or (xc > upper + tol).any():
+                    res = True
+        return res
+    return outside

@@ -1,6 +1,0 @@
-"""`python -m taichi_mpm.study --case CASE.json --result OUT.json`: the process of one study case (case.py)."""
-import sys
-
-from .case import main
-
-sys.exit(main())
