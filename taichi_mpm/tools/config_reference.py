@@ -16,6 +16,7 @@ from pydantic_core import PydanticUndefined
 
 from .. import config, fields, materials
 from ..io import files as io
+from ..schema import OneOf
 
 FACE_NAMES = "x_min, x_max, y_min, y_max, z_min, z_max"
 SHAPE_KEYS = "box, sphere, ring, cylinder or mesh"
@@ -287,6 +288,8 @@ def _strip(tp):
 def _constraints(cons) -> list[str]:
     out = []
     for c in cons:
+        if isinstance(c, OneOf):   # a registry's names (solver.basis: bases/registry.py)
+            out.append(" \\| ".join(map(str, c.values())))
         for attr, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="), ("min_length", "at least")):
             v = getattr(c, attr, None)
             if v is not None:
