@@ -16,6 +16,7 @@ from pydantic_core import PydanticUndefined
 
 from .. import config, fields, materials
 from ..io import files as io
+from ..bases import registry as bases
 from ..schema import OneOf
 
 FACE_NAMES = "x_min, x_max, y_min, y_max, z_min, z_max"
@@ -80,9 +81,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                              "number of quarter turns (rational pieces) the angle spans; sized against "
                              "limits.memory_gb before anything is built (docs/reliability.md)"),
     "solver": ("", "time integration and the MPM scheme"),
-    "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines, cpdi (CPDI1 "
-                         "particle domains over linear grid functions) or ddmp (linear functions, dual-domain "
-                         "smoothed gradient); docs/bases.md"),
+    "solver.basis": ("", "shape functions (docs/bases.md): " + "; ".join(
+        f"{n}: {bases.get(n).description}" for n in bases.names())),
     "solver.cpdi": ("", "options of basis cpdi"),
     "solver.cpdi.variant": ("", "cpdi1: parallelogram / parallelepiped domains with half-edges F r0 (Sadeghirad et "
                                 "al. 2011); cpdi2 (corners tracked as points) is not implemented yet"),
