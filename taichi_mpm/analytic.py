@@ -25,6 +25,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from .bases import registry as bases
 from .config import load_config
 from .solver import Simulation
 
@@ -48,7 +49,7 @@ def _norms(err: np.ndarray) -> dict:
     return {"error_rms": float(np.sqrt(np.mean(e**2))), "error_max": float(np.max(e))}
 
 
-def _base_config(name, dim, lower, upper, dx, bodies, materials, end_time, *, basis="quadratic",
+def _base_config(name, dim, lower, upper, dx, bodies, materials, end_time, *, basis=bases.DEFAULT,
                  transfer="flip", flip_blend=1.0, cfl=0.4, boundaries=None, precision="f64"):
     return dict(
         name=name, dim=dim, precision=precision, arch="cpu",

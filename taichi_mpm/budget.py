@@ -22,6 +22,7 @@ import numpy as np
 
 from .extensions import scatter
 from .backend import resolve_arch
+from .bases import registry as bases
 from .bases.shape_functions import make_basis
 from .extensions.crack import grid_fields as crack_grid_fields
 from .extensions.crack import particle_bytes as crack_particle_bytes
@@ -134,7 +135,7 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
     floats = 2 * d + d * d + 1                                   # x, v, F, vol0
     floats += d * d if apic or viscous else 0                    # C (APIC's B_p or C_p, or grad v)
     floats += d if body_force else 0
-    floats += 1 if cfg.solver.basis in ("gimp", "cpdi") and len(spacings) > 1 else 0   # domain half-widths
+    floats += 1 if bases.get(cfg.solver.basis).particle_domains and len(spacings) > 1 else 0   # domain half-widths
     floats += material_models.state_size(mats, d)                 # plastic strain, J_p, ... (materials/)
     floats += MappedGrid.PARTICLE_FLOATS if cfg.domain.map is not None else 0   # parametric coordinates xi_p
     n = floats * size + (1 if len(mats) > 1 else 0)
@@ -261,7 +262,7 @@ def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None) -> tuple[i
     vectors = 1 + (cfg.solver.transfer == "flip") + (cfg.solver.update == "musl") + len(crack_vectors)
     node_bytes = size * (1 + d * vectors + len(crack_scalars))
     nodes = math.prod(layout["nodes"])
-    ddmp = cfg.solver.basis == "ddmp"   # its nodal volumes live on a grid of their own, one scalar per node
+    ddmp = bases.get(cfg.solver.basis).prepass_grid   # its nodal volumes live on a grid of their own, one scalar per node
     if not cfg.domain.sparse:
         return (nodes * (node_bytes + (size if ddmp else 0)) + map_bytes, f"dense, {nodes:.3g} nodes",
                 layout["cells"])
@@ -346,7 +347,7 @@ def dt_limits(cfg: Config, base_dir=None, mapped: MapSize | None = None) -> dict
 
     base_dir = base_dir_of(cfg) if base_dir is None else base_dir
     mapped = map_size(cfg) if mapped is None and cfg.domain.map is not None else mapped
-    cfl, (h, h_key) = cfg.solver.cfl, _cell(cfg, mapped)
+    cfl, (h, h_key) = cfg.solver.cfl * bases.get(cfg.solver.basis).cfl_factor, _cell(cfg, mapped)
     used = dict.fromkeys(b.material for b in cfg.bodies)
     with np.errstate(over="ignore", invalid="ignore"):
         c, which = max((wave_speed(cfg.materials[name]), name) for name in used)

@@ -33,6 +33,7 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # keep stdout for resu
 
 from .config import ConfigError, load_config, locate, parse_overrides  # noqa: E402
 from .errors import InstabilityError  # noqa: E402
+from .bases import registry as basis_registry  # noqa: E402
 
 EXIT_OK, EXIT_FAILURE, EXIT_INPUT, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 EXIT_IO = 4  # an operating-system error reading or writing a file (docs/contract.md, exit codes)
@@ -185,7 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerance", required=True, metavar="TOL", help="the error allowed: 1%% or 0.01")
     p.add_argument("--reference", metavar="REF", help="a number, exact, finest or richardson (default: richardson, "
                    "or exact for a problem's error metric)")
-    p.add_argument("--bases", metavar="B,B", help="bases to try (default: linear,gimp,quadratic,cubic)")
+    p.add_argument("--bases", metavar="B,B", help=f"bases to try (default: {','.join(basis_registry.swept())})")
     p.add_argument("--transfers", metavar="T,T", help="transfers to try (default: flip,apic)")
     p.add_argument("--ppc", metavar="N,N", help="particles per cell to try (default: the config's)")
     p.add_argument("--levels", type=_positive_int, default=3, metavar="N",

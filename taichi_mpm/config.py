@@ -20,10 +20,11 @@ from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapte
                       field_validator, model_serializer, model_validator)
 
 from .errors import ConfigError
-from .bases.knots import DEGREE as KNOT_DEGREE, knot_problem
+from .bases import registry as bases
+from .bases.knots import knot_problem
 from .expressions import largest_magnitude, parse as parse_expression
 
-from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
+from .schema import Located as _Located, OneOf, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
 from . import geometry
 from . import materials as material_models
 
@@ -284,8 +285,16 @@ class Cpdi(Strict):
     variant: Literal["cpdi1", "cpdi2"] = "cpdi1"
 
 
+def _basis_name(v):
+    """A registered basis (bases/registry.py; read at validation, so a basis registered later is accepted)."""
+    if not (isinstance(v, str) and v in bases.names()):
+        names = [repr(n) for n in bases.names()]
+        raise ValueError(f"must be {bases.listed(names)} (got {_brief(v)})")
+    return v
+
+
 class Solver(Strict):
-    basis: Literal["linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp"] = "quadratic"
+    basis: Annotated[str, BeforeValidator(_basis_name), OneOf(bases.names)] = bases.DEFAULT
     transfer: Literal["pic", "flip", "apic"] = "apic"
     update: Literal["usl", "musl"] = "usl"
     flip_blend: Annotated[float, Field(ge=0, le=1)] = 0.99
@@ -551,6 +560,7 @@ class Config(Strict):
     def _consistent(self):
         """Cross-field checks, in order (the first problem found is the one reported)."""
         self._check_domain_box()
+        self._check_basis()
         self._check_knots()
         self._check_map()
         self._check_scatter()
@@ -561,7 +571,7 @@ class Config(Strict):
         self._check_velocity_walls()
         self._check_crack_combinations()
         self._check_unused_settings()
-        if self.solver.basis == "cpdi" and self.solver.cpdi.variant == "cpdi2":
+        if self.solver.cpdi.variant == "cpdi2":   # (solver.cpdi is refused above unless the basis reads it)
             raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
                                                   "2013) is not implemented yet; use cpdi1")
         self._check_probes()
@@ -585,11 +595,23 @@ class Config(Strict):
                                             f"cells of dx={self.domain.dx:g} ({n:.4g} cells); "
                                             f"choose e.g. dx={(u - l) / max(1, round(n)):.6g}")
 
+    def _check_basis(self):
+        """What the basis declares beyond the checks of the features themselves: its dimensions and F-bar."""
+        spec = bases.get(self.solver.basis)
+        if self.dim not in spec.dims:
+            raise _Located("solver.basis", f"basis {spec.name} is defined in {bases.listed([f'{d}D' for d in spec.dims])}"
+                                           f" only (the scene is {self.dim}D)")
+        if self.solver.volumetric == "fbar" and not spec.fbar:
+            raise _Located("solver.volumetric", f"fbar is not available with basis {spec.name}: use standard or basis "
+                                                f"{bases.listed(bases.names(fbar=True))}")
+
     def _check_scatter(self):
-        if self.solver.scatter == "coloured" and (self.solver.basis == "cpdi" or self.domain.map is not None):
-            raise _Located("solver.scatter", "coloured needs a tensor-product basis on a box grid (linear, gimp, "
-                                             "quadratic, cubic, ddmp): cpdi's particle domains and a mapped grid's "
-                                             "stencil can reach any node, so they add atomically (scatter: auto)")
+        spec = bases.get(self.solver.basis)
+        if self.solver.scatter == "coloured" and (not spec.coloured_scatter or self.domain.map is not None):
+            raise _Located("solver.scatter", f"coloured needs a tensor-product basis on a box grid "
+                                             f"({', '.join(bases.names(coloured_scatter=True))}): cpdi's particle "
+                                             "domains and a mapped grid's stencil can reach any node, so they add "
+                                             "atomically (scatter: auto)")
 
     def _check_body(self, i, b):
         """One body: its material exists, its vectors and shapes fit the dimension, its loads are consistent."""
@@ -628,21 +650,20 @@ class Config(Strict):
         if self.crack is not None and self.solver.volumetric == "fbar":
             raise _Located("solver.volumetric", "fbar cannot be combined with the crack finder (section 'crack'): "
                                                 "its modified shape functions are not averaged; use standard")
-        if self.crack is not None and self.solver.basis == "ddmp":
-            raise _Located("crack", "the crack finder does not support basis ddmp: two interface blocks pulled apart "
-                                    "kept only 0.185 of their 0.2 m/s (measured; the finder's separation bound is "
-                                    "5 %); use cpdi, quadratic, cubic, gimp or linear with a crack section")
+        why = bases.get(self.solver.basis).crack
+        if self.crack is not None and why is not None:
+            raise _Located("crack", f"the crack finder does not support basis {self.solver.basis}: {why}; use "
+                                    f"{bases.listed(bases.names(crack=None))} with a crack section")
 
     def _check_unused_settings(self):
         """Settings given that nothing would read: an error at validation rather than a run that ignores them."""
         s = self.solver
         # (a default value written out, as Config.to_dict does, is no setting: only other values are refused)
-        if s.cpdi != Cpdi() and s.basis != "cpdi":
-            raise _Located("solver.cpdi", f"is read by solver.basis cpdi only (the basis is {s.basis}): remove it "
-                                          "or use basis cpdi")
-        if s.basis != "gimp" and s.gimp_domain != "uniform":
-            raise _Located("solver.gimp_domain", f"is read by solver.basis gimp only (the basis is {s.basis}): "
-                                                 "remove it or use basis gimp")
+        for key, default in (("cpdi", Cpdi()), ("gimp_domain", "uniform")):
+            readers = [n for n in bases.names() if key in bases.get(n).options]
+            if getattr(s, key) != default and s.basis not in readers:
+                raise _Located(f"solver.{key}", f"is read by solver.basis {bases.listed(readers)} only (the basis is "
+                                                f"{s.basis}): remove it or use basis {bases.listed(readers)}")
         if self.crack is None:
             why = "acts through the crack finder only: add a `crack:` section (docs/crack_finder.md) or remove it"
             for name, m in self.materials.items():
@@ -668,13 +689,13 @@ class Config(Strict):
     def _check_knots(self):
         if self.domain.knots is None:
             return
-        if self.solver.basis not in KNOT_DEGREE:
-            raise _Located("domain.knots", f"knot vectors need a B-spline basis (linear, quadratic or cubic), not "
-                                           f"solver.basis {self.solver.basis}")
+        if not bases.get(self.solver.basis).knots:
+            raise _Located("domain.knots", f"knot vectors need a B-spline basis ({bases.listed(bases.names(knots=True))}"
+                                           f"), not solver.basis {self.solver.basis}")
         if self.crack is not None:
             raise _Located("domain.knots", "knot vectors are not available with a crack section (its SPH reach and "
                                            "cell list assume the uniform grid)")
-        p = KNOT_DEGREE[self.solver.basis]
+        p = bases.get(self.solver.basis).degree
         for a, axis in enumerate("xyz"):
             t = getattr(self.domain.knots, axis)
             if t is None:
@@ -691,8 +712,9 @@ class Config(Strict):
             return
         if self.dim != 2:
             raise _Located("domain.map", f"mapped grids are 2D (the scene is {self.dim}D)")
-        if self.solver.basis != "quadratic":
-            raise _Located("domain.map", f"mapped grids are quadratic: use solver.basis quadratic, not "
+        if not bases.get(self.solver.basis).map:
+            mapped = bases.listed(bases.names(map=True))
+            raise _Located("domain.map", f"mapped grids are {mapped}: use solver.basis {mapped}, not "
                                          f"{self.solver.basis}")
         if self.domain.knots is not None:
             raise _Located("domain.knots", "give either domain.knots or domain.map (the map has its own knots)")

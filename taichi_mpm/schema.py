@@ -19,6 +19,14 @@ PositiveFloat = Annotated[float, BeforeValidator(_no_bool), Field(gt=0)]
 Vec = list[Real]
 
 
+class OneOf:
+    """Annotated metadata of a string field whose values come from a registry when a config is validated (a value
+    registered later is accepted; its BeforeValidator checks): `values()` lists them for the config reference."""
+
+    def __init__(self, values):
+        self.values = values
+
+
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", validate_assignment=False, allow_inf_nan=False)
 

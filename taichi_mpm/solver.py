@@ -25,6 +25,7 @@ import taichi as ti
 from . import budget, states   # states: the API's refusals (states.py)
 from .budget import VISCOUS_DIFFUSION  # noqa: F401 (the dt rule's constant, shared with the estimate)
 from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
+from .bases import registry as bases
 from .bases.shape_functions import make_basis
 from .bases.knots import grid_knots, smallest_span
 from .bases.mapped import MappedGrid
@@ -75,7 +76,7 @@ def thread_independent(cfg: Config, body_force: bool = False) -> bool:
         return False
     mats = [cfg.materials[b.material] for b in cfg.bodies]
     walls = cfg.domain.boundaries
-    return not (s.basis == "ddmp" or s.volumetric == "fbar" or cfg.crack is not None or body_force
+    return not (bases.get(s.basis).prepass_grid or s.volumetric == "fbar" or cfg.crack is not None or body_force
                 or any(b.tractions or b.prescribed_velocity for b in cfg.bodies)
                 or any(walls.face(a, side) == "velocity" for a in range(cfg.dim) for side in (0, 1))
                 or any(p.type == "wall" for p in cfg.output.probes)
@@ -349,7 +350,7 @@ class Simulation:
         viscosity: cfl rho dx^2 / (VISCOUS_DIFFUSION d mu) per viscous material.
         The runtime parameters count as they are now: gravity (set_gravity), c and mu times the stiffness scale's
         square root and the scale itself (set_stiffness_scale)."""
-        cfl, dx = self.cfg.solver.cfl, self.h_cfl
+        cfl, dx = self.cfg.solver.cfl * self.basis.spec.cfl_factor, self.h_cfl
         c, v = self.wave_speed, self._vmax
         out = {"elastic" if c >= v else "speed": cfl * dx / (c + v) if c + v > 0 else math.inf}
         g = self._g_norm
@@ -492,16 +493,13 @@ class Simulation:
         cause = FAIL_CAUSES[kind]
         s = self.cfg.solver
         detail = f"dt={dt:.3g}, max speed={self._vmax:.3g}; {self._hint(dt)}"
-        if kind == 1 and s.basis == "cpdi":
-            detail += ("; the particle's CPDI domain (half-edges F r0) inverted: det F <= 0; fix: lower solver.cfl")
+        hint = bases.get(s.basis).inversion_hint
+        if kind == 1 and hint:
+            detail += "; " + hint
         elif kind == 5:
             detail += ("; a corner x_p + F r0 of the particle's CPDI domain crossed a wall, where the linear grid "
                        "functions end; fix: keep bodies half a particle spacing off walls they stretch towards, "
                        "or a larger domain")
-        elif kind == 1 and s.basis == "linear":
-            detail += ("; the linear basis inverts particles that cross a cell boundary under stress (the node "
-                       "they enter has a tiny mass and a full weight gradient): use basis quadratic or gimp, or "
-                       "solver.update: musl")
         elif kind in (1, 2):
             detail += f"; fix: lower solver.cfl (measured stable limits per basis and transfer: docs/accuracy.md)"
         elif kind == 4:

@@ -19,8 +19,9 @@ PACKAGE = ROOT / "taichi_mpm"
 # module ("io" covers io.runner, "io.render_options" only itself).
 LAYERS = {
     # plain building blocks: errors, schema pieces, expressions, knot and map geometry, the material registry, the
-    # output-field registry and the names render settings accept, Taichi trace-time helpers
-    "foundation": ("errors", "schema", "geometry", "expressions", "bases.knots", "bases.mapgeom", "traced", "jit",
+    # output-field registry and the names render settings accept, Taichi trace-time helpers, the bases registry
+    "foundation": ("errors", "schema", "geometry", "expressions", "bases.registry", "bases.knots", "bases.mapgeom",
+                   "traced", "jit",
                    "sums", "materials", "fields", "io.colour_range", "io.render_options", "tools.window_layout"),
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees

@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_mpm.bases.shape_functions import TENSOR_BASES as BASES, make_basis
+from taichi_mpm.bases import registry
+from taichi_mpm.bases.shape_functions import make_basis
+
+BASES = registry.names(stencil_kind="tensor")   # per-axis weights: the tensor-product fast path
 
 N_CELLS = 8
 

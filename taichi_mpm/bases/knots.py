@@ -9,7 +9,7 @@ open knot vector of `domain.dx`. Host side only (numpy); basis.make_knot_bspline
 
 import numpy as np
 
-DEGREE = {"linear": 1, "quadratic": 2, "cubic": 3}   # the bases that take a knot vector
+from . import registry
 
 
 def knot_problem(knots, p: int, lower: float, upper: float):
@@ -62,7 +62,7 @@ def grid_knots(cfg):
         lo, hi, dx = cfg.domain.lower[a], cfg.domain.upper[a], cfg.domain.dx
         t = (np.asarray(k, float) - lo) / dx
         n = round((hi - lo) / dx)
-        p = DEGREE[cfg.solver.basis]
+        p = registry.get(cfg.solver.basis).degree
         t[: p + 1], t[-(p + 1):] = 0.0, float(n)
         out.append(t)
     return out

@@ -26,6 +26,7 @@ import math
 import numpy as np
 import taichi as ti
 
+from . import registry
 from .shape_functions import Basis, make_bspline
 from . import mapgeom
 from .nurbs import Map, annulus
@@ -72,9 +73,11 @@ class MappedGrid:
         self.xi = None
 
     def basis(self) -> Basis:
-        """The solver's view: quadratic (3 nodes per axis, APIC with B_p D_p^-1), contributions built here."""
+        """The solver's view: the basis that declares `map` (quadratic: 3 nodes per axis, APIC with B_p D_p^-1),
+        contributions built here."""
         from dataclasses import replace
-        return replace(make_bspline(2, "quadratic"), kind="mapped")
+        spec = registry.get(self.cfg.solver.basis)
+        return replace(make_bspline(spec.degree, spec.name), kind="mapped")
 
     def materialize(self):
         self.map.materialize()

@@ -30,11 +30,10 @@ import taichi as ti
 from taichi.lang.matrix import make_matrix
 
 from .. import traced
-from .knots import DEGREE, greville
+from . import registry
+from .knots import greville
 
 
-BASES = ("linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp")
-TENSOR_BASES = ("linear", "gimp", "quadratic", "cubic", "ddmp")   # per-axis weights: the tensor-product fast path
 # below this half-width (grid units) a GIMP domain counts as shrunk to its particle (the cut at a wall it is on):
 # the formulas' own l -> 0 limit is taken, exactly (at l = 1e-6 they agree with it to round-off, 1e-10 relative)
 GIMP_MIN_HALF_WIDTH = 1e-6
@@ -50,10 +49,15 @@ class Basis:
     coord: Callable                        # @ti.func: (node index, n cells) -> coordinate in grid units
     coord_py: Callable[[int, int], float]  # the same in Python
     weights_1d: Callable                   # @ti.func: (u, n cells, lp) -> (first node, w, dw)
-    kind: str = "tensor"                   # how stencils.py builds a particle's contributions: tensor, cpdi
+    kind: str = "tensor"                   # how stencils.py builds a particle's contributions: tensor, corners, mapped
     smooth_1d: Optional[Callable] = None   # ddmp: @ti.func (u, n cells) -> (smoothed w, smoothed dw, blend)
     axes: Optional[tuple] = None           # domain.knots: one Basis per axis (its own knot vector), else None
     knots: Any = None                      # a knot-vector axis: its KnotData (grid-unit knots and their fields)
+
+    @property
+    def spec(self) -> registry.Spec:
+        """What this basis supports (its declaration in registry.py)."""
+        return registry.get(self.name)
 
     def axis(self, a: int) -> "Basis":
         """The 1D basis of axis a: its own knot vector with domain.knots, else this one."""
@@ -142,7 +146,8 @@ def make_bspline(p: int, name: str) -> Basis:
     return Basis(name, p + 1, 0, p == 1, lambda n: n + p, coord, coord_py, weights_1d)
 
 
-def make_gimp() -> Basis:
+def make_gimp(spec: registry.Spec, knots=None) -> Basis:
+    """uGIMP (the registry's factory; no knot vectors)."""
     @ti.func
     def coord(i, n):
         return ti.cast(i - 1, float)  # storage index i holds node i - 1 (one ghost node below 0)
@@ -185,16 +190,16 @@ def make_gimp() -> Basis:
                     dN[k] = -s * (1.0 + l - a) / (2.0 * l)
         return base + 1, N, dN  # storage index of the first node
 
-    return Basis("gimp", 3, 1, False, lambda n: n + 3, coord, lambda i, n: float(i - 1), weights_1d)
+    return Basis(spec.name, 3, 1, False, lambda n: n + 3, coord, lambda i, n: float(i - 1), weights_1d)
 
 
-def make_cpdi() -> Basis:
+def make_cpdi(spec: registry.Spec, knots=None) -> Basis:
     """CPDI1 over the linear B-splines: the grid, wall nodes and 1D weights are the linear basis's; `stencil` is
     the nodes per axis an undeformed domain (half-width <= half a cell) reaches (budget and crack reach)."""
-    return replace(make_bspline(1, "cpdi"), stencil=3, apic_gradient=False, kind="cpdi")
+    return replace(make_bspline(1, spec.name), stencil=3, apic_gradient=False, kind=spec.stencil_kind)
 
 
-def make_ddmp() -> Basis:
+def make_ddmp(spec: registry.Spec, knots=None) -> Basis:
     """DDMP (Zhang, Ma & Giguere 2011) over the linear grid functions, nodes 0..n plus one ghost node beyond each
     wall (storage index i holds node i - 1, as gimp) so that the smoothed gradient's 4-node stencil stays in range.
     weights_1d gives the linear weights and derivatives of nodes c-1..c+2 (c: the particle's cell; the outer two
@@ -240,7 +245,7 @@ def make_ddmp() -> Basis:
         Ds = ti.Vector([s * a[3], s * a[4] + t * b[3], s * a[5] + t * b[4], t * b[5]])
         return Ns, Ds, 4.0 * t * s
 
-    return Basis("ddmp", 4, 1, True, lambda n: n + 3, coord, lambda i, n: float(i - 1), weights_1d, "tensor",
+    return Basis(spec.name, 4, 1, True, lambda n: n + 3, coord, lambda i, n: float(i - 1), weights_1d, "tensor",
                  smooth_1d)
 
 
@@ -305,17 +310,17 @@ def make_knot_bspline(p: int, name: str, t: np.ndarray) -> Basis:
                  knots=data)
 
 
+def make_bspline_basis(spec: registry.Spec, knots=None) -> Basis:
+    """The registry's factory of the B-spline bases: degree spec.degree on the uniform open knot vector, or per axis
+    on the given one (`knots`: per axis a knot vector in grid units or None, knots.grid_knots)."""
+    uniform = make_bspline(spec.degree, spec.name)
+    if knots is None or all(t is None for t in knots):
+        return uniform
+    axes = tuple(uniform if t is None else make_knot_bspline(spec.degree, spec.name, t) for t in knots)
+    return replace(uniform, axes=axes)
+
+
 def make_basis(name: str, knots=None) -> Basis:
-    """`knots`: per axis a knot vector in grid units or None (knots.grid_knots), for the B-spline bases."""
-    if knots is not None and any(t is not None for t in knots):
-        p = DEGREE[name]
-        uniform = make_bspline(p, name)
-        axes = tuple(uniform if t is None else make_knot_bspline(p, name, t) for t in knots)
-        return replace(uniform, axes=axes)
-    if name == "gimp":
-        return make_gimp()
-    if name == "cpdi":
-        return make_cpdi()
-    if name == "ddmp":
-        return make_ddmp()
-    return make_bspline({"linear": 1, "quadratic": 2, "cubic": 3}[name], name)
+    """The shape functions of the registered basis `name`; `knots`: per axis a knot vector in grid units or None
+    (knots.grid_knots), for the bases that take domain.knots."""
+    return registry.get(name).build(knots)

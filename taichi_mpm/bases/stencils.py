@@ -116,7 +116,7 @@ class Stencil:
 
 
 def make_stencil(ctx: KernelContext) -> Stencil:
-    build = {"tensor": _tensor_stencil, "cpdi": _cpdi_stencil, "mapped": _mapped_stencil}[ctx.basis.kind]
+    build = {"tensor": _tensor_stencil, "corners": _cpdi_stencil, "mapped": _mapped_stencil}[ctx.basis.kind]
     return build(ctx)
 
 
@@ -170,7 +170,6 @@ def _domain_half_width(ctx: KernelContext):
 # particles placed on a face (set_particles) or compressed to half their spacing against it are affected
 WALL_LAYER = 0.5
 CPDI_CORNER_TOL = 0.01   # cells: how far a CPDI domain corner may lie beyond a wall (make_corner_check)
-BSPLINES = ("linear", "quadratic", "cubic")
 
 
 def wall_holds(ctx: KernelContext):
@@ -178,7 +177,7 @@ def wall_holds(ctx: KernelContext):
     bases on the box; None otherwise (gimp cuts its domain at the walls instead; cpdi, ddmp and mapped grids keep
     their own rules)."""
     holds = getattr(ctx.wall, "holds", None)
-    if ctx.basis.kind != "tensor" or ctx.basis.name not in BSPLINES or holds is None or not any(map(any, holds)):
+    if ctx.basis.kind != "tensor" or not ctx.basis.spec.wall_layer or holds is None or not any(map(any, holds)):
         return None
     return holds
 
@@ -218,7 +217,7 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     S = basis.stencil
     axes = [basis.axis(a) for a in range(dim)]   # per-axis 1D bases (knot vectors of domain.knots)
     x, F = ctx.x, ctx.F
-    gimp, gimp_deforming = basis.name == "gimp", ctx.gimp_deforming
+    domain_weights, gimp_deforming = basis.spec.particle_domains, ctx.gimp_deforming   # uGIMP: lp per particle
     smooth = basis.smooth_1d is not None   # ddmp
     half_width = _domain_half_width(ctx)
     holds = wall_holds(ctx)   # B-splines: per axis and side, transfer from at least WALL_LAYER r0 inside
@@ -255,7 +254,7 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
                 if holds[a][1]:
                     uw = ti.min(uw, n_cells[a] - depth)
             lp = 0.0
-            if gimp:
+            if domain_weights:
                 lp = half_width(p)
                 if gimp_deforming:
                     lp = ti.min(lp * ti.abs(traced.at(traced.at(F, p), a, a)), 0.5)
@@ -542,7 +541,7 @@ def make_corner_check(ctx: KernelContext):
     """@ti.func (p, xp, Fp) -> True when a corner of the particle's domain lies beyond a wall (by more than tol);
     False for bases without particle domains."""
     dim, dx = ctx.dim, ctx.dx
-    cpdi = ctx.basis.kind == "cpdi"
+    cpdi = ctx.basis.kind == "corners"   # particle-domain corners
     half_width = _domain_half_width(ctx)
     lower, upper = ctx.lower, ctx.upper
     # A corner a little past a wall is harmless: its cell is clamped to the wall cell, whose linear functions

@@ -32,9 +32,8 @@ Physics code only: no CLI, rendering or file I/O here.
 
 import taichi as ti
 
+from ..bases import registry as bases
 from ..grid import Grid
-
-LOWER_ORDER = ("quadratic", "cubic")  # bases whose volume change is averaged on the linear grid
 
 
 def create(sim):
@@ -53,7 +52,7 @@ class FBar:
         # (their `m`), so the scatter costs two atomic adds per node
         # quadratic and cubic B-splines: the average lives on the linear grid (cell corners), one degree below the
         # velocity space (see `build`); the other bases average with their own stencil
-        self.linear = sim.cfg.solver.basis in LOWER_ORDER
+        self.linear = bases.get(sim.cfg.solver.basis).fbar_linear_grid
         shape = [n + 1 for n in sim.n_cells] if self.linear else sim.grid.shape
         self.grids = [Grid(sim.dim, shape, sim.grid.sparse, []) for _ in range(2)]
 

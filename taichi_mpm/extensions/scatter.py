@@ -20,9 +20,8 @@ import math
 
 import taichi as ti
 
-from ..bases.shape_functions import make_basis
+from ..bases import registry as bases
 from ..grid import LEAF, Grid
-from ..bases.knots import grid_knots
 from ..sums import CPU_TASK, cpu_threads
 
 
@@ -38,9 +37,9 @@ def applies(gpu: bool, stencil_kind: str, width: int, dim: int, setting: str) ->
 
 def coloured(cfg, gpu: bool) -> bool:
     """Whether a run of `cfg` (on a GPU when `gpu`) bins its particles for the coloured scatter."""
-    basis = make_basis(cfg.solver.basis, grid_knots(cfg))
-    kind = "mapped" if cfg.domain.map is not None else basis.kind
-    return applies(gpu, kind, basis.stencil, cfg.dim, cfg.solver.scatter)
+    spec = bases.get(cfg.solver.basis)   # its declaration: nothing is built
+    kind = "mapped" if cfg.domain.map is not None else spec.stencil_kind
+    return applies(gpu, kind, spec.stencil, cfg.dim, cfg.solver.scatter)
 
 
 class BlockBins:

@@ -8,6 +8,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from ..bases import registry as bases
 from ..materials import MODELS
 
 
@@ -39,7 +40,7 @@ class Features:
             store_grad_v=transfer == "apic" or viscosity,
             multi_material=len(materials) > 1,
             body_force=body_force,
-            domain_per_particle=cfg.solver.basis in ("gimp", "cpdi") and len(np.unique(scene.spacing)) > 1,
+            domain_per_particle=bases.get(cfg.solver.basis).particle_domains and len(np.unique(scene.spacing)) > 1,
             viscosity=viscosity,
             tractions=bool(scene.loads),
             grips=bool(scene.grips),

@@ -33,15 +33,14 @@ from typing import Optional
 import yaml
 
 from . import observe as obs
+from ..bases import registry as basis_registry
 from ..config import ConfigError
 from .study import (case_config, default_jobs, finished_records, load_study, prepare_out, print_progress, run_cases,
                     study_dump, write_reports)
 
-BASES = ("linear", "gimp", "quadratic", "cubic")          # cheapest stencil first
 TRANSFERS = ("pic", "flip", "apic")
-ACCURACY = {"cubic": 4, "quadratic": 3, "gimp": 2, "linear": 1, "apic": 3, "flip": 2, "pic": 1}
+TRANSFER_ACCURACY = {"apic": 3, "flip": 2, "pic": 1}   # a basis's rank is its declaration's `accuracy`
 COSTS = ("step_time", "wall_time", "work")
-STENCIL = {"linear": 2, "gimp": 3, "quadratic": 3, "cubic": 4}   # nodes per particle and axis
 ADVICE = "advice.md"
 
 
@@ -71,12 +70,14 @@ def parse_problem(text) -> dict:
 
 
 def advise(config=None, *, problem: Optional[dict] = None, observe, tolerance: float, reference=None,
-           bases=BASES, transfers=("flip", "apic"), levels: int = 3, ppc=None, overrides=None, out=None,
+           bases=None, transfers=("flip", "apic"), levels: int = 3, ppc=None, overrides=None, out=None,
            jobs: Optional[int] = None, cost: str = "step_time", timing=None, samples: int = 20,
            timeout: Optional[float] = None, allow_problems=(), resume: bool = False, overwrite: bool = False,
            progress=print_progress, scheduler: Optional[str] = None) -> dict:
     """Run the adaptive sweep; returns {"choice": row or None, "rows": [...], "reference": (value, how),
-    "out": Path}. A row: params, error (estimated), cost, status, record."""
+    "out": Path}. A row: params, error (estimated), cost, status, record. `bases`: default the registry's swept
+    bases (bases/registry.py), cheapest stencil first."""
+    bases = basis_registry.swept() if bases is None else bases
     _check_arguments(config, problem, cost, levels, bases, transfers, ppc)
     base_study = _base_study(config, problem, observe, samples, overrides, bases, timing, reference, timeout)
     first = load_study(base_study, allow_problems)          # checks observe/reference against the base config
@@ -103,7 +104,7 @@ def _check_arguments(config, problem, cost, levels, bases, transfers, ppc):
         raise ConfigError(f"cost must be one of {', '.join(COSTS)}, got {cost!r}")
     if not isinstance(levels, int) or isinstance(levels, bool) or not 1 <= levels <= 8:
         raise ConfigError(f"--levels: a whole number from 1 to 8, got {levels!r}")
-    for name, values, known in (("--bases", bases, BASES), ("--transfers", transfers, TRANSFERS)):
+    for name, values, known in (("--bases", bases, basis_registry.swept()), ("--transfers", transfers, TRANSFERS)):
         bad = [v for v in values if v not in known]
         if bad or not values:
             raise ConfigError(f"{name}: expected some of {', '.join(known)}, "
@@ -199,7 +200,8 @@ class _Sweep:
             return st.reference, "the given value"
         if st.reference not in ("finest", "richardson"):
             return None, "an analytic problem's error against its exact solution"
-        best = max(self.combos, key=lambda c: (ACCURACY[c[0]], ACCURACY[c[1]], c[2] or 0))
+        best = max(self.combos, key=lambda c: (basis_registry.get(c[0]).accuracy, TRANSFER_ACCURACY[c[1]],
+                                               c[2] or 0))
         batch = [self.params(best[0], best[1], dx, best[2]) for dx in self.dxs]
         self.run(batch)
         recs = [self.records[_key(p)] for p in batch]
@@ -279,7 +281,8 @@ def _cost(rec: dict, cost: str, params: dict, dim: int) -> float:
         return math.nan
     try:
         if cost == "work":
-            return float(rec["particles"]) * float(rec["steps"]) * STENCIL[params["solver.basis"]] ** dim
+            stencil = basis_registry.get(params["solver.basis"]).stencil   # nodes per particle and axis
+            return float(rec["particles"]) * float(rec["steps"]) * stencil ** dim
         return float(rec.get(cost, math.nan))
     except (KeyError, TypeError, ValueError):
         return math.nan
@@ -354,7 +357,7 @@ def main_cli(args) -> int:
     """`taichi-mpm advise` (called by cli.py with its parsed arguments)."""
     problem = parse_problem(args.problem) if args.problem else None
     result = advise(args.config, problem=problem, observe=args.observe, tolerance=parse_tolerance(args.tolerance),
-                    reference=_reference_arg(args.reference), bases=_list(args.bases, BASES),
+                    reference=_reference_arg(args.reference), bases=_list(args.bases, basis_registry.swept()),
                     transfers=_list(args.transfers, ("flip", "apic")), levels=args.levels,
                     ppc=[_int(v, "--ppc") for v in args.ppc.split(",")] if args.ppc else None,
                     overrides=_overrides(args.overrides), out=args.out, jobs=args.jobs, cost=args.cost,

@@ -16,6 +16,8 @@ from pydantic_core import PydanticUndefined
 
 from .. import config, fields, materials
 from ..io import files as io
+from ..bases import registry as bases
+from ..schema import OneOf
 
 FACE_NAMES = "x_min, x_max, y_min, y_max, z_min, z_max"
 SHAPE_KEYS = "box, sphere, ring, cylinder or mesh"
@@ -79,9 +81,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                              "number of quarter turns (rational pieces) the angle spans; sized against "
                              "limits.memory_gb before anything is built (docs/reliability.md)"),
     "solver": ("", "time integration and the MPM scheme"),
-    "solver.basis": ("", "shape functions: linear, gimp (uGIMP), quadratic or cubic B-splines, cpdi (CPDI1 "
-                         "particle domains over linear grid functions) or ddmp (linear functions, dual-domain "
-                         "smoothed gradient); docs/bases.md"),
+    "solver.basis": ("", "shape functions (docs/bases.md): " + "; ".join(
+        f"{n}: {bases.get(n).description}" for n in bases.names())),
     "solver.cpdi": ("", "options of basis cpdi"),
     "solver.cpdi.variant": ("", "cpdi1: parallelogram / parallelepiped domains with half-edges F r0 (Sadeghirad et "
                                 "al. 2011); cpdi2 (corners tracked as points) is not implemented yet"),
@@ -287,6 +288,8 @@ def _strip(tp):
 def _constraints(cons) -> list[str]:
     out = []
     for c in cons:
+        if isinstance(c, OneOf):   # a registry's names (solver.basis: bases/registry.py)
+            out.append(" \\| ".join(map(str, c.values())))
         for attr, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="), ("min_length", "at least")):
             v = getattr(c, attr, None)
             if v is not None:

@@ -27,11 +27,11 @@ import time as _time
 
 import numpy as np
 
+from ..bases import registry as basis_registry
 from ..io.colour_range import LiveLimits
 from ..io.render import available_fields, field_values
 from .window_layout import CHART, CHART_COLOURS, CHART_LENGTH, HELP, SLIDER_TOLERANCE
 
-BASES = ("linear", "gimp", "quadratic", "cubic")
 TRANSFERS = ("pic", "flip", "apic")
 
 
@@ -351,7 +351,9 @@ class Session:
         from ..config import ConfigError, load_config
         from ..io.runner import Simulation
 
-        key, options = {"basis": ("solver.basis", BASES), "transfer": ("solver.transfer", TRANSFERS)}[what]
+        # the basis switch cycles through the registry's swept bases (bases/registry.py), cheapest stencil first
+        key, options = {"basis": ("solver.basis", basis_registry.swept()),
+                        "transfer": ("solver.transfer", TRANSFERS)}[what]
         current = getattr(self.cfg.solver, what)
         if value is None:
             value = options[(options.index(current) + 1) % len(options)] if current in options else options[0]

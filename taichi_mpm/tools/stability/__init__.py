@@ -29,6 +29,8 @@ import math
 
 import numpy as np
 
+from ...bases import registry as basis_registry
+
 
 def _lame(E, nu):
     return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
@@ -66,7 +68,7 @@ class Scenario:
 
     def config(self) -> dict:
         d = self.dim
-        solver = dict(basis="quadratic", transfer="apic", cfl=0.4, end_time=self.end_time)
+        solver = dict(basis=basis_registry.DEFAULT, transfer="apic", cfl=0.4, end_time=self.end_time)
         solver.update(self.solver)
         return dict(name=self.name, dim=d, precision=self.precision, arch="cpu",
                     domain=dict(lower=[0.0] * d, upper=[1.0] * d, dx=self.dx,

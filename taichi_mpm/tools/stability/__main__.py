@@ -13,7 +13,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m taichi_mpm.tools.stability")
     sub = ap.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("cfl", help="largest stable CFL number per basis and transfer")
-    c.add_argument("--bases", default="linear,gimp,quadratic,cubic")
+    c.add_argument("--bases", help="comma-separated (default: the registry's swept bases, bases/registry.py)")
     c.add_argument("--transfers", default="pic,flip,apic")
     c.add_argument("--spec", default=json.dumps(CFL_SPEC), help="scenario spec (JSON)")
     c.add_argument("--lo", type=float, default=0.1)
@@ -32,7 +32,8 @@ def main(argv=None):
         plot_map(args.results_csv, args.png, args.column, args.title)
         return 0
     spec = json.loads(args.spec)
-    rows = cfl_table(args.bases.split(","), args.transfers.split(","), spec, jobs=args.jobs, lo=args.lo, hi=args.hi,
+    bases = args.bases.split(",") if args.bases else None
+    rows = cfl_table(bases, args.transfers.split(","), spec, jobs=args.jobs, lo=args.lo, hi=args.hi,
                      tol=args.tol, energy_limit=args.energy_limit, log=lambda m: print(m, flush=True))
     md = cfl_markdown(rows, spec)
     print(md)

@@ -5,6 +5,7 @@ import json
 import math
 from typing import Optional
 
+from ...bases import registry as basis_registry
 from ..study import execute_case, user_paths
 
 def is_stable(rec: dict, energy_limit: float) -> bool:
@@ -55,10 +56,11 @@ def largest_stable_cfl(basis: str, transfer: str, spec: dict, lo: float = 0.1, h
 CFL_SPEC = {"type": "impact", "dim": 2, "cells": 16, "mach": 0.1, "transits": 24.0}  # 6 transits was too short
 
 
-def cfl_table(bases=("linear", "gimp", "quadratic", "cubic"), transfers=("pic", "flip", "apic"), spec=None,
-              jobs: int = 1, **kw) -> list[dict]:
-    """largest_stable_cfl for every basis x transfer (combinations in parallel with `jobs`)."""
+def cfl_table(bases=None, transfers=("pic", "flip", "apic"), spec=None, jobs: int = 1, **kw) -> list[dict]:
+    """largest_stable_cfl for every basis x transfer (combinations in parallel with `jobs`); bases: default the
+    registry's swept bases (bases/registry.py)."""
     spec = spec or CFL_SPEC
+    bases = basis_registry.swept() if bases is None else bases
     combos = [(b, t) for b in bases for t in transfers]
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         return list(pool.map(lambda bt: largest_stable_cfl(bt[0], bt[1], spec, **kw), combos))
