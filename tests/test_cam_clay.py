@@ -70,7 +70,7 @@ def triaxial(drained, steps, dea, dim=3, fp=ti.f64, **over):
         q = ti.Vector(q0, float)
         for _ in range(1):                      # serial
             for s in range(steps):
-                y = dea / (dim - 1)
+                y = dea / ti.static(max(dim - 1, 1))   # 1D: no lateral axis
                 if ti.static(drained):
                     x0, x1 = 0.5 * dea, 0.0
                     g0, g1 = lateral(F, q, x0), lateral(F, q, x1)
