@@ -7,7 +7,9 @@ critical-state relation of this model is exact at any strain, not only to first 
 Invariants (Kirchhoff stress tau, tension positive; p compression positive): p = -tr(tau) / 3, q = sqrt(3/2) |dev
 tau|, eps_v = tr(eps_e), eps_s = sqrt(2/3) |dev eps_e|.
 
-Elasticity (the energy psi = p0 kappa* (exp(-eps_v / kappa*) - 1) + G |dev eps_e|^2):
+Elasticity (the energy psi = kappa* p0 exp(-eps_v / kappa*) + G |dev eps_e|^2 = kappa* p + G |dev eps_e|^2: the
+work the skeleton would give back swelling to p = 0, so psi > 0 and the energy balance's scale is that of the
+prestressed body; kappa* p0 at F_e = I):
 
     p = p0 exp(-eps_v / kappa*)                (bulk modulus K = p / kappa*: the swelling line ln v = -kappa* ln p')
     dev tau = 2 G dev eps_e,  q = 3 G eps_s
@@ -164,7 +166,7 @@ class CamClay(Model):
             eps, Q = hencky(full(F, q))
             tr = eps.sum()
             e = eps - tr / 3.0
-            return p0 * ks * (ti.exp(ti.min(ti.max(-tr / ks, -EXP_LIMIT), EXP_LIMIT)) - 1.0) + G * e.dot(e)
+            return ks * p0 * ti.exp(ti.min(ti.max(-tr / ks, -EXP_LIMIT), EXP_LIMIT)) + G * e.dot(e)
 
         return_map = make_return_map(G, ks, ld, M2)
 

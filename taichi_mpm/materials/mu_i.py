@@ -112,9 +112,9 @@ class MuI(Model):
         elastic3, volume_ratio = base.kirchhoff3, base.volume_ratio
 
         @ti.func
-        def excess(F, L, q):
-            """The Kirchhoff excess stress J 2 eta dev D (3x3) of a flowing particle; zero off the yield surface."""
-            t = elastic3(F, L, q)
+        def excess(t, F, L, q):
+            """The Kirchhoff excess stress J 2 eta dev D (3x3) of a flowing particle (t: its elastic stress, the
+            3x3 Kirchhoff stress of F_e); zero off the yield surface."""
             p = -t.trace() / 3.0
             out = ti.Matrix.zero(float, 3, 3)
             if p > 0:
@@ -132,7 +132,8 @@ class MuI(Model):
 
         @ti.func
         def kirchhoff3(F, L, q):
-            return elastic3(F, L, q) + excess(F, L, q)
+            t = elastic3(F, L, q)
+            return t + excess(t, F, L, q)
 
         @ti.func
         def kirchhoff(F, L, q):
@@ -140,8 +141,7 @@ class MuI(Model):
 
         @ti.func
         def viscous_power(F, L, q):
-            L3 = embed3(L, 0.0)
-            return (excess(F, L, q) * L3).sum()                         # tau_ex : D (tau_ex symmetric)
+            return (excess(elastic3(F, L, q), F, L, q) * embed3(L, 0.0)).sum()   # tau_ex : D (tau_ex symmetric)
 
         return finish(Funcs(kirchhoff=kirchhoff, kirchhoff3=kirchhoff3, energy=base.energy, project=base.project,
                             volume_ratio=volume_ratio, viscous_power=viscous_power), m, cls)
