@@ -271,3 +271,40 @@ def test_k0_geostatic_layer_stays_at_rest_in_a_scene():
     assert np.abs(p["v"]).max() < 5e-3
     assert np.abs(tau[deep, 1, 1] + sv[deep]).max() < 0.02 * sv.max()
     assert np.median(tau[deep, 0, 0] / tau[deep, 1, 1]) == pytest.approx(k0, rel=0.01)
+
+
+@pytest.mark.slow
+def test_normally_consolidated_vertical_cut_fails_under_its_own_weight():
+    """A vertical cut in normally consolidated clay (2D, 0.3 m wide and 0.4 m high against a slip wall, sticky floor,
+    dx 2 cm, 1200 particles, M = 1, G = 2 MPa, p0 = 10 kPa) started from the K0 geostatic state: without cohesion
+    (p_c -> 0 at the surface) the face cannot stand, the block slumps and runs out, and comes to rest as a heap.
+    Measured: run-out 0.72 m (2.4 widths), top 0.316 m, at rest from 0.8 s (max speed 3 mm/s), flank 23.8 deg
+    (a line through the column tops between 20 % and 80 % of the height), below the critical-state angle of a
+    flowing plane-strain slope (sin(phi) = M / sqrt(3): 35.3 deg; 30 deg in simple shear) as dynamic deposits
+    are (drucker_prager's Lube columns: 15-23 deg); near the triaxial phi_cs = asin(3 M / (6 + M)) = 25.4 deg."""
+    import taichi_mpm as tm
+    from taichi_mpm.config import load_config
+    from conftest import make_cfg
+
+    rho, g, H, W, dx = 1800.0, 9.81, 0.4, 0.3, 0.02
+    cfg = make_cfg(2, precision="f64", dx=dx, lower=[0.0, 0.0], upper=[W, H], end_time=1.0)
+    cfg["domain"]["upper"] = [1.2, 1.5 * H]
+    cfg["domain"]["boundaries"] = dict(default="slip", y_min="sticky", y_max="free", x_max="free")
+    cfg["solver"]["gravity"] = [0.0, -g]
+    cfg["materials"]["m"] = dict(model="cam_clay", density=rho, shear_modulus=2e6, lambda_star=0.1,
+                                 kappa_star=0.02, critical_state_slope=1.0, initial_pressure=1e4)
+    m = load_config(cfg).materials["m"]
+    sim = tm.Simulation(cfg)
+    sv = rho * g * (H - sim.particles()["x"][:, 1])
+    state = sim.get_state()
+    state["F"], state["material_state"] = geostatic_state(m, 2, sv, 1 - 3.0 / 7.0)
+    sim.set_state(state)
+    sim.advance_to(1.0)
+    x, v = sim.particles()["x"], sim.particles()["v"]
+    assert np.abs(v).max() < 0.02
+    assert x[:, 0].max() > 2 * W and x[:, 1].max() < 0.85 * H
+    cols = np.arange(0.0, x[:, 0].max(), dx)
+    h = np.array([x[(x[:, 0] >= c) & (x[:, 0] < c + dx), 1].max(initial=0.0) for c in cols])
+    sel = (h > 0.2 * h.max()) & (h < 0.8 * h.max())
+    angle = math.degrees(math.atan(-np.polyfit(cols[sel] + dx / 2, h[sel], 1)[0]))
+    assert 15.0 < angle < 30.0, angle
