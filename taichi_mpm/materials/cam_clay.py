@@ -28,7 +28,7 @@ Hardening with the plastic volume (the normal compression line ln v = -lambda* l
     p_c = p_c0 J_p^(-1 / (lambda* - kappa*)),  i.e. ln J_p = eps_v^p = -(lambda* - kappa*) ln(p_c / p_c0)
 
 so the state is J_p alone (`Jp`, also the particle's plastic volume ratio). Return mapping in principal Hencky
-strains after the update (Borja & Tamagnini 1998, box 2; Simo 1992): with x = -d eps_v^p (plastic compaction) and
+strains after the update (as in Borja & Tamagnini 1998; Simo 1992): with x = -d eps_v^p (plastic compaction) and
 the deviatoric strain scaled radially,
 
     p = p_tr exp(-x / kappa*),  p_c = p_c,n exp(x / (lambda* - kappa*)),  q = q_tr / (1 + 6 G dgamma / M^2)
@@ -253,7 +253,9 @@ def geostatic_state(m, dim: int, sigma_v, k0: float, ocr: float = 1.0):
     (the out-of-plane one included), the elastic F (N, dim, dim) of that stress and the material state (N, nq of
     the model): plastic strain 0, J_p with p_c = ocr x the p_c of the yield surface through the stress (ocr 1:
     normally consolidated, on the surface), the held stretch. Pass them to Simulation.set_state
-    (`F`, `material_state`); the stress of a particle is then sigma_v, sigma_h exactly at t = 0."""
+    (`F`, `material_state`); the Kirchhoff stress of a particle is then sigma_v, sigma_h exactly at t = 0 (the
+    solver's force is V0 tau: this is the stress in equilibrium with the particles where they are; the Cauchy
+    output is tau / J)."""
     sv = np.asarray(sigma_v, dtype=np.float64)
     if not (np.all(sv > 0) and k0 > 0 and ocr >= 1):
         raise ValueError("geostatic_state needs sigma_v > 0, k0 > 0 and ocr >= 1")
