@@ -17,13 +17,19 @@ from common import block_config, parser, peak_rss_mb, report, time_steps  # noqa
 REFERENCE = "fixed_corotated"
 # keys besides E, nu and density (block_config's E = 400 Pa, density 1): yield under the landing
 EXTRA = {"fluid": {}, "von_mises": {"yield_stress": 2.0, "hardening": 40.0},
-         "drucker_prager": {"friction_angle": 30.0}, "snow": {}, "mohr_coulomb": {"friction_angle": 30.0}}
+         "drucker_prager": {"friction_angle": 30.0}, "snow": {}, "mohr_coulomb": {"friction_angle": 30.0},
+         "cam_clay": {"shear_modulus": 150.0, "lambda_star": 0.1, "kappa_star": 0.02, "critical_state_slope": 1.0,
+                      "initial_pressure": 20.0},
+         "mu_i": {"mu_s": 0.4, "mu_2": 0.6, "grain_diameter": 1e-3, "max_pressure": 10.0}}
+NO_MODULI = ("cam_clay",)   # models without E and nu (cam_clay: shear_modulus, K = p / kappa_star)
 
 
 def material_config(dim, n_grid, model, precision, arch):
     cfg = block_config(dim, n_grid, model="fluid" if model == "fluid" else REFERENCE, precision=precision, arch=arch)
     mat = cfg["materials"]["m"]
     mat["model"] = model
+    if model in NO_MODULI:
+        mat.pop("E"), mat.pop("nu")
     mat.update(EXTRA.get(model, {}))
     cfg["solver"]["energy_growth_limit"] = None  # a fixed dt for every model: cost, not stability, is measured
     return cfg

@@ -12,12 +12,16 @@ MU, LAM = 3.0e3, 2.0e3
 E, NU = MU * (3 * LAM + 2 * MU) / (LAM + MU), LAM / (2 * (LAM + MU))
 # each model's keys besides the moduli (plastic ones: far from yield, so the stress is the elastic law's)
 EXTRA = {"fluid": dict(K=LAM), "von_mises": dict(yield_stress=1e9), "drucker_prager": dict(friction_angle=30.0),
-         "snow": dict(hardening=3.0), "mohr_coulomb": dict(friction_angle=30.0)}
+         "snow": dict(hardening=3.0), "mohr_coulomb": dict(friction_angle=30.0),
+         "cam_clay": dict(shear_modulus=MU, lambda_star=0.2, kappa_star=0.05, critical_state_slope=1.0,
+                          initial_pressure=LAM),
+         "mu_i": dict(mu_s=0.4, mu_2=0.6, grain_diameter=1e-3, max_pressure=1e3)}
+NO_MODULI = ("fluid", "cam_clay")   # models without E and nu
 
 
 def material(name):
     keys = EXTRA.get(name, {})
-    moduli = {} if name == "fluid" else dict(E=E, nu=NU)
+    moduli = {} if name in NO_MODULI else dict(E=E, nu=NU)
     return Material(model=name, density=1000.0, **moduli, **keys)
 
 

@@ -214,7 +214,7 @@ def test_drucker_prager_compression_cone_coincides_on_the_compression_meridian(p
     (s1 = s2 > s3): for trials on that meridian (triaxial compression, in random frames) both models return to the
     same stress to 1e-10 of the stress scale, along the meridian (MC: the compression edge, with equal multipliers;
     DP: its cone) or to the apex, with the same dilatancy. On the extension meridian they differ (the cone is
-    outside the pyramid there), which the last assert shows."""
+    outside the pyramid there), which the last assert shows for the returns off the apex."""
     rng = np.random.default_rng(3)
     n = 300
     mean = 1e-3 * rng.uniform(-3, 4, n)           # the apex: a mean strain of 1.4e-3
@@ -238,7 +238,9 @@ def test_drucker_prager_compression_cone_coincides_on_the_compression_meridian(p
     assert 0 < (at_apex & comp & yielded).sum() < (comp & yielded).sum()     # edge and apex returns both occur
     diff = np.abs(t_mc - t_dp).max((1, 2)) / scale
     assert (diff[comp] <= 1e-10).all(), diff[comp].max()
-    assert np.median(diff[ext & yielded]) > 1e-2
+    # off the apex (where both are stress-free: with psi = 0 every trial past the apex's mean stress goes there,
+    # over half of the yielded extension trials), the cone returns elsewhere than the pyramid
+    assert np.median(diff[ext & yielded & ~at_apex]) > 1e-2
 
 
 def simple_shear(dim_psi, steps=2000, rate=1e-4, p0=1.0e3, phi=PHI):

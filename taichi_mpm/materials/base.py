@@ -100,7 +100,7 @@ class Funcs:
     energy(F, q) -> psi                     stored energy per reference volume (elastic + hardening)
     project(F, q) -> (F, q, dissipated)     after the F update: the return mapping; dissipated per reference volume
     volume_ratio(F, q) -> J                 current / initial volume (det F unless plastic flow changes volume)
-    viscous_power(F, L) -> P                viscous dissipation per reference volume and time (viscous models)
+    viscous_power(F, L, q) -> P             viscous dissipation per reference volume and time (viscous models)
     """
     kirchhoff: Callable
     energy: Callable

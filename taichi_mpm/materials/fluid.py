@@ -51,7 +51,7 @@ class Fluid(Model):
             return 0.5 * K * (F.determinant() - 1.0) ** 2
 
         @ti.func
-        def viscous_power(F, L):
+        def viscous_power(F, L, q):
             """tau_visc : L = J visc (L + L^T) : L per reference volume."""
             return F.determinant() * visc * ((L + L.transpose()) * L).sum()
 

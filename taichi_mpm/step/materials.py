@@ -177,7 +177,7 @@ def make_material_funcs(ctx, velocity_gradient) -> MaterialFuncs:
         """Viscous dissipation per reference volume and time (the models' viscous_power, e.g. the fluid's)."""
         Lp = velocity_gradient(p)
         P = 0.0
-        model_viscous_power(p, P, (Fp, Lp))
+        model_viscous_power(p, P, (Fp, Lp, state_of(p)))
         return scale(p) * P
 
     @ti.func
