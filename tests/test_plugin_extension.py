@@ -5,6 +5,7 @@ import pytest
 
 import taichi_mpm as tm
 from taichi_mpm.step import extensions
+from taichi_mpm.step.extensions import Extension, ParticleTransfer
 from conftest import make_cfg
 from plugins.uniform_push import UniformPush
 
@@ -64,3 +65,27 @@ def test_unregistered_extension_is_gone():
     assert sim.extension("uniform_push") is None
     with pytest.raises(ValueError):
         extensions.unregister(UniformPush)
+
+
+class _Claims(Extension):
+    """Claims what only one extension may have: the particle transfer and the node solve (twice each)."""
+    name = "claims"
+
+    @classmethod
+    def create(cls, setup):
+        return cls()
+
+    def build(self, ctx):
+        claim = ParticleTransfer(takes=None, p2g=None, p2g_momentum=None, g2p=None)
+        ctx.contribute("particle_transfer", claim)
+        ctx.contribute("particle_transfer", claim)
+
+
+def test_two_claims_on_a_single_contribution_are_refused():
+    extensions.register(_Claims)
+    try:
+        with pytest.raises(ValueError, match="two extensions contribute particle_transfer"):
+            tm.Simulation(make_cfg(2, dt=1e-3))
+    finally:
+        extensions.unregister(_Claims)
+    assert _Claims not in extensions.ORDER
