@@ -76,7 +76,7 @@ def run_case(scene, n_grid, crack, steps, arch, kernel_steps):
     row = dict(scene=scene, crack=crack, particles=sim.n, ms_per_step=(time.perf_counter() - t) / steps * 1e3,
                cpu_ms_per_step=(time.process_time() - cpu) / steps * 1e3)
     if crack:
-        row["near_fraction"] = float((sim.crack.state.to_numpy() != 0).mean())
+        row["near_fraction"] = float((sim.extension("crack").state.to_numpy() != 0).mean())
         row["kernels_ms"] = kernel_times(sim, kernel_steps)
     return row
 
@@ -84,7 +84,7 @@ def run_case(scene, n_grid, crack, steps, arch, kernel_steps):
 def kernel_times(sim, steps):
     """Mean CPU ms (all threads) per step of each crack-finder kernel, each between two
     ti.sync(): CPU time, not wall time, since other jobs on a shared machine move wall time far more."""
-    crack, spent = sim.crack, {}
+    crack, spent = sim.extension("crack"), {}
     timed = kernel_timer(spent, time.process_time)
 
     saved_k = dict(crack._k)

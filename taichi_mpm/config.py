@@ -343,6 +343,17 @@ MODEL_NAMES = material_models.names()
 _material_adapter = TypeAdapter(AnyMaterial)
 
 
+def use_registered_materials():
+    """Validate against the registry as it is now: after a model was registered (or unregistered) from outside
+    the package, so that configs accept its name (docs/materials.md, "Adding a material")."""
+    global AnyMaterial, MODEL_NAMES, _material_adapter
+    AnyMaterial = material_models.schema()
+    MODEL_NAMES = material_models.names()
+    _material_adapter = TypeAdapter(AnyMaterial)
+    Config.model_fields["materials"].annotation = dict[str, AnyMaterial]
+    Config.model_rebuild(force=True)
+
+
 def Material(**keys):
     """A validated material (the schema of its `model`), e.g. Material(model="neo_hookean", density=1000, E=1e4)."""
     return _material_adapter.validate_python(keys)

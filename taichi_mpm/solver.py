@@ -1,7 +1,7 @@
 """The MPM solver: particle fields, and the order of one step's kernels (P2G, grid update, G2P; built in step/).
 
 Every option a scene does not use is left out when the kernels are built: the dimension, basis,
-transfer, update scheme, material models and features (body force, viscosity, crack finder) are
+transfer, update scheme, material models and features (body force, viscosity, the extensions) are
 compile-time constants captured by the kernel closures and tested with `ti.static`. Three parameters are
 runtime values instead (small fields the kernels read, set from Python without a recompile, e.g. by the
 interactive window's sliders): gravity (`set_gravity`), a per-material stiffness scale (`set_stiffness_scale`)
@@ -33,8 +33,6 @@ from .bases.stencils import make_stencil
 from .sums import ChunkSums, Slots
 from .extensions import scatter
 from .config import Config, ConfigError, load_config
-from .extensions import crack as crack_finder
-from .extensions import fbar
 from .errors import InstabilityError
 from .grid import Grid, make_wall_condition
 from .loads import Loads
@@ -43,7 +41,7 @@ from .materials import MODELS, wave_speed
 from .scene import Scene, build_scene
 from . import step as step_kernels
 from .step import Features, StepContext
-from .step.extensions import ColouredScatter, DualDomainFill, MappedCoordinates, VolumeAverage
+from .step import extensions as step_extensions
 from .step.transfers import FLUID_J_MIN
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
@@ -69,14 +67,14 @@ class StabilityWarning(UserWarning):
 def thread_independent(cfg: Config, body_force: bool = False) -> bool:
     """Whether every sum a CPU step and its diagnostics make has one order whatever the threads: P2G by the coloured
     scatter (scatter.py), energies and momenta by chunks (sums.py), and none of the parts that still add in the
-    threads' order (ddmp's nodal volumes, F-bar's averages, the crack finder's node sums, and the accumulators of
-    external work, dissipation, wall and grip impulses). tests/test_scatter.py checks 1 and 2 threads bit-identical."""
-    s = cfg.solver
+    threads' order (the extensions that say so: ddmp's nodal volumes, F-bar's averages, the crack finder's node
+    sums; and the accumulators of external work, dissipation, wall and grip impulses). tests/test_scatter.py checks
+    1 and 2 threads bit-identical."""
     if not scatter.coloured(cfg, gpu=False):
         return False
     mats = [cfg.materials[b.material] for b in cfg.bodies]
     walls = cfg.domain.boundaries
-    return not (bases.get(s.basis).prepass_grid or s.volumetric == "fbar" or cfg.crack is not None or body_force
+    return not (step_extensions.adds_in_thread_order(cfg) or body_force
                 or any(b.tractions or b.prescribed_velocity for b in cfg.bodies)
                 or any(walls.face(a, side) == "velocity" for a in range(cfg.dim) for side in (0, 1))
                 or any(p.type == "wall" for p in cfg.output.probes)
@@ -174,7 +172,8 @@ class Simulation:
         self.wall_v = ti.Vector.field(d, float, 2 * d) if f.moving_walls else None
 
     def _allocate_grid(self, f: Features):
-        """The grid, and what shares its nodes: the coloured scatter's bins, the crack finder, F-bar."""
+        """The grid, the coloured scatter's bins, and the extensions (step/extensions.py): created, their node
+        fields declared, allocated once the grid exists."""
         d, n = self.dim, self.n
         vec = ["v"] + (["v_old"] if f.flip else []) + (["v2"] if f.musl else [])
         vec += ["grip"] if f.grips else []  # component 0: the grip (from 1) whose particles touch the node
@@ -182,25 +181,31 @@ class Simulation:
         if self.mapped is not None:
             shape = self.mapped.shape    # control points of the map, in parameter space
             self.mapped.allocate_particles(n)
-        # the crack finder's node fields (tensor node mass rows, node normals and marks): few particles touch them
-        apart, apart_scalars = crack_finder.grid_fields(d) if self.cfg.crack is not None else ([], [])
-        self.grid = Grid(d, shape, self.backend.sparse, vec, apart, apart_scalars)
         gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
-        coloured = scatter.coloured(self.cfg, gpu)
-        self.bins = scatter.BlockBins(d, self.grid, n) if coloured else None  # atomic-free P2G (scatter.py)
-        self.crack = crack_finder.CrackFinder(self) if self.cfg.crack is not None else None
-        self.fbar = fbar.create(self)  # solver.volumetric: fbar (fbar.py), else None
-        self.extensions = self._extensions()
+        setup = self._setup(f, coloured=scatter.coloured(self.cfg, gpu))
+        self.extensions = step_extensions.create(setup)
+        # the extensions' node fields (the crack finder's tensor node mass rows, normals and marks) lie apart
+        declared = [e.grid_fields() for e in self.extensions]
+        apart = [name for vectors, _ in declared for name in vectors]
+        apart_scalars = [name for _, scalars in declared for name in scalars]
+        self.grid = Grid(d, shape, self.backend.sparse, vec, apart, apart_scalars)
+        self.bins = scatter.BlockBins(d, self.grid, n) if setup.coloured else None  # atomic-free P2G (scatter.py)
+        setup.grid, setup.bins = self.grid, self.bins
+        for e in self.extensions:
+            e.allocate(setup)
         self._p2g_passes = max([e.p2g_passes for e in self.extensions], default=1)
 
-    def _extensions(self) -> list:
-        """The parts of the step that plug in at its moments (step/extensions.py), in the order they run."""
-        out = [DualDomainFill()] if self.basis.kind == "tensor" and self.basis.smooth_1d is not None else []
-        out += [ColouredScatter(self.bins)] if self.bins is not None else []
-        # the new positions' parametric coordinates first: F-bar's average reads the mapped stencil
-        out += [MappedCoordinates(self.mapped, self.x, self.n, self.cfg.precision)] if self.mapped is not None else []
-        out += [VolumeAverage(self.fbar)] if self.fbar is not None else []
-        return out
+    def _setup(self, f: Features, coloured: bool) -> step_extensions.Setup:
+        """What the extensions are handed (step.moments.Setup): never the Simulation itself."""
+        return step_extensions.Setup(
+            cfg=self.cfg, scene=self.scene, dim=self.dim, n=self.n, dx=self.dx, lower=self.lower, upper=self.upper,
+            n_cells=self.n_cells, basis=self.basis, mapped=self.mapped, feat=f, materials=self._materials, x=self.x,
+            v=self.v, F=self.F, vol0=self.vol0, to_solver=self._to_solver, to_creation=self._to_creation,
+            perm=lambda: self._perm, coloured=coloured)
+
+    def extension(self, name: str):
+        """The scene's extension of that name (step.moments.Extension.name: "crack", "fbar", ...), or None."""
+        return next((e for e in self.extensions if e.name == name), None)
 
     def _allocate_globals(self):
         """Flags, runtime parameters, accumulators and diagnostics sums."""
@@ -239,7 +244,6 @@ class Simulation:
         floats += d * d if self.stress0 is not None else 0
         floats += self.n_state
         out = floats * size + (1 if self.mat is not None else 0)
-        out += self.crack.bytes_per_particle() if self.crack is not None else 0
         return out + sum(e.bytes_per_particle() for e in self.extensions)
 
     def _block_order(self) -> np.ndarray:
@@ -293,22 +297,19 @@ class Simulation:
         self._motion_time = None  # when grip and wall velocities were last uploaded
         if self.state is not None:
             self.state.from_numpy(self._to_solver(self._initial_state()))
-        if self.crack is not None:
-            self.crack.upload()
+        for e in self.extensions:
+            e.upload()   # the crack finder's initial damage and interface flags
 
     # ------------------------------------------------------------------ kernels
     def _build_kernels(self):
-        """The step's kernels (step/): the context, the stencil, the material funcs, then the kernel builders of
-        F-bar and the crack finder, which read them, and the solver's own kernels with the crack finder's hooks."""
+        """The step's kernels (step/): the context, the stencil, the material funcs, then the extensions' kernels
+        (which read them and add their contributions to the context), then the solver's own kernels with those."""
         ctx = self.ctx = self._step_context()
         ctx.stencil = make_stencil(ctx)
         funcs = step_kernels.make_funcs(ctx)   # sets ctx.density, ctx.kirchhoff, ctx.project, ctx.add
         for e in self.extensions:
             e.build(ctx)
-        ctx.crack = self.crack.build(ctx) if self.crack is not None else None   # its hooks (crack.CrackHooks)
         self._k = step_kernels.make_kernels(ctx, funcs)
-        if ctx.crack is not None:
-            self._k.update(ctx.crack.kernels)   # the grid update and remap where the node mass is a tensor
 
     def _step_context(self) -> StepContext:
         dim, dx, c = self.dim, self.dx, self.cfg
@@ -336,7 +337,7 @@ class Simulation:
             load=self.load, load_slot=self.load_slot, load_index=self.load_index, load_force=self.load_force,
             n_loads=len(self.scene.loads), grip_slot=self.grip_slot, grip_index=self.grip_index, grip_v=self.grip_v,
             grip_impulse=self.grip_impulse, grip_given=self.loads.grip_given(), wall_v=self.wall_v,
-            diag=self.diag, moments=self.moments, body_id=self.body_id, bins=self.bins, fbar=self.fbar is not None)
+            diag=self.diag, moments=self.moments, body_id=self.body_id, bins=self.bins)
 
     # ------------------------------------------------------------------ stepping
     def _check_live(self):
@@ -441,21 +442,19 @@ class Simulation:
         self._prescribe(dt)
         self.grid.clear()
         for e in self.extensions:
-            e.before_p2g()   # ddmp's nodal volumes (a stencil that reads grid state), the coloured scatter's bins
-        if self.crack is not None:
-            self.crack.update()
+            e.before_p2g()   # ddmp's nodal volumes, the coloured scatter's bins, the crack finder's normals
         self._scatter("p2g", kick)
         if self.feat.grips:
             k["flag_grip_nodes"]()
-        # the node mass is a tensor only at nodes of particles in contact (crack.py); without any, the plain update
-        tensor = self.crack is not None and self.crack.in_contact()
-        k["grid_update_tensor" if tensor else "grid_update"](kick_before, kick_after)
+        # an extension's own node solve (the crack finder's tensor node mass, only with particles in contact)
+        special = any(e.node_solve_active() for e in self.extensions)
+        k["grid_update"](kick_before, kick_after, special)
         self.fail[None] = _NO_FAIL
         self.vmax2[None] = 0.0
         if self.feat.musl:
             k["g2p"](dt, kick, velocity=True, deform=False)
             self._scatter("p2g_momentum")  # the first g2p pass left the positions: the same bins
-            k["grid_remap_tensor" if tensor else "grid_remap"]()
+            k["grid_remap"](special)
             k["g2p"](dt, kick, velocity=False, deform=True)
         else:
             k["g2p"](dt, kick, velocity=True, deform=True)
@@ -569,7 +568,7 @@ class Simulation:
         # every step while energy is above the balance at all: a blow-up (x1.5-2 per step at CFL 1.2) is then
         # stopped within a step of crossing the limit
         ref["due"] = self.n_steps + (1 if bal["ratio"] > 0 else ENERGY_CHECK_EVERY)
-        if self.crack is None:
+        if not any(e.breaks_bodies for e in self.extensions):   # (the crack finder: bodies may separate)
             self._check_fracture()
         if bal["ratio"] > limit and bal["growth"] > ref["floor"]:
             speed = np.sum(self._read("v") ** 2, axis=1)
@@ -740,8 +739,8 @@ class Simulation:
             out.update(self._output_states())
         out.update(stress=np.ascontiguousarray(stress3[:, :d, :d]), stress3=stress3, mass=s.mass.copy(),
                    volume=s.volume * J, body=s.body.copy())
-        if self.crack is not None:
-            out["damage"] = self.crack.damage()
+        for e in self.extensions:
+            out.update(e.outputs())   # the crack finder's damage
         return out
 
     # ------------------------------------------------------------------ material state (materials/: State)
@@ -793,9 +792,7 @@ class Simulation:
         self._balance = self._shape_ref = None  # a new state: the balance and body shapes are measured afresh
         self._potentials = {}
         for e in self.extensions:
-            e.particles_set(set(checked))   # the mapped grid's xi_p, F-bar's start-of-step J
-        if "x" in checked and self.crack is not None:
-            self.crack.invalidate()   # its normals kept between steps belong to the old positions
+            e.particles_set(set(checked))   # the mapped grid's xi_p, F-bar's start-of-step J, crack normals
         if "v" in checked:
             self._vmax = _max_speed(checked["v"])
             self._half_dt = 0.0  # velocities given at the clock's time: the next step kicks over half a step
@@ -828,8 +825,8 @@ class Simulation:
                      work=self.work.to_numpy().astype(np.float64))
         if self.state is not None:
             state["material_state"] = self._material_state()  # plastic strain, J_p, ... (materials/: State)
-        if self.crack is not None:
-            state.update(self.crack.get_state())  # damage (and the damage law's history)
+        for e in self.extensions:
+            state.update(e.get_state())  # the crack finder's damage (and the damage law's history)
         return state
 
     def set_state(self, state: dict):
@@ -849,10 +846,8 @@ class Simulation:
                 or clock["time"] < 0 or clock["dt"] < 0 or clock["vmax"] < 0 or clock["half_dt"] < 0:
             raise ValueError(f"state clock must be finite and non-negative, got {clock}")
         particles = self._validated_particles({k: state[k] for k in self._state_fields() if k in state})
-        if self.crack is not None:
-            for k in ("damage", "damage_kappa"):
-                if k in state and np.shape(state[k]) != (self.n,):
-                    raise ValueError(f"state {k} must have shape {(self.n,)}, got {np.shape(state[k])}")
+        for e in self.extensions:
+            e.check_state(state)
         q = None
         if self.state is not None:
             if "material_state" not in state:
@@ -873,8 +868,8 @@ class Simulation:
         self.set_particles(**particles)
         self.time, self.n_steps, self.dt, self._vmax = clock["time"], clock["n_steps"], clock["dt"], clock["vmax"]
         self._half_dt = clock["half_dt"]
-        if self.crack is not None:
-            self.crack.set_state(state)
+        for e in self.extensions:
+            e.set_state(state)
 
     def energy(self) -> dict:
         """Kinetic, strain (the stored energy: the degraded energy where the crack finder damaged a particle, the

@@ -58,7 +58,7 @@ def disks_cfg(crack=True, transfer="apic"):
 # ---------------------------------------------------------------- modified shape functions
 def _check_partition(cfg):
     sim = tm.Simulation(cfg)
-    out = sim.crack.partition_check()
+    out = sim.extension("crack").partition_check()
     masked = out[:, 0] > 0
     assert masked.sum() >= 10
     inv_dx = 1.0 / cfg["domain"]["dx"]
@@ -96,7 +96,7 @@ def test_cell_list_search_matches_all_pairs():
     x = sim.x.to_numpy()
     x += np.random.default_rng(1).uniform(-0.4, 0.4, x.shape) * 0.025
     sim.x.from_numpy(x)
-    c = sim.crack
+    c = sim.extension("crack")
     c.update()
     vol, D = sim.vol0.to_numpy(), c.D.to_numpy()
     state, normal = c.state.to_numpy(), c.normal.to_numpy()
@@ -135,7 +135,7 @@ def _reference_run(dim, crack):
 def test_scene_without_crack_is_unchanged(dim):
     ref = np.load(DATA / "no_crack_reference.npz")
     sim = _reference_run(dim, crack=False)
-    assert sim.crack is None and "A0" not in sim.grid.vec          # nothing allocated
+    assert sim.extension("crack") is None and "A0" not in sim.grid.vec          # nothing allocated
     p = sim.particles()
     assert "damage" not in p
     # The reference was stored on another CPU: LLVM's instruction selection (FMA contraction, vector width) and the
@@ -371,8 +371,9 @@ def _slow_pull(refresh, steps, state=None, state_at=None):
         if k == state_at:
             saved = sim.get_state()
         sim.step()
-    end = dict(x=sim.particles()["x"], normal=sim.crack.normal.to_numpy(), state=sim.crack.state.to_numpy(),
-               refreshes=sim.crack.refreshes if sim.crack.cached else None)
+    crack = sim.extension("crack")
+    end = dict(x=sim.particles()["x"], normal=crack.normal.to_numpy(), state=crack.state.to_numpy(),
+               refreshes=crack.refreshes if crack.cached else None)
     return sim, end, saved
 
 
@@ -386,7 +387,7 @@ def test_normals_kept_between_steps_stay_close_to_every_step_ones():
     sim, kept, _ = _slow_pull(0.01, 60)
     assert exact["refreshes"] is None and 2 <= kept["refreshes"] <= 20
     # refreshes recompute the normals near the interface only: the blocks' other particles moved as a whole
-    assert sim.n < sim.crack.recomputed[None] < sim.n * (1 + kept["refreshes"]) / 2
+    assert sim.n < sim.extension("crack").recomputed[None] < sim.n * (1 + kept["refreshes"]) / 2
     assert np.abs(kept["normal"] - exact["normal"]).max() < 1e-2
     np.testing.assert_array_equal(kept["state"], exact["state"])
     assert np.abs(kept["x"] - exact["x"]).max() < 1e-3 * 0.05
@@ -410,11 +411,11 @@ def test_a_body_moving_as_a_whole_keeps_its_normals():
     the first step; their kept normals match those recomputed every step (the normal of a neighbourhood moved as a
     whole is the same, up to rounding: bound 1e-6), and the same particles are modified."""
     sim = _gliding_pair(0.01)
-    crack = sim.crack
+    crack = sim.extension("crack")
     assert crack.refreshes >= 4
     assert crack.recomputed[None] == sim.n        # the first step's, none since
     normals, states = crack.normal.to_numpy(), crack.state.to_numpy()
-    exact = _gliding_pair(0.0).crack
+    exact = _gliding_pair(0.0).extension("crack")
     assert np.abs(normals - exact.normal.to_numpy()).max() < 1e-6
     # the same particles are near the interface; contact itself is decided on zero traction and zero closing
     # speed here (the blocks touch at rest relative to each other), so rounding picks it: not compared
@@ -430,10 +431,10 @@ def test_kept_normals_travel_with_the_state():
     sim, again, _ = _slow_pull(0.01, 20, state=state)
     np.testing.assert_array_equal(again["x"], ahead["x"])
     np.testing.assert_array_equal(again["normal"], ahead["normal"])
-    before = sim.crack.refreshes
+    before = sim.extension("crack").refreshes
     sim.set_particles(x=sim.particles()["x"])
     sim.step()
-    assert sim.crack.refreshes == before + 1
+    assert sim.extension("crack").refreshes == before + 1
 
 
 def test_contact_list_holds_every_facing_neighbour():
@@ -444,19 +445,19 @@ def test_contact_list_holds_every_facing_neighbour():
     would visit (a particle of a free surface has an empty one); and contact is found (the push closes the gap)."""
     cfg = blocks_cfg(2, crack=True, v=-0.02)
     sim = tm.Simulation(cfg)
-    r, listed, pairs, contact = sim.crack.radius, 0, 0, 0
+    r, listed, pairs, contact = sim.extension("crack").radius, 0, 0, 0
     for _ in range(30):
         sim.step()
         x = sim.particles()["x"]
-        n = sim._to_creation(sim.crack.normal.to_numpy())       # solver slots -> creation order, as x
-        lists = sim.crack.contact_lists()
+        n = sim._to_creation(sim.extension("crack").normal.to_numpy())  # solver slots -> creation order, as x
+        lists = sim.extension("crack").contact_lists()
         close = np.linalg.norm(x[:, None] - x[None], axis=-1) < r
         facing = close & ((n @ n.T) < -sim.cfg.crack.threshold) & (np.abs(n).sum(axis=1) > 0)[:, None]
         for p in np.nonzero(facing.any(axis=1))[0]:
             assert lists[p] is None or set(np.nonzero(facing[p])[0]) <= set(lists[p]), p
         listed += sum(len(a) for a in lists if a is not None)
         pairs += int(close.sum())
-        contact += int((sim._to_creation(sim.crack.state.to_numpy()) == 2).sum())
+        contact += int((sim._to_creation(sim.extension("crack").state.to_numpy()) == 2).sum())
     print(f"listed {listed}, pairs within r {pairs}, contact {contact}")
     assert 0 < listed < 0.2 * pairs and contact > 0
 

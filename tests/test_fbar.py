@@ -105,13 +105,13 @@ def test_uniform_volume_change_left_alone_and_volume_kept():
     # a uniform volume change 1.02^2 on top of a varying history: F-bar must not touch it (averaging the total
     # J instead of the step's change would flatten the varying J)
     sim.F.from_numpy(sim._to_solver(1.02 * F0))
-    sim.fbar.apply()
+    sim.extension("fbar").fbar.apply()
     assert np.abs(sim._read("F") - 1.02 * F0).max() < 1e-12
     # a varying volume change: averaged, total volume kept (partition of unity), isochoric parts kept
     F1 = F0 * (1 + 0.03 * rng.standard_normal(n))[:, None, None]
     sim.F.from_numpy(sim._to_solver(F1))
     before = volume(sim)
-    sim.fbar.apply()
+    sim.extension("fbar").fbar.apply()
     F2 = sim._read("F")
     J1, J2 = np.linalg.det(F1), np.linalg.det(F2)
     assert abs(volume(sim) - before) < 1e-13 * before
@@ -159,13 +159,13 @@ def test_every_option_runs_and_keeps_volume(dim, basis, transfer, update, precis
     X = sim.scene.x
     sim.set_particles(v=0.5 * (X - 0.5) + 0.2 * np.sin(9.0 * X))   # a non-uniform volume change
     tol = 1e-12 if precision == "f64" else 1e-5
-    apply, record = sim.fbar.apply, []
+    apply, record = sim.extension("fbar").fbar.apply, []
 
     def recorded():
         before = volume(sim)
         apply()
         record.append(abs(volume(sim) - before) / before)
-    sim.fbar.apply = recorded
+    sim.extension("fbar").fbar.apply = recorded
     for _ in range(10):
         sim.step()
     assert len(record) == 10 and max(record) < tol
@@ -184,7 +184,7 @@ def test_1d_is_the_identity():
         sim = tm.Simulation(make_cfg(1, E=1e4, nu=0.3, dx=0.05, volumetric=v, velocity=[0.2], gravity=[-10.0]))
         for _ in range(20):
             sim.step()
-        out[v] = (sim.fbar, sim._read("F"))
+        out[v] = (sim.extension("fbar").fbar, sim._read("F"))
     assert out["fbar"][0] is None
     # two runs with Taichi's threads: the order of P2G's atomic adds may differ, so F agrees up to rounding (1e-16 a
     # step, 20 steps), far inside 1e-13; any change of the step itself moves F by about dt |grad v| ~ 1e-4

@@ -11,14 +11,13 @@ from taichi_mpm.step.extensions import ColouredScatter, DualDomainFill, Extensio
 from conftest import make_cfg
 
 
-def test_features_are_frozen_attributes_also_read_by_name():
+def test_features_are_frozen_attributes():
     sim = tm.Simulation(make_cfg(2, transfer="flip", update="musl"))
     f = sim.feat
     assert isinstance(f, Features)
     assert (f.flip, f.musl, f.apic, f.grips) == (True, True, False, False)
-    assert f["flip"] is f.flip   # the name lookup the crack finder uses
-    with pytest.raises(KeyError):
-        f["nonsense"]
+    with pytest.raises(TypeError):
+        f["flip"]   # no lookup by name: every reader takes the attribute
     with pytest.raises(dataclasses.FrozenInstanceError):
         f.flip = False
 
@@ -47,6 +46,7 @@ def test_extensions_of_a_scene_and_their_moments():
     bytes_per_particle. An extension added to the list takes part in every moment, in order."""
     sim = tm.Simulation(make_cfg(2, basis="ddmp", volumetric="fbar", scatter="coloured"))
     assert [type(e) for e in sim.extensions] == [DualDomainFill, ColouredScatter, VolumeAverage]
+    assert [e.name for e in sim.extensions] == ["ddmp", "scatter", "fbar"] and sim.extension("crack") is None
     assert sim.extensions[1].p2g_passes == 4 and sim._p2g_passes == 4
     before = sim.bytes_per_particle
     assert before == sim._bytes_per_particle()

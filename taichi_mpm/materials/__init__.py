@@ -21,7 +21,7 @@ from typing import Annotated, Union
 
 from pydantic import Field
 
-from .base import MODELS, ElasticParams, Funcs, MaterialParams, Model, State, param, register  # noqa: F401
+from .base import MODELS, ElasticParams, Funcs, MaterialParams, Model, State, param, register, unregister  # noqa: F401
 from .damage import rankine_params  # noqa: F401 (pure Python; the Taichi funcs are lazy below)
 
 SHARED = ("base", "tensor", "damage")

@@ -199,3 +199,9 @@ def register(cls):
     cls.Params.__name__ = cls.Params.__qualname__ = f"{cls.__name__}Params"  # in reprs and messages
     MODELS[cls.name] = cls
     return cls
+
+
+def unregister(name: str):
+    """Remove a model registered from outside the package (a plug-in, a test); config.use_registered_materials()
+    then stops accepting its name."""
+    MODELS.pop(name)

@@ -7,11 +7,13 @@
     transfers.py     P2G, G2P, MUSL's momentum remap; the F update and the particle checks
     grid_update.py   gravity, walls and grips on the grid; tractions' forces, grip and wall velocities
     diagnostics.py   energies, momenta, body moments, stresses, volume ratios
-    extensions.py    Extension: the moments of a step; the ddmp pre-pass, the coloured scatter, the mapped grid's
-                     coordinates and F-bar as extensions
+    moments.py       the extension protocol: Extension and its moments, Setup, the contributions extensions make
+                     to the kernels (ParticleTransfer, Degradation, GridSolve)
+    extensions.py    the ordered list of extensions (taichi_mpm/extensions/: ddmp pre-pass, coloured scatter,
+                     mapped coordinates, F-bar, crack finder) and `register`
 
-`make_funcs` builds the funcs the other kernel builders (the extensions, the crack finder) read from the context;
-`make_kernels` the solver's kernels, once the crack finder's hooks are in the context (ctx.crack).
+`make_funcs` builds the funcs the extensions' kernel builders read from the context; `make_kernels` the solver's
+kernels, once the extensions have added their contributions to the context (their `build` moment).
 
 Physics code only: no CLI, rendering or file I/O here.
 """

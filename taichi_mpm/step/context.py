@@ -1,11 +1,12 @@
 """What the step's kernel builders receive: the shared kernel context (stencils.KernelContext: constants, particle
 and grid fields, the stencil) plus the fields only the solver's own kernels touch (material state, runtime
-parameters, loads and grips, accumulators, diagnostics sums). Built once by `Simulation._build_kernels`.
+parameters, loads and grips, accumulators, diagnostics sums) and the extensions' contributions. Built once by
+`Simulation._build_kernels`.
 
 Physics code only: no CLI, rendering or file I/O here.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Optional
 
 from ..bases.stencils import KernelContext
@@ -45,6 +46,15 @@ class StepContext(KernelContext):
     moments: Any = None              # sums.ChunkSums per body (fracture check)
     body_id: Any = None
     bins: Any = None                 # scatter.BlockBins: the coloured P2G, or None
-    fbar: bool = False               # solver.volumetric fbar: return mappings wait for F-bar's average
-    crack: Optional[Any] = None      # the crack finder's hooks (crack.CrackHooks), or None
     project: Any = None              # @ti.func (p, F) -> F after the return mapping (step.materials)
+    # what extensions contribute in their build moment (step.moments), read by the solver's kernel builders
+    project_after_g2p: bool = False  # an extension runs the return mappings after G2P (F-bar's average)
+    particle_transfer: Optional[Any] = None   # step.moments.ParticleTransfer: one extension's, or None
+    degradation: Optional[Any] = None         # step.moments.Degradation, or None
+    grid_solve: list = field(default_factory=list)   # step.moments.GridSolve parts, in the extensions' order
+
+    def contribute(self, name: str, value):
+        """Set a contribution only one extension may make (particle_transfer, degradation)."""
+        if getattr(self, name) is not None:
+            raise ValueError(f"two extensions contribute {name}: only one may")
+        setattr(self, name, value)

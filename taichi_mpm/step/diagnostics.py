@@ -11,10 +11,10 @@ import taichi as ti
 def make_diagnostics(ctx, mf, af):
     """Kernels energies(), momenta(), body_moments(), cauchy_stress(out), volume_ratios(out)."""
     dim, x, v, F, C, vol0 = ctx.dim, ctx.x, ctx.v, ctx.F, ctx.C, ctx.vol0
-    gravity, crk, sten = ctx.gravity, ctx.crack, ctx.stencil
+    gravity, dg, sten = ctx.gravity, ctx.degradation, ctx.stencil
     acc, moments, body_id = ctx.diag, ctx.moments, ctx.body_id
     n_moments = moments.shape[1]
-    crack, apic, store_B = crk is not None, ctx.feat.apic, af.store_B
+    degraded, apic, store_B = dg is not None, ctx.feat.apic, af.store_B
     has_stress0, has_body_id = ctx.stress0 is not None, body_id is not None
     density, kirchhoff, kirchhoff3 = mf.density, mf.kirchhoff, mf.kirchhoff3
     strain_energy, initial_energy, volume_ratio = mf.strain_energy, mf.initial_energy, mf.volume_ratio
@@ -30,8 +30,8 @@ def make_diagnostics(ctx, mf, af):
                 psi = strain_energy(p, F[p])
                 if ti.static(has_stress0):
                     acc.add(c, 4, vol0[p] * initial_energy(p, F[p]))  # apart: it can be negative
-                if ti.static(crack):
-                    psi = crk.degrade_energy(p, F[p], psi, kirchhoff(p, F[p]))
+                if ti.static(degraded):
+                    psi = dg.energy(p, F[p], psi, kirchhoff(p, F[p]))
                 acc.add(c, 0, 0.5 * mp * v[p].norm_sqr())
                 acc.add(c, 1, vol0[p] * psi)
                 acc.add(c, 2, -mp * gravity[None].dot(x[p]))
@@ -95,8 +95,8 @@ def make_diagnostics(ctx, mf, af):
         in 1D); the upper-left d x d block is the stress the step uses."""
         for p in x:
             tau = kirchhoff3(p) / volume_ratio(p)
-            if ti.static(crack):
-                tau = crk.degrade(p, tau)
+            if ti.static(degraded):
+                tau = dg.stress(p, tau)
             for a, b in ti.static(ti.ndrange(3, 3)):
                 out[p, a, b] = tau[a, b]
 

@@ -1,136 +1,48 @@
-"""Parts of the step that plug in at its named moments: the solver calls every extension's moments in the order
-of its list, and knows none of them by name.
+"""The step's extensions: the protocol (step.moments: `Extension`, its moments, `Setup`, the contributions) and the
+ordered list of what plugs in. The solver creates the extensions of a scene from this list, in its order, and calls
+their moments in that order; it knows none of them by name.
 
-The moments of a step, in order (`Simulation`):
-
-    bytes_per_particle()     declare: the extension's memory per particle (its fields are allocated on creation)
-    build(ctx)               build its kernels from the step context (step.StepContext), before the solver's own
-    before_p2g()             after the grid is cleared, before the first P2G
-    after_g2p()              after the last G2P pass: new positions and F
-    particles_set(names)     particle fields were set from outside (upload, set_particles, set_state): names of them
-
-Here: the ddmp pre-pass (nodal volumes), the coloured scatter's binning, the mapped grid's parametric coordinates
-and F-bar's volume average. The crack finder (crack.py) keeps hooks of its own.
+The list: the ddmp pre-pass (nodal volumes), the coloured scatter's binning, the mapped grid's parametric
+coordinates (before F-bar: its average reads the mapped stencil), F-bar's volume average, the crack finder. A new
+extension is one module with an `Extension` subclass whose `create(setup)` returns it (or None where the scene
+does not use it), added here or, from outside the package (a plug-in, a test), by `register` (docs/architecture.md,
+"Adding a step extension").
 
 Physics code only: no CLI, rendering or file I/O here.
 """
-import numpy as np
-import taichi as ti
+from ..extensions.coloured_scatter import ColouredScatter
+from ..extensions.crack import CrackFinder
+from ..extensions.ddmp_fill import DualDomainFill
+from ..extensions.fbar_average import VolumeAverage
+from ..extensions.mapped_coordinates import MappedCoordinates
+from .moments import Degradation, Extension, GridSolve, ParticleTransfer, Setup
 
-from ..errors import ConfigError
-from ..bases.mapped import make_locate
+__all__ = ["ColouredScatter", "CrackFinder", "Degradation", "DualDomainFill", "Extension", "GridSolve",
+           "MappedCoordinates", "ORDER", "ParticleTransfer", "Setup", "VolumeAverage", "create", "register",
+           "unregister"]
 
-
-class Extension:
-    """A part of the step; each moment does nothing unless the extension overrides it."""
-
-    p2g_passes = 1   # P2G runs once per pass, each over a part of the particles (the coloured scatter's colours)
-
-    def bytes_per_particle(self) -> int:
-        return 0
-
-    def build(self, ctx):
-        pass
-
-    def before_p2g(self):
-        pass
-
-    def after_g2p(self):
-        pass
-
-    def particles_set(self, names: set):
-        pass
+# Extension classes, in the order their moments run
+ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, VolumeAverage, CrackFinder]
 
 
-class DualDomainFill(Extension):
-    """ddmp: the nodal volumes sum w V_p before P2G, the smoothed gradient's blend (stencils._dual_domain_fill)."""
-
-    def build(self, ctx):
-        self.prepare = ctx.stencil.prepare
-
-    def before_p2g(self):
-        self.prepare()
+def register(cls: type, before: type = None) -> type:
+    """Add an Extension class to the list: at its end, or before `before`. Returns it (usable as a decorator)."""
+    if cls in ORDER:
+        raise ValueError(f"{cls.__name__} is registered already")
+    ORDER.insert(ORDER.index(before) if before is not None else len(ORDER), cls)
+    return cls
 
 
-class ColouredScatter(Extension):
-    """P2G without atomic adds (scatter.BlockBins): particles binned by grid block before P2G; the solver runs the
-    P2G kernels once per colour (`p2g_passes`)."""
-
-    def __init__(self, bins):
-        self.bins = bins
-        self.p2g_passes = bins.colours
-
-    def bytes_per_particle(self) -> int:
-        return self.bins.bytes_per_particle
-
-    def build(self, ctx):
-        self.bins.build(ctx.stencil.origin)
-
-    def before_p2g(self):
-        self.bins.bin()
+def unregister(cls: type):
+    ORDER.remove(cls)
 
 
-class MappedCoordinates(Extension):
-    """domain.map: every particle's parametric coordinates xi_p, found again after each position update (Newton
-    from the old xi_p; a failure stops the step with cause code 6) and from the map's samples when positions are
-    set from outside (a particle outside the mapped region is a config error)."""
-
-    FAIL_CODE = 6
-
-    def __init__(self, mapped, x, n: int, precision: str):
-        self.mapped, self.x, self.n = mapped, x, n
-        self.size = 8 if precision == "f64" else 4
-
-    def bytes_per_particle(self) -> int:
-        return self.mapped.PARTICLE_FLOATS * self.size
-
-    def build(self, ctx):
-        self.locate, self.locate_from = make_locate(ctx, self.mapped, ctx.fail, ctx.fail_codes, self.FAIL_CODE)
-
-    def after_g2p(self):
-        self.locate()
-
-    def particles_set(self, names: set):
-        if "x" not in names or self.n == 0:
-            return
-        x = self.x.to_numpy().astype(np.float64)
-        missed = self.locate_from(self.mapped.initial_guess(x))
-        if missed:
-            raise ConfigError(f"{missed} particles lie outside the mapped grid (domain.map): bodies must lie inside "
-                              "the annulus", key="domain.map")
+def create(setup: Setup) -> list:
+    """The extensions a scene uses, in the list's order."""
+    made = [cls.create(setup) for cls in ORDER]
+    return [e for e in made if e is not None]
 
 
-class VolumeAverage(Extension):
-    """solver.volumetric fbar (fbar.FBar): after G2P the step's volume change averaged over the grid, then the
-    return mappings of plastic models (they wait for the average: ctx.fbar) and F-bar's J^n from the projected F."""
-
-    def __init__(self, fbar):
-        self.fbar = fbar
-
-    def bytes_per_particle(self) -> int:
-        return self.fbar.bytes_per_particle()
-
-    def build(self, ctx):
-        self.fbar.build(ctx)
-        self.project_all = _project_all(ctx) if ctx.feat.plastic else None
-
-    def after_g2p(self):
-        self.fbar.apply()
-        if self.project_all is not None:
-            self.project_all()
-            self.fbar.sync()
-
-    def particles_set(self, names: set):
-        if "F" in names:
-            self.fbar.sync()  # F-bar's start-of-step J follows the new F
-
-
-def _project_all(ctx):
-    x, F, project = ctx.x, ctx.F, ctx.project
-
-    @ti.kernel
-    def project_all():
-        """The return mappings after F-bar's volume average (solver.volumetric: fbar)."""
-        for p in x:
-            F[p] = project(p, F[p])
-    return project_all
+def adds_in_thread_order(cfg) -> bool:
+    """Whether an extension of the scene sums in the threads' order (solver.thread_independent)."""
+    return any(cls.adds_in_thread_order(cfg) for cls in ORDER)

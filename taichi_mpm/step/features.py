@@ -4,7 +4,7 @@ Every kernel builder reads these attributes (tested with `ti.static`), so an opt
 compiled at all. Physics code only: no CLI, rendering or file I/O here.
 """
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -48,12 +48,3 @@ class Features:
             moving_walls=moving_walls,
             plastic=any(MODELS[m.model].plastic for m in materials),
         )
-
-    def __getitem__(self, name: str) -> bool:
-        """feat["apic"]: the former dict's lookup, kept for the crack finder (crack.py reads features by name)."""
-        if name not in _NAMES:
-            raise KeyError(name)
-        return getattr(self, name)
-
-
-_NAMES = frozenset(f.name for f in fields(Features))

@@ -1,7 +1,9 @@
-"""The grid update between the transfers: node velocities from momenta, gravity over the leapfrog kick, wall
-conditions (grid.make_wall_condition) and grips (bodies[].prescribed_velocity), MUSL's remap under the same
-conditions; and the kernels that set this step's loads and motions (tractions' particle forces, grip and
-velocity-wall velocities; loads.py evaluates their time functions).
+"""The grid update between the transfers, one chain every extension takes part in (step.moments.GridSolve): node
+velocities from momenta (an extension may give its own: the crack finder's tensor node mass), gravity over the
+leapfrog kick, the extensions' accelerations, wall conditions (grid.make_wall_condition) and grips
+(bodies[].prescribed_velocity), MUSL's remap under the same conditions; and the kernels that set this step's loads
+and motions (tractions' particle forces, grip and velocity-wall velocities; loads.py evaluates their time
+functions).
 
 Physics code only: no CLI, rendering or file I/O here.
 """
@@ -45,30 +47,74 @@ def make_grip_condition(ctx):
     return grip_condition
 
 
+def make_node_solve(ctx):
+    """The first link of the grid solve: (has_mass(I, m, special), velocity(I, m, p, special)). The node velocity
+    is m^-1 p, or where an extension gives its own (GridSolve.velocity: the crack finder's tensor node mass) and
+    `special` (a compile-time switch: some extension's node_solve_active() this step), that one."""
+    own = [g for g in ctx.grid_solve if g.velocity is not None]
+    if len(own) > 1:
+        raise ValueError("two extensions replace the grid's node solve: only one may")
+    solve = own[0] if own else None
+    has_solve = solve is not None
+
+    @ti.func
+    def has_mass(I, m, special: ti.template()):
+        active = m > 0
+        if ti.static(special and has_solve):
+            active = solve.has_mass(I, m)
+        return active
+
+    @ti.func
+    def velocity(I, m, p, special: ti.template()):
+        if ti.static(special and has_solve):
+            p = solve.velocity(I, m, p)
+        else:
+            p = p / m
+        return p
+    return has_mass, velocity
+
+
+def make_accelerations(ctx):
+    """@ti.func (I, vel, m, kick_before, kick_after) -> vel with every extension's GridSolve.accelerate, in order."""
+    terms = [g.accelerate for g in ctx.grid_solve if g.accelerate is not None]
+
+    @ti.func
+    def accelerations(I, vel, m, kick_before, kick_after):
+        for k in ti.static(range(len(terms))):
+            vel = terms[k](I, vel, m, kick_before, kick_after)
+        return vel
+    return accelerations
+
+
 def make_grid_update(ctx):
-    """Kernels grid_update(kick_before, kick_after) and grid_remap() (MUSL)."""
+    """Kernels grid_update(kick_before, kick_after, special) and grid_remap(special) (MUSL): the grid solve, one
+    chain for every node and every extension (step.moments.GridSolve): node velocity from momentum, gravity, the
+    extensions' accelerations, walls, grips. special: some extension's node solve acts this step."""
     gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
     flip, wall, gravity_kick = ctx.feat.flip, ctx.wall, ctx.gravity_kick
     grip_condition = make_grip_condition(ctx)
+    has_mass, node_velocity = make_node_solve(ctx)
+    accelerations = make_accelerations(ctx)
 
     @ti.kernel
-    def grid_update(kick_before: float, kick_after: float):
+    def grid_update(kick_before: float, kick_after: float, special: ti.template()):
         for I in ti.grouped(gm):
             m = gm[I]
-            if m > 0:
+            if has_mass(I, m, special):
                 # always compiled, so that set_gravity can switch gravity on (adding 0 changes nothing)
-                vel = gv[I] / m + gravity_kick(kick_before, kick_after)
+                vel = node_velocity(I, m, gv[I], special) + gravity_kick(kick_before, kick_after)
+                vel = accelerations(I, vel, m, kick_before, kick_after)
                 vel = wall.measured(I, vel, m)  # adds m dv per face to wall_reaction (wall probes only)
                 gv[I] = grip_condition(I, vel, m, measure=True)
                 if ti.static(flip):
-                    gv_old[I] = gv_old[I] / m
+                    gv_old[I] = node_velocity(I, m, gv_old[I], special)
 
     @ti.kernel
-    def grid_remap():
+    def grid_remap(special: ti.template()):
         for I in ti.grouped(gm):
             m = gm[I]
-            if m > 0:
-                gv2[I] = grip_condition(I, wall(I, gv2[I] / m), m, measure=False)
+            if has_mass(I, m, special):
+                gv2[I] = grip_condition(I, wall(I, node_velocity(I, m, gv2[I], special)), m, measure=False)
 
     return dict(grid_update=grid_update, grid_remap=grid_remap)
 

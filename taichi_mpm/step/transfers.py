@@ -1,6 +1,6 @@
 """The transfers between particles and grid: P2G (mass, momentum, force impulse), G2P (velocity by PIC, FLIP or
-APIC; positions, F, checks) and MUSL's second P2G of the updated momentum. Near a discontinuity the crack
-finder's hooks (crack.CrackHooks) take a particle's transfer over.
+APIC; positions, F, checks) and MUSL's second P2G of the updated momentum. An extension's
+ParticleTransfer (step.moments; the crack finder's, near a discontinuity) takes the particles it names over.
 
 The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))` with
 off = o + inner[k]; solver.unroll chooses the split (stencils._loops; costs in docs/performance.md).
@@ -65,10 +65,10 @@ def _colour_loop(ctx, particle):
 def make_p2g(ctx, mf, af, external_force):
     """Kernels p2g(kick, colour) and, for MUSL, p2g_momentum(colour)."""
     v, F, vol0, work = ctx.v, ctx.F, ctx.vol0, ctx.work
-    sten, add, crk = ctx.stencil, ctx.add, ctx.crack
+    sten, add, pt, dg = ctx.stencil, ctx.add, ctx.particle_transfer, ctx.degradation
     outer, inner = sten.outer, sten.inner
     gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
-    flip, viscosity, crack = ctx.feat.flip, ctx.feat.viscosity, crk is not None
+    flip, viscosity, taken, degraded = ctx.feat.flip, ctx.feat.viscosity, pt is not None, dg is not None
     density, kirchhoff, viscous_power = mf.density, mf.kirchhoff, mf.viscous_power
     affine, node_momentum = af.affine, af.node_momentum
 
@@ -78,18 +78,18 @@ def make_p2g(ctx, mf, af, external_force):
         Fp = F[p]
         mp = density(p) * vol0[p]
         stress = -vol0[p] * kirchhoff(p, Fp)
-        if ti.static(crack):
-            stress = -crk.degrade(p, -stress)
+        if ti.static(degraded):
+            stress = -dg.stress(p, -stress)
         vp = v[p]
         Ap = affine(p, st)
         force_density = external_force(p)  # body force + tractions (loads.py: traction x area x ramp)
         if ti.static(viscosity):
             work[1][None] += kick * vol0[p] * viscous_power(p, Fp)
         modified = False
-        if ti.static(crack):
-            modified = crk.modified(p)
+        if ti.static(taken):
+            modified = pt.takes(p)
             if modified:
-                crk.p2g(p, st, mp, stress, vp, Ap, force_density, kick)
+                pt.p2g(p, st, mp, stress, vp, Ap, force_density, kick)
         if not modified:
             for o in ti.grouped(ti.ndrange(*outer)):
               for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
@@ -107,10 +107,10 @@ def make_p2g(ctx, mf, af, external_force):
         vp = v[p]
         Ap = affine(p, st)
         modified = False
-        if ti.static(crack):
-            modified = crk.modified(p)
+        if ti.static(taken):
+            modified = pt.takes(p)
             if modified:
-                crk.p2g_momentum(p, st, mp, vp, Ap)
+                pt.p2g_momentum(p, st, mp, vp, Ap)
         if not modified:
             for o in ti.grouped(ti.ndrange(*outer)):
               for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
@@ -167,14 +167,14 @@ def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
     dim, basis = ctx.dim, ctx.basis
     x, v, F, C = ctx.x, ctx.v, ctx.F, ctx.C
-    sten, crk = ctx.stencil, ctx.crack
+    sten, pt = ctx.stencil, ctx.particle_transfer
     outer, inner = sten.outer, sten.inner
     gv, gv_old, vgrad = ctx.gv, ctx.gv_old, ctx.vgrad   # MUSL takes grad v from the remapped velocities
     f = ctx.feat
-    flip, apic, crack, has_C = f.flip, f.apic, crk is not None, C is not None
+    flip, apic, taken, has_C = f.flip, f.apic, pt is not None, C is not None
     apic_gradient = basis.apic_gradient
     works = ctx.body_acc is not None or f.tractions
-    project_here = f.plastic and not ctx.fbar   # with F-bar: after its average (project_all)
+    project_here = f.plastic and not ctx.project_after_g2p   # with F-bar: after its average (project_all)
     alpha, work, fail, vmax2, n_codes = ctx.flip_blend, ctx.work, ctx.fail, ctx.vmax2, ctx.fail_codes
     failure = make_failure_code(ctx, mf)
     keep_inside = make_wall_hold(ctx)   # B-spline particles in a holding face's wall layer stay inside
@@ -252,10 +252,10 @@ def make_g2p(ctx, mf, af, external_force):
             B = ti.Matrix.zero(float, dim, dim)
             G = ti.Matrix.zero(float, dim, dim)
             modified = False
-            if ti.static(crack):   # near a discontinuity: the modified functions instead
-                modified = crk.modified(p)
+            if ti.static(taken):   # an extension's particle (the crack finder's near a discontinuity)
+                modified = pt.takes(p)
                 if modified:
-                    v_pic, dv, B, G = crk.g2p(p, st, deform)
+                    v_pic, dv, B, G = pt.g2p(p, st, deform)
             if not modified:
                 v_pic, dv, B, G = g2p_sums(p, st, velocity, deform)
             if ti.static(velocity):

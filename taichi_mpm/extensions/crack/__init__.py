@@ -20,10 +20,11 @@ Direction-dependent coupling: particle p couples to node i through the tensor
 so the node mass becomes a tensor M_i = sum_p m_p W_ip = m_i I + A_i (m_i scalar as usual; A_i from
 particles in contact) and v_i = M_i^+ p_i. Linear momentum is conserved (docs/crack_finder.md).
 
-Only built when the config has a `crack` section: a scene without one allocates and compiles nothing here.
+Only created when the config has a `crack` section (`CrackFinder.create`, in the step's extension list,
+step/extensions.py): a scene without one allocates and compiles nothing here.
 
 Modules, one job each:
-  sim_view        the Simulation members the finder reads, gathered (view_of)
+  view            what the finder reads of the extension setup (step.moments.Setup), gathered (view_of)
   fields          the finder's fields, its node fields in the solver's grid, bytes per particle (budget.py)
   context         what the kernel factories receive (CrackContext): fields, view, solver funcs, shared constants
   cells           the cell list (bin_cells) and its row searches
@@ -36,15 +37,14 @@ Modules, one job each:
   classify        masks, family sums and the contact test per near particle (classify)
   shape_functions the modified (tangential / normal) functions node by node
   transfer        P2G / G2P of a particle near a discontinuity
-  tensor_grid     the grid update and MUSL remap with a tensor node mass
+  tensor_grid     the tensor node mass as the grid solve's node solve (step.moments.GridSolve)
   inspection      the partition-of-unity check (tests)
   state           the finder's part of a checkpoint
-  finder          CrackFinder: per-step driver and the composition of the kernels (build)
+  finder          CrackFinder: the step extension (its moments), per-step driver, the composition of the kernels
 """
 
 from .constants import CONTACT, MODIFIED, STANDARD
 from .fields import grid_fields, particle_bytes
 from .finder import CrackFinder
-from .hooks import CrackHooks
 
-__all__ = ["CONTACT", "CrackFinder", "CrackHooks", "MODIFIED", "STANDARD", "grid_fields", "particle_bytes"]
+__all__ = ["CONTACT", "CrackFinder", "MODIFIED", "STANDARD", "grid_fields", "particle_bytes"]

@@ -1,5 +1,5 @@
-"""What the crack finder's kernel factories receive: its fields, the Simulation view, the crack section, the
-solver's kernel context (stencil, material and wall funcs) and the compile-time constants several factories share."""
+"""What the crack finder's kernel factories receive: its fields, its view of the scene (view.SimView), the crack
+section, the step context (stencil and material funcs) and the compile-time constants several factories share."""
 
 import math
 from dataclasses import dataclass
@@ -13,9 +13,9 @@ from .constants import CELL_SPLIT
 @dataclass(frozen=True)
 class CrackContext:
     fields: Any             # fields.CrackFields
-    view: Any               # sim_view.SimView
+    view: Any               # view.SimView
     cc: Any                 # the config's crack section
-    solver: Any             # stencils.KernelContext: the solver's stencil, material and wall funcs
+    solver: Any             # step.StepContext: the solver's stencil and material funcs
     lower: Any              # ti.Vector: the domain's lower corner
     radius: float           # SPH support radius r
     inv_r: float

@@ -1,5 +1,8 @@
-"""CrackFinder: the finder's host side. It owns the fields, runs the per-step kernels before P2G (`update`), and
-builds its kernels from the factories of this package (`build`), returning the hooks the solver's kernels call."""
+"""CrackFinder: the finder's host side, a step extension (step.moments.Extension). It owns the fields, runs the
+per-step kernels before P2G (`update`), builds its kernels from the factories of this package (`build`) and hands
+the solver's kernels its contributions through the step context: the modified transfers of particles near a
+discontinuity (ParticleTransfer), the damaged stress and energy (Degradation) and the tensor node mass as the grid
+solve's node solve on steps with contact (GridSolve)."""
 
 import numpy as np
 
@@ -10,31 +13,72 @@ from .contact import contact_test_funcs
 from .contact_lists import ContactPool, contact_list_kernel
 from .context import crack_context
 from .damage import damage_funcs
-from .fields import CrackFields, particle_bytes
-from .hooks import CrackHooks
+from .fields import CrackFields, grid_fields, particle_bytes
 from .inspection import partition_check_kernel
 from .nodes import node_cache_kernels, node_normals_func
 from .normals import particle_normal_funcs
 from .shape_functions import shape_function_funcs
-from .sim_view import view_of
 from .sph import sph_funcs
-from .state import get_state, set_state
-from .tensor_grid import tensor_grid_kernels
+from .state import check_state, get_state, set_state
+from .tensor_grid import tensor_grid_solve
 from .transfer import transfer_funcs
+from .view import view_of
+from ...step.moments import Degradation, Extension, ParticleTransfer
 
 
-class CrackFinder:
-    def __init__(self, sim):
-        self.view = view_of(sim)   # everything the finder reads of the Simulation
-        self.cc = self.view.crack
-        self.fields = CrackFields(self.view, self.cc)
-        self.dim = self.fields.dim
+class CrackFinder(Extension):
+    """The crack section's finder (docs/crack_finder.md); created by the step's extension list (`create`)."""
+
+    name = "crack"
+    breaks_bodies = True   # bodies separate along cracks by design: no numerical-fracture check
+
+    @classmethod
+    def adds_in_thread_order(cls, cfg) -> bool:
+        return cfg.crack is not None   # its node sums
+
+    @classmethod
+    def create(cls, setup):
+        return cls(setup) if setup.cfg.crack is not None else None
+
+    def __init__(self, setup):
+        self.dim = setup.dim
+        self.cc = setup.cfg.crack
         self.epoch = 0             # periods of kept normals (masks found in another belong to other normals)
         self.refreshes = 0         # steps that refreshed the kept normals (diagnostics, tests)
         self._cells_due = True     # the cell list must be built before the next step's searches
         self._list_due = True      # the contact lists too (with kept normals and contact)
         self.pool = ContactPool()  # the contact lists' pool
         self._k = {}               # kernels by name (build)
+
+    # ------------------------------------------------------------------ the step's moments
+    def grid_fields(self) -> tuple[list, list]:
+        return grid_fields(self.dim)
+
+    def allocate(self, setup):
+        self.view = view_of(setup)   # everything the finder reads of the scene and the solver's fields
+        self.fields = CrackFields(self.view, self.cc)
+
+    def before_p2g(self):
+        self.update()
+
+    def node_solve_active(self) -> bool:
+        return self.in_contact()
+
+    def particles_set(self, names: set):
+        if "x" in names:
+            self.invalidate()   # its normals kept between steps belong to the old positions
+
+    def outputs(self) -> dict:
+        return {"damage": self.damage()}
+
+    def get_state(self) -> dict:
+        return get_state(self)
+
+    def check_state(self, state: dict):
+        check_state(self, state)
+
+    def set_state(self, state: dict):
+        set_state(self, state)
 
     # what tests, probes and benchmarks inspect
     @property
@@ -79,12 +123,6 @@ class CrackFinder:
     def damage(self) -> np.ndarray:
         return self.view.to_creation(self.fields.d.to_numpy())
 
-    def get_state(self) -> dict:
-        return get_state(self)
-
-    def set_state(self, state: dict):
-        set_state(self, state)
-
     def invalidate(self):
         """Recompute the normals at the next step (particles were set from outside)."""
         if self.cached:
@@ -127,10 +165,9 @@ class CrackFinder:
         lists = [None if k < 0 else perm[ids[s:s + k]] for k, s in zip(count, start)]
         return [lists[slot] for slot in np.argsort(perm)]
 
-    def build(self, kernel_ctx) -> CrackHooks:
-        """Build the crack finder's funcs and kernels from the solver's kernel context (stencils.KernelContext):
-        its stencil of (node, weight, gradient, offset) contributions, material funcs and wall conditions.
-        Returns the hooks the solver calls (CrackHooks)."""
+    def build(self, kernel_ctx):
+        """Build the crack finder's funcs and kernels from the step context (step.StepContext): its stencil of
+        (node, weight, gradient, offset) contributions and material funcs; add its contributions to it."""
         ctx = crack_context(self.fields, self.view, self.cc, kernel_ctx)
         cells = cell_list_funcs(ctx)
         sph = sph_funcs(ctx, cells)
@@ -139,17 +176,17 @@ class CrackFinder:
         contact = contact_test_funcs(ctx, cells, sph)
         shape = shape_function_funcs(ctx)
         moves = transfer_funcs(ctx, shape)
-        tensor = tensor_grid_kernels(ctx)
         node_cache = node_cache_kernels(ctx)
         classify = classify_kernel(ctx, normals, contact, node_normals_func(ctx, sph), damage.effective_stress)
         self._k = dict(prepare=damage.prepare, bin_cells=bin_cells_kernel(ctx, cells),
                        particle_normals=normals.particle_normals, contact_list=contact_list_kernel(ctx, cells),
-                       classify=classify, grid_update=tensor.grid_update, grid_remap=tensor.grid_remap,
-                       partition_check=partition_check_kernel(ctx, shape), node_cache_size=node_cache.size,
-                       node_cache_read=node_cache.read, node_cache_write=node_cache.write)
-        return CrackHooks(modified=shape.modified, degrade=damage.degrade, degrade_energy=damage.degrade_energy,
-                          p2g=moves.p2g, p2g_momentum=moves.p2g_momentum, g2p=moves.g2p,
-                          kernels={"grid_update_tensor": tensor.grid_update, "grid_remap_tensor": tensor.grid_remap})
+                       classify=classify, partition_check=partition_check_kernel(ctx, shape),
+                       node_cache_size=node_cache.size, node_cache_read=node_cache.read,
+                       node_cache_write=node_cache.write)
+        kernel_ctx.contribute("particle_transfer", ParticleTransfer(
+            takes=shape.modified, p2g=moves.p2g, p2g_momentum=moves.p2g_momentum, g2p=moves.g2p))
+        kernel_ctx.contribute("degradation", Degradation(stress=damage.degrade, energy=damage.degrade_energy))
+        kernel_ctx.grid_solve.append(tensor_grid_solve(ctx))   # the tensor node mass, on steps with contact
 
     def partition_check(self) -> np.ndarray:
         """(N, 7) per particle in creation order: state, sum Nt, sum Nn, max|sum grad Nt|, max|sum grad Nn|,

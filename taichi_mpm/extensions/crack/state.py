@@ -35,6 +35,14 @@ def node_cache_arrays(finder):
     return idx, nrm, flag
 
 
+def check_state(finder, state: dict):
+    """Refuse damage arrays of the wrong shape before anything of the state is restored."""
+    n = finder.view.n
+    for k in ("damage", "damage_kappa"):
+        if k in state and np.shape(state[k]) != (n,):
+            raise ValueError(f"state {k} must have shape {(n,)}, got {np.shape(state[k])}")
+
+
 def set_state(finder, state: dict):
     f, view = finder.fields, finder.view
     if "damage" in state:

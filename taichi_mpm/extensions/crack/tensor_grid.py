@@ -1,35 +1,28 @@
-"""The grid update with a tensor node mass M_i = m_i I + A_i (A_i from particles in contact): v_i = M_i^+ p_i.
-Its kernels replace the solver's grid update and MUSL remap on steps where a particle is in contact."""
-
-from typing import Callable, NamedTuple
+"""The crack finder's part of the grid solve: a tensor node mass M_i = m_i I + A_i (A_i from particles in contact),
+v_i = M_i^+ p_i. The solver's one grid-solve chain (step.grid_update) takes it as its node solve on steps where a
+particle is in contact (CrackFinder.node_solve_active); gravity, walls and grips follow in the chain as for every
+node."""
 
 import taichi as ti
 
 from ...materials import sym_eig
+from ...step.moments import GridSolve
 
 
-class TensorGrid(NamedTuple):
-    grid_update: Callable   # kernel (kick_before, kick_after)
-    grid_remap: Callable    # kernel (): MUSL's remapped velocities
-
-
-def tensor_grid_kernels(ctx) -> TensorGrid:
-    dim, grid, flip = ctx.fields.dim, ctx.view.grid, ctx.view.flip
-    wall, gravity_kick = ctx.solver.wall, ctx.solver.gravity_kick   # runtime gravity (solver)
-    gm, gv = grid.m, grid.vec["v"]
-    gv_old, gv2 = grid.vec.get("v_old"), grid.vec.get("v2")
+def tensor_grid_solve(ctx) -> GridSolve:
+    dim, grid = ctx.fields.dim, ctx.view.grid
     Arows = [grid.vec[f"A{a}"] for a in range(dim)]
     node_mark = grid.scalar["crack_mark"]
     tol = 1e-12 if ctx.view.precision == "f64" else 1e-6   # pseudo-inverse cut-off, relative
 
     @ti.func
-    def node_mass(I):
+    def tensor(I):
         A = ti.Matrix.zero(float, dim, dim)
         if node_mark[I] > 0:   # only particles in contact add to A, and their stencils are marked
             for a in ti.static(range(dim)):
                 for b in ti.static(range(dim)):
                     A[a, b] = Arows[a][I][b]
-        return gm[I], A
+        return A
 
     @ti.func
     def solve(m, A, vec):
@@ -49,21 +42,12 @@ def tensor_grid_kernels(ctx) -> TensorGrid:
                     res += q.dot(vec) / ev[k] * q
         return res
 
-    @ti.kernel
-    def grid_update(kick_before: float, kick_after: float):
-        for I in ti.grouped(gm):
-            m, A = node_mass(I)
-            if m > 0 or A.norm_sqr() > 0:
-                vel = solve(m, A, gv[I]) + gravity_kick(kick_before, kick_after)
-                gv[I] = wall(I, vel)
-                if ti.static(flip):
-                    gv_old[I] = solve(m, A, gv_old[I])
+    @ti.func
+    def has_mass(I, m):
+        return m > 0 or tensor(I).norm_sqr() > 0
 
-    @ti.kernel
-    def grid_remap():
-        for I in ti.grouped(gm):
-            m, A = node_mass(I)
-            if m > 0 or A.norm_sqr() > 0:
-                gv2[I] = wall(I, solve(m, A, gv2[I]))
+    @ti.func
+    def velocity(I, m, p):
+        return solve(m, tensor(I), p)
 
-    return TensorGrid(grid_update=grid_update, grid_remap=grid_remap)
+    return GridSolve(has_mass=has_mass, velocity=velocity)

@@ -1,5 +1,5 @@
 """P2G and G2P of a particle near a discontinuity through the tensor weights W_ip = Nt I + (Nn - Nt) n n^T: the
-@ti.funcs the solver's transfer kernels call for such particles (CrackHooks.p2g, p2g_momentum, g2p)."""
+@ti.funcs the solver's transfer kernels call for such particles (its ParticleTransfer: p2g, p2g_momentum, g2p)."""
 
 from typing import Callable, NamedTuple
 

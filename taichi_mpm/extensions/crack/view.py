@@ -1,5 +1,6 @@
-"""The crack finder's view of the Simulation: every Simulation member the finder reads, gathered in one place
-(`view_of`), so that a later step can hand the finder such a view instead of the Simulation itself."""
+"""The crack finder's view of the scene: what it reads of the extension setup the solver hands every extension
+(step.moments.Setup: public constants, particle fields, the grid, the order maps), gathered in one place
+(`view_of`); the finder never sees the Simulation."""
 
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -35,12 +36,11 @@ class SimView:
     perm: Callable                  # () -> the solver slots' creation indices (set when particles are uploaded)
 
 
-def view_of(sim) -> SimView:
-    """The view of `sim` (a solver.Simulation whose particle fields and grid are allocated)."""
-    return SimView(dim=sim.dim, n=sim.n, dx=sim.dx, lower=sim.lower, upper=sim.upper, n_cells=sim.n_cells,
-                   crack=sim.cfg.crack,
-                   precision=sim.cfg.precision, spacing=sim.scene.spacing, damage=sim.scene.damage,
-                   interface=sim.scene.interface, basis=sim.basis, materials=sim._materials,
-                   apic=sim.feat["apic"], flip=sim.feat["flip"], musl=sim.feat["musl"], grid=sim.grid,
-                   x=sim.x, v=sim.v, F=sim.F, vol0=sim.vol0, to_solver=sim._to_solver,
-                   to_creation=sim._to_creation, perm=lambda: sim._perm)
+def view_of(setup) -> SimView:
+    """The view of an allocated setup (step.moments.Setup, its grid set)."""
+    s, f = setup, setup.feat
+    return SimView(dim=s.dim, n=s.n, dx=s.dx, lower=s.lower, upper=s.upper, n_cells=s.n_cells, crack=s.cfg.crack,
+                   precision=s.precision, spacing=s.scene.spacing, damage=s.scene.damage,
+                   interface=s.scene.interface, basis=s.basis, materials=s.materials, apic=f.apic, flip=f.flip,
+                   musl=f.musl, grid=s.grid, x=s.x, v=s.v, F=s.F, vol0=s.vol0, to_solver=s.to_solver,
+                   to_creation=s.to_creation, perm=s.perm)
