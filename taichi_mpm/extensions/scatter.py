@@ -20,6 +20,7 @@ import math
 
 import taichi as ti
 
+from .. import layout
 from ..bases.shape_functions import make_basis
 from ..grid import LEAF, Grid
 from ..bases.knots import grid_knots
@@ -54,8 +55,10 @@ class BlockBins:
         cap = max(1, min(n, math.prod(grid.blocks)))   # occupied blocks: at most one per particle
         self.count = grid.block_field(ti.i32)   # particles per block (back to 0 after each bin())
         self.start = grid.block_field(ti.i32)   # first slot of the block's particles in `order`
-        self.order = ti.field(ti.i32, max(n, 1))
-        self.home = ti.Vector.field(dim, ti.i32, max(n, 1))   # each particle's block (origin is computed once)
+        # per particle (layout.scatter_particle_fields): its slot in the bins' order and its block (the origin is
+        # computed once)
+        per_particle = layout.scatter_particle_fields(dim)
+        self.order, self.home = layout.allocate(per_particle, max(n, 1)).values()
         self.block = ti.Vector.field(dim, ti.i32, cap)      # occupied blocks, in the order they were found
         self.lo = ti.field(ti.i32, cap)
         self.hi = ti.field(ti.i32, cap)
@@ -63,7 +66,8 @@ class BlockBins:
         self.filled = ti.field(ti.i32, self.colours)
         self.n_blocks = ti.field(ti.i32, ())
         self.used = ti.field(ti.i32, ())
-        self.bytes_per_particle = 4 + 4 * dim   # order, home; the block lists are bounded by the occupied blocks
+        # the block lists are bounded by the occupied blocks (budget.py counts them with the grid)
+        self.bytes_per_particle = layout.nbytes(per_particle, "f32")
 
     def build(self, origin):
         """Define `bin()`; origin: @ti.func (p) -> the first node of p's stencil."""

@@ -17,6 +17,7 @@ Physics code only: no CLI, rendering or file I/O here.
 import numpy as np
 import taichi as ti
 
+from .. import layout
 from ..errors import ConfigError
 from ..bases.mapped import make_locate
 
@@ -79,10 +80,10 @@ class MappedCoordinates(Extension):
 
     def __init__(self, mapped, x, n: int, precision: str):
         self.mapped, self.x, self.n = mapped, x, n
-        self.size = 8 if precision == "f64" else 4
+        self.precision = precision
 
     def bytes_per_particle(self) -> int:
-        return self.mapped.PARTICLE_FLOATS * self.size
+        return layout.MAPPED_XI.nbytes(self.precision)
 
     def build(self, ctx):
         self.locate, self.locate_from = make_locate(ctx, self.mapped, ctx.fail, ctx.fail_codes, self.FAIL_CODE)
