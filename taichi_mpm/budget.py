@@ -146,8 +146,10 @@ class MapSize:
     key: str
 
     def field_floats(self) -> int:
-        """As MappedGrid.field_floats: control points (2) and weights (1) per control point, wall normals (8) per node."""
-        return 3 * math.prod(self.ctrl) + 8 * math.prod(self.shape)
+        """The map's fields: control points (2) and weights (1) per control point, wall normals (8) per node, and
+        per axis the quadratic knot vector (control points + 3 knots) and its Greville abscissae (one per control
+        point: bases.shape_functions.KnotData)."""
+        return 3 * math.prod(self.ctrl) + 8 * math.prod(self.shape) + sum(2 * c + 3 for c in self.ctrl)
 
     def build_bytes(self) -> int:
         return MAP_BYTES_PER_CONTROL_POINT * math.prod(self.ctrl) + MAP_BYTES_PER_CELL * math.prod(self.cells)
@@ -288,11 +290,12 @@ def grid_sizes(cfg: Config, base_dir, mapped: MapSize | None = None, body_force:
 
 
 def _bin_list_bytes(cfg: Config, particles: int, nodes: list[int], body_force: bool) -> int:
-    """The coloured scatter's list of occupied blocks: one entry per leaf block, at most one per particle."""
+    """The coloured scatter's list of occupied blocks (one entry per leaf block, at most one per particle) and its
+    colour tables."""
     if not needs(cfg, body_force).coloured:
         return 0
     blocks = math.prod(math.ceil(n / LEAF[cfg.dim]) for n in nodes)
-    return max(1, min(particles, blocks)) * layout.nbytes(layout.scatter_block_list(cfg.dim), cfg.precision)
+    return layout.scatter_fixed_bytes(cfg.dim, max(1, min(particles, blocks)))
 
 
 def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None, particles: int = 0,

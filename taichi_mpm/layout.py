@@ -9,6 +9,7 @@ size estimate cannot drift from what a run allocates (tests/test_layout_budget.p
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from . import materials as material_models
@@ -97,10 +98,24 @@ def scatter_particle_fields(dim: int) -> list[FieldDecl]:
     return [FieldDecl("order", "i32", (), "coloured scatter"), FieldDecl("home", "i32", (dim,), "coloured scatter")]
 
 
-# scatter.BlockBins' list of occupied blocks (block coordinates, the run's first and last slot): min(particles,
-# leaf blocks) entries
 def scatter_block_list(dim: int) -> list[FieldDecl]:
+    """scatter.BlockBins' list of occupied blocks (block coordinates, the run's first and last slot): one entry per
+    leaf block, at most one per particle."""
     return [FieldDecl("block", "i32", (dim,)), FieldDecl("lo", "i32"), FieldDecl("hi", "i32")]
+
+
+def scatter_tables(dim: int) -> list[tuple[FieldDecl, tuple]]:
+    """scatter.BlockBins' colour tables, with their shapes: each colour's first entry (and the end), the entries
+    filled per colour, the blocks found and the slots used."""
+    colours = 2 ** dim
+    return [(FieldDecl("offset", "i32"), (colours + 1,)), (FieldDecl("filled", "i32"), (colours,)),
+            (FieldDecl("n_blocks", "i32"), ()), (FieldDecl("used", "i32"), ())]
+
+
+def scatter_fixed_bytes(dim: int, entries: int) -> int:
+    """The block list of `entries` blocks and the colour tables."""
+    tables = sum(f.nbytes("f32") * math.prod(shape) for f, shape in scatter_tables(dim))
+    return entries * nbytes(scatter_block_list(dim), "f32") + tables
 
 
 MAPPED_XI = FieldDecl("xi", "real", (2,), "domain.map")     # each particle's parametric coordinates

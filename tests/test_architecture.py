@@ -21,7 +21,8 @@ LAYERS = {
     # plain building blocks: errors, schema pieces, expressions, knot and map geometry, the material registry, the
     # output-field registry and the names render settings accept, Taichi trace-time helpers
     "foundation": ("errors", "schema", "geometry", "expressions", "bases.knots", "bases.mapgeom", "traced", "jit",
-                   "sums", "materials", "fields", "field_decl", "io.colour_range", "io.render_options", "tools.window_layout"),
+                   "sums", "materials", "fields", "field_decl", "io.colour_range", "io.render_options",
+                   "tools.window_layout"),
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
     "physics": ("grid", "bases", "extensions", "loads", "scene", "backend", "states", "step", "layout", "budget",

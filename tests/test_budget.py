@@ -217,13 +217,14 @@ def test_mapped_grid_is_sized_from_its_map(sparse):
     est = budget.estimate(cfg)
     nodes = 28 * 6
     map_floats = 3 * 29 * 6 + 8 * nodes        # P (2) and w (1) per control point (the seam column twice), normals
+    knot_floats = (29 + 3 + 29) + (6 + 3 + 6)  # per axis the quadratic knot vector and its Greville abscissae
     if sparse:
         assert tuple(sim.grid.levels[0].shape) == tuple(layout["levels"][0])
         blocks = math.prod(layout["blocks"])     # every block counted: the parameter grid is small
         assert est.grid_bytes == (math.prod(layout["levels"][0]) * budget.POINTER_SLOT_BYTES
-                                  + blocks * budget.LEAF[2] ** 2 * 8 * 3 + map_floats * 8)
+                                  + blocks * budget.LEAF[2] ** 2 * 8 * 3 + (map_floats + knot_floats) * 8)
     else:
-        assert est.grid_bytes == nodes * 8 * 3 + map_floats * 8     # mass and velocity per node, f64
+        assert est.grid_bytes == nodes * 8 * 3 + (map_floats + knot_floats) * 8   # mass and velocity per node, f64
     assert sim.mapped.map.w.size * 3 + 8 * nodes == map_floats
     assert est.dt == pytest.approx(sim.stable_dt(), rel=1e-12)      # at rest: cfl h_min / c on both sides
     # the smallest cell is a radial one, 0.5 / 4 = 0.125 m (inner arcs 2 * 0.5 sin(pi / 24) = 0.13 m), not dx

@@ -59,13 +59,10 @@ class BlockBins:
         # computed once)
         per_particle = layout.scatter_particle_fields(dim)
         self.order, self.home = layout.allocate(per_particle, max(n, 1)).values()
-        self.block = ti.Vector.field(dim, ti.i32, cap)      # occupied blocks, in the order they were found
-        self.lo = ti.field(ti.i32, cap)
-        self.hi = ti.field(ti.i32, cap)
-        self.offset = ti.field(ti.i32, self.colours + 1)
-        self.filled = ti.field(ti.i32, self.colours)
-        self.n_blocks = ti.field(ti.i32, ())
-        self.used = ti.field(ti.i32, ())
+        # occupied blocks, in the order they were found, and their runs in `order`; the colour tables
+        self.block, self.lo, self.hi = layout.allocate(layout.scatter_block_list(dim), cap).values()
+        for f, shape in layout.scatter_tables(dim):
+            setattr(self, f.name, f.allocate(shape))
         # the block lists are bounded by the occupied blocks (budget.py counts them with the grid)
         self.bytes_per_particle = layout.nbytes(per_particle, "f32")
 
