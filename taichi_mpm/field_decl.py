@@ -1,6 +1,6 @@
 """One field declared: its name, element type (a Taichi type, or "real": the scene's precision), element shape and
-the feature that requires it; its bytes per element and its allocation. layout.py and the crack finder's fields
-declare theirs with it. Physics code only."""
+the feature that requires it; its bytes per element and its allocation. One grid declared: its node fields and
+block fields. layout.py and the crack finder's fields declare theirs with them. Physics code only."""
 from __future__ import annotations
 
 import math
@@ -43,3 +43,21 @@ def allocate(decls, n: int) -> dict:
 
 def nbytes(decls, precision: str) -> int:
     return sum(f.nbytes(precision) for f in decls)
+
+
+@dataclass(frozen=True)
+class GridDecl:
+    """One grid (grid.Grid): its node fields besides the mass `m` (dim-vectors interleaved with it, dim-vectors
+    and scalars in arrays of their own), its node extent (`nodes`: the velocity grid's; `linear`: the cell
+    corners), whether it is sparse whatever domain.sparse says, and the i32 fields of each leaf block."""
+    name: str
+    vectors: tuple = ()
+    apart: tuple = ()
+    scalars: tuple = ()
+    extent: str = "nodes"
+    always_sparse: bool = False
+    block_ints: int = 0
+
+    def node_bytes(self, dim: int, precision: str) -> int:
+        size = TYPE_BYTES[precision]
+        return size * (1 + dim * (len(self.vectors) + len(self.apart)) + len(self.scalars))

@@ -13,8 +13,8 @@ import math
 from dataclasses import dataclass
 
 from . import materials as material_models
-from .extensions.crack.fields import CrackNeeds
-from .field_decl import TYPE_BYTES, FieldDecl, allocate, nbytes  # noqa: F401 (allocate, nbytes: the layout's API)
+from .extensions.crack.fields import NODE_CACHE as CRACK_NODE_CACHE, CrackNeeds
+from .field_decl import FieldDecl, GridDecl, allocate, nbytes  # noqa: F401 (allocate, nbytes: the layout's API)
 
 @dataclass(frozen=True)
 class Needs:
@@ -133,24 +133,6 @@ def particle_fields(n: Needs) -> list[FieldDecl]:
     return out
 
 
-@dataclass(frozen=True)
-class GridDecl:
-    """One grid (grid.Grid): its node fields besides the mass `m` (dim-vectors interleaved with it, dim-vectors
-    and scalars in arrays of their own), its node extent (`nodes`: the velocity grid's; `linear`: the cell
-    corners), whether it is sparse whatever domain.sparse says, and the i32 fields of each leaf block."""
-    name: str
-    vectors: tuple = ()
-    apart: tuple = ()
-    scalars: tuple = ()
-    extent: str = "nodes"
-    always_sparse: bool = False
-    block_ints: int = 0
-
-    def node_bytes(self, dim: int, precision: str) -> int:
-        size = TYPE_BYTES[precision]
-        return size * (1 + dim * (len(self.vectors) + len(self.apart)) + len(self.scalars))
-
-
 def main_grid(n: Needs) -> GridDecl:
     vec = ("v",) + (("v_old",) if n.flip else ()) + (("v2",) if n.musl else ())
     vec += ("grip",) if n.grips else ()   # component 0: the grip (from 1) whose particles touch the node
@@ -161,7 +143,6 @@ def main_grid(n: Needs) -> GridDecl:
     return GridDecl("grid", vec, apart, scalars, block_ints=2 if n.coloured else 0)
 
 
-CRACK_NODE_CACHE = GridDecl("crack node normals", ("n",), always_sparse=True)   # kept between refreshes
 DDMP_VOLUMES = GridDecl("ddmp nodal volumes")
 
 
@@ -173,7 +154,7 @@ def fbar_grid(n: Needs) -> GridDecl:
 def grids(n: Needs) -> list[GridDecl]:
     """Every grid of the scene, the main one first."""
     out = [main_grid(n)]
-    out += [CRACK_NODE_CACHE] if n.crack is not None and n.crack.kept_normals else []
+    out += [CRACK_NODE_CACHE] if n.crack is not None and n.crack.kept_normals else []   # normals kept between refreshes
     out += [DDMP_VOLUMES] if n.ddmp else []
     out += [fbar_grid(n)] * 2 if n.fbar else []
     return out

@@ -9,7 +9,7 @@ import numpy as np
 import taichi as ti
 
 from ...errors import ConfigError
-from ...field_decl import FieldDecl, allocate, nbytes
+from ...field_decl import FieldDecl, GridDecl, allocate, nbytes
 from ...grid import Grid
 from ...materials import MODELS, rankine_params
 from .constants import ALL, CELL_SPLIT, MAX_CELLS
@@ -20,6 +20,10 @@ def grid_fields(dim: int) -> tuple[list[str], list[str]]:
     anisotropic node mass A_i, the node normal) and scalars (the node's mark: 1 in a near particle's stencil,
     2 on the discontinuity)."""
     return [f"A{a}" for a in range(dim)] + ["crack_n"], ["crack_mark"]
+
+
+# the node normals kept between refreshes: a sparse grid of their own, whatever domain.sparse says
+NODE_CACHE = GridDecl("crack node normals", ("n",), always_sparse=True)
 
 
 def has_damage_law(materials) -> bool:
@@ -177,5 +181,5 @@ class CrackFields:
             self.cell_dir = ti.Vector.field(d, float, self.n_cell_total)   # the cells' normal cones (build)
             self.cell_spread = ti.field(float, self.n_cell_total)
         # node normals computed since: m = 1 (normal in n) or 2 (on the discontinuity); 0: not yet
-        self.node_cache = Grid(d, grid_shape, True, ["n"])
+        self.node_cache = Grid(d, grid_shape, NODE_CACHE.always_sparse, list(NODE_CACHE.vectors))
         self.node_cache_fill = ti.field(ti.i32, ())
