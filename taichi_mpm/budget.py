@@ -24,14 +24,11 @@ from .extensions import scatter
 from .backend import resolve_arch
 from .bases import registry as bases
 from .bases.shape_functions import make_basis
-from .extensions.crack import grid_fields as crack_grid_fields
-from .extensions.crack import particle_bytes as crack_particle_bytes
 from .bases.knots import grid_knots, smallest_span
 from .bases import mapgeom
-from .bases.mapped import MappedGrid
 from .config import Config, ConfigError
 from .grid import LEAF, MAX_TOP_POINTERS, _pow2
-from . import materials as material_models
+from . import layout
 from .materials import wave_speed
 from .scene import base_dir_of, shape_bounds, shape_volume
 
@@ -79,6 +76,7 @@ class Estimate:
     map_build_bytes: int = 0       # transient: building a mapped grid's net and its first particle location
     dt_limits: dict = None         # rate -> (dt, keys that set it), as Simulation.dt_limits at t = 0
     grid_key: str = "domain.dx"    # the key that sets the grid's size
+    grids: list = None             # each grid's size (GridSize), the main one first
 
     @property
     def particle_bytes(self) -> int:
@@ -120,33 +118,16 @@ def _limit(cfg: Config) -> tuple[float | None, str]:
     return MEMORY_FRACTION * phys, f"{MEMORY_FRACTION:.0%} of this machine's {phys / 1e9:.3g} GB"
 
 
-def _used_materials(cfg: Config) -> list:
-    return [cfg.materials[name] for name in dict.fromkeys(b.material for b in cfg.bodies)]
+def needs(cfg: Config, body_force: bool = False) -> layout.Needs:
+    """The scene's optional fields, from the config alone (layout.Needs.of_config; the solver's of_simulation
+    agrees: tests/test_layout_budget.py)."""
+    return layout.Needs.of_config(cfg, body_force, _coloured_scatter(cfg), make_basis(cfg.solver.basis, grid_knots(cfg)))
 
 
 def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
-    """The solver's particle fields (mirrors Simulation._bytes_per_particle and CrackFinder.bytes_per_particle;
-    tests/test_budget.py holds them equal)."""
-    d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
-    mats = _used_materials(cfg)
-    apic = cfg.solver.transfer == "apic"
-    viscous = any(getattr(m, "viscosity", 0.0) > 0 for m in mats)
-    spacings = {cfg.domain.dx / b.particles_per_cell for b in cfg.bodies}
-    floats = 2 * d + d * d + 1                                   # x, v, F, vol0
-    floats += d * d if apic or viscous else 0                    # C (APIC's B_p or C_p, or grad v)
-    floats += d if body_force else 0
-    floats += 1 if bases.get(cfg.solver.basis).particle_domains and len(spacings) > 1 else 0   # domain half-widths
-    floats += material_models.state_size(mats, d)                 # plastic strain, J_p, ... (materials/)
-    floats += MappedGrid.PARTICLE_FLOATS if cfg.domain.map is not None else 0   # parametric coordinates xi_p
-    n = floats * size + (1 if len(mats) > 1 else 0)
-    if cfg.crack is not None:
-        has_law = any(getattr(m, "tensile_strength", None) is not None and material_models.MODELS[m.model].damage
-                      for m in mats)
-        stencil_nodes = make_basis(cfg.solver.basis).contributions(d)
-        n += crack_particle_bytes(d, cfg.precision, apic, has_law, stencil_nodes, cfg.crack)
-    if _coloured_scatter(cfg):
-        n += 4 + 4 * d   # scatter.BlockBins: order, home
-    return n
+    """The per-particle fields the solver, the crack finder and the extensions allocate: their declaration
+    (layout.particle_fields), so the estimate is what Simulation.bytes_per_particle reports."""
+    return layout.nbytes(layout.particle_fields(needs(cfg, body_force)), cfg.precision)
 
 
 def _coloured_scatter(cfg: Config) -> bool:
@@ -166,8 +147,10 @@ class MapSize:
     key: str
 
     def field_floats(self) -> int:
-        """As MappedGrid.field_floats: control points (2) and weights (1) per control point, wall normals (8) per node."""
-        return 3 * math.prod(self.ctrl) + 8 * math.prod(self.shape)
+        """The map's fields: control points (2) and weights (1) per control point, wall normals (8) per node, and
+        per axis the quadratic knot vector (control points + 3 knots) and its Greville abscissae (one per control
+        point: bases.shape_functions.KnotData)."""
+        return 3 * math.prod(self.ctrl) + 8 * math.prod(self.shape) + sum(2 * c + 3 for c in self.ctrl)
 
     def build_bytes(self) -> int:
         return MAP_BYTES_PER_CONTROL_POINT * math.prod(self.ctrl) + MAP_BYTES_PER_CELL * math.prod(self.cells)
@@ -216,7 +199,6 @@ def _nurbs_h_min(m, cells) -> float:
 def grid_layout(cfg: Config, mapped: MapSize | None = None) -> dict:
     """Nodes per axis and, for a sparse grid, the pointer levels as `grid.Grid` builds them. A mapped grid's
     nodes are its control points (parameter space), not the box divided by domain.dx."""
-    d = cfg.dim
     basis = make_basis(cfg.solver.basis, grid_knots(cfg))
     mapped = mapped if mapped is not None else map_size(cfg)
     if mapped is not None:
@@ -226,15 +208,20 @@ def grid_layout(cfg: Config, mapped: MapSize | None = None) -> dict:
         nodes = [basis.axis(a).nodes(c) for a, c in enumerate(cells)]
     out = dict(cells=cells, nodes=nodes, stencil=basis.stencil)
     if cfg.domain.sparse:
-        leaf = LEAF[d]
-        blocks = [_pow2(math.ceil(s / leaf)) for s in nodes]
-        if math.prod(blocks) <= MAX_TOP_POINTERS:
-            out.update(levels=[blocks], mid=1)
-        else:
-            mid = 8 if d == 3 else 64  # grid.Grid's second level
-            out.update(levels=[[_pow2(math.ceil(b / mid)) for b in blocks], [mid] * d], mid=mid)
-        out.update(leaf=leaf, blocks=blocks)
+        out.update(sparse_levels(nodes))
     return out
+
+
+def sparse_levels(nodes: list[int]) -> dict:
+    """The pointer levels grid.Grid builds over a sparse grid of these nodes per axis: the levels' extents, the
+    second level's extent per axis (1: none), the leaf block's nodes per axis and the blocks per axis."""
+    d = len(nodes)
+    leaf = LEAF[d]
+    blocks = [_pow2(math.ceil(s / leaf)) for s in nodes]
+    if math.prod(blocks) <= MAX_TOP_POINTERS:
+        return dict(levels=[blocks], mid=1, leaf=leaf, blocks=blocks)
+    mid = 8 if d == 3 else 64  # grid.Grid's second level
+    return dict(levels=[[_pow2(math.ceil(b / mid)) for b in blocks], [mid] * d], mid=mid, leaf=leaf, blocks=blocks)
 
 
 def _active_blocks(cfg: Config, layout: dict, base_dir) -> tuple[int, int]:
@@ -254,35 +241,75 @@ def _active_blocks(cfg: Config, layout: dict, base_dir) -> tuple[int, int]:
     return min(leaves, math.prod(layout["blocks"])), min(tops, math.prod(layout["levels"][0]))
 
 
-def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None) -> tuple[int, str, list[int]]:
-    d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
-    layout = grid_layout(cfg, mapped)
-    map_bytes = mapped.field_floats() * size if mapped is not None else 0
-    crack_vectors, crack_scalars = crack_grid_fields(d) if cfg.crack else ([], [])
-    vectors = 1 + (cfg.solver.transfer == "flip") + (cfg.solver.update == "musl") + len(crack_vectors)
-    node_bytes = size * (1 + d * vectors + len(crack_scalars))
-    nodes = math.prod(layout["nodes"])
-    ddmp = bases.get(cfg.solver.basis).prepass_grid   # its nodal volumes live on a grid of their own, one scalar per node
-    if not cfg.domain.sparse:
-        return (nodes * (node_bytes + (size if ddmp else 0)) + map_bytes, f"dense, {nodes:.3g} nodes",
-                layout["cells"])
-    if mapped is not None:
-        # bodies are given in physical space: the parameter blocks they touch are not known without inverting
-        # the map, so count every block (a map's grid is small: the bound costs little)
-        leaves = math.prod(layout["blocks"])
-        tops = math.prod(layout["levels"][0])
-    else:
-        leaves, tops = _active_blocks(cfg, layout, base_dir)
-    # the crack finder keeps the node normals kept between steps on a second sparse grid
-    grids = 2 if cfg.crack is not None and cfg.crack.normal_refresh > 0 else 1
-    top_slots = math.prod(layout["levels"][0])
-    pointers = top_slots + (tops * layout["mid"] ** d if len(layout["levels"]) > 1 else 0)
-    leaf_nodes = leaves * layout["leaf"] ** d
-    total = grids * pointers * POINTER_SLOT_BYTES + leaf_nodes * (node_bytes + size * (1 + d) * (grids - 1))
-    if ddmp:
-        total += pointers * POINTER_SLOT_BYTES + leaf_nodes * size
-    total += map_bytes
-    return total, f"sparse, {top_slots:.3g} top pointers, ~{leaves:,} active blocks", layout["cells"]
+@dataclass
+class GridSize:
+    """One grid's estimated size (layout.GridDecl): nodes per axis, bytes per node and per leaf block (the
+    block fields), and, sparse, the top pointer slots, the active top slots and leaf blocks (the bodies'
+    stencils' blocks: an estimate; the rest follows from the declaration exactly)."""
+    name: str
+    nodes: list
+    sparse: bool
+    node_bytes: int
+    block_bytes: int
+    top_slots: int = 0
+    mid: int = 1
+    leaf: int = 1
+    tops: int = 0
+    leaves: int = 0
+
+    @property
+    def bytes(self) -> int:
+        d = len(self.nodes)
+        if not self.sparse:
+            blocks = math.prod(math.ceil(n / LEAF[d]) for n in self.nodes)
+            return math.prod(self.nodes) * self.node_bytes + blocks * self.block_bytes
+        pointers = self.top_slots + (self.tops * self.mid ** d if self.mid > 1 else 0)
+        return pointers * POINTER_SLOT_BYTES + self.leaves * (self.leaf ** d * self.node_bytes + self.block_bytes)
+
+
+def grid_sizes(cfg: Config, base_dir, mapped: MapSize | None = None, body_force: bool = False) -> list[GridSize]:
+    """Every grid the scene allocates (layout.grids), sized."""
+    d, lay = cfg.dim, grid_layout(cfg, mapped)
+    out = []
+    for g in layout.grids(needs(cfg, body_force)):
+        linear = g.extent == "linear"
+        nodes = [c + 1 for c in lay["cells"]] if linear else list(lay["nodes"])
+        size = GridSize(g.name, nodes, cfg.domain.sparse or g.always_sparse, g.node_bytes(d, cfg.precision),
+                        4 * g.block_ints)
+        if size.sparse:
+            levels = sparse_levels(nodes)
+            size.top_slots, size.mid, size.leaf = math.prod(levels["levels"][0]), levels["mid"], levels["leaf"]
+            if mapped is not None:
+                # bodies are given in physical space: the parameter blocks they touch are not known without
+                # inverting the map, so count every block (a map's grid is small: the bound costs little)
+                size.leaves, size.tops = math.prod(levels["blocks"]), size.top_slots
+            else:
+                reach = 2 if linear else lay["stencil"]
+                size.leaves, size.tops = _active_blocks(cfg, dict(levels, stencil=reach), base_dir)
+        out.append(size)
+    return out
+
+
+def _bin_list_bytes(cfg: Config, particles: int, nodes: list[int], body_force: bool) -> int:
+    """The coloured scatter's list of occupied blocks (one entry per leaf block, at most one per particle) and its
+    colour tables."""
+    if not needs(cfg, body_force).coloured:
+        return 0
+    blocks = math.prod(math.ceil(n / LEAF[cfg.dim]) for n in nodes)
+    return layout.scatter_fixed_bytes(cfg.dim, max(1, min(particles, blocks)))
+
+
+def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None, particles: int = 0,
+                body_force: bool = False) -> tuple[int, str, list[int], list[GridSize]]:
+    size = 8 if cfg.precision == "f64" else 4
+    grids = grid_sizes(cfg, base_dir, mapped, body_force)
+    total = sum(g.bytes for g in grids) + _bin_list_bytes(cfg, particles, grids[0].nodes, body_force)
+    total += mapped.field_floats() * size if mapped is not None else 0
+    cells = grid_layout(cfg, mapped)["cells"]
+    main = grids[0]
+    if not main.sparse:
+        return total, f"dense, {math.prod(main.nodes):.3g} nodes", cells, grids
+    return total, f"sparse, {main.top_slots:.3g} top pointers, ~{main.leaves:,} active blocks", cells, grids
 
 
 def _modulus_key(m) -> str:
@@ -409,7 +436,7 @@ def estimate(cfg: Config, body_force: bool = False) -> Estimate:
         lo, hi = shape_bounds(b.shape, d, base_dir, key)
         lattice = max(lattice, math.prod(int(math.ceil(e / h)) + 1 for e in hi - lo) * d * 8 * 3)
     mapped = map_size(cfg)
-    grid_bytes, grid_detail, cells = _grid_bytes(cfg, base_dir, mapped)
+    grid_bytes, grid_detail, cells, grids = _grid_bytes(cfg, base_dir, mapped, sum(per_body), body_force)
     dt, dt_source, limits = _time_step(cfg, base_dir, mapped)
     steps = cfg.solver.end_time / dt
     if cfg.solver.max_steps is not None and cfg.solver.max_steps < steps:
@@ -423,7 +450,7 @@ def estimate(cfg: Config, body_force: bool = False) -> Estimate:
                     outputs=math.floor(cfg.solver.end_time / cfg.output.every) + 1.0,
                     limit_bytes=limit, limit_source=source,
                     map_build_bytes=mapped.build_bytes() if mapped is not None else 0, dt_limits=limits,
-                    grid_key=mapped.key if mapped is not None else "domain.dx")
+                    grid_key=mapped.key if mapped is not None else "domain.dx", grids=grids)
 
 
 def check(cfg: Config, body_force: bool = False, warn: bool = True) -> Estimate:

@@ -16,8 +16,8 @@ from typing import Annotated, Any, Literal, Optional, Union
 
 import numpy as np
 import yaml
-from pydantic import (BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapter, ValidationError,
-                      field_validator, model_serializer, model_validator)
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, Field, PrivateAttr, TypeAdapter,
+                      ValidationError, field_validator, model_serializer, model_validator)
 
 from .errors import ConfigError
 from .bases import registry as bases
@@ -25,6 +25,7 @@ from .bases.knots import knot_problem
 from .expressions import largest_magnitude, parse as parse_expression
 
 from .schema import Located as _Located, OneOf, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
+from . import fields as field_registry
 from . import geometry
 from . import materials as material_models
 
@@ -65,10 +66,22 @@ TimeExpr = Annotated[Union[float, str], BeforeValidator(_expression(TIME))]     
 FreeTimeExpr = Annotated[Optional[Union[float, str]], BeforeValidator(_expression(TIME, nullable=True))]
 
 SHAPE_TYPES = ("box", "sphere", "ring", "cylinder", "mesh")
-# particle fields the writers know (output.fields); velocity, stress, von_mises, J, body, damage and the material
-# models' states (plastic_strain, Jp) are always written (the last ones when present)
-FIELDS = ("velocity", "stress", "von_mises", "J", "body", "damage", "speed", "pressure", "displacement",
-          "F", "C", "mass", "volume", "material", "interface", *material_models.output_states())
+
+
+def output_fields() -> tuple[str, ...]:
+    """The particle fields output.fields accepts: the output-field registry's (fields.REGISTRY), read when a config
+    is validated, so a field registered later (fields.register) is accepted. velocity, stress, von_mises, J, body,
+    damage and the material models' states are always written (the last ones when present)."""
+    return tuple(field_registry.REGISTRY)
+
+
+def _output_field(name: str) -> str:
+    if name not in field_registry.REGISTRY:
+        raise ValueError(f"unknown output field {name!r} (choose from {', '.join(output_fields())})")
+    return name
+
+
+OutputField = Annotated[str, AfterValidator(_output_field)]
 
 
 MAX_NAME = 100
@@ -526,7 +539,7 @@ class Output(Strict):
     dir: str = "runs/{name}"
     every: PositiveFloat = 0.01
     formats: list[Literal["vtu", "npz", "png", "mp4", "gif"]] = ["vtu", "png"]
-    fields: list[Literal[FIELDS]] = ["velocity", "stress"]
+    fields: list[OutputField] = ["velocity", "stress"]
     render: Render = Render()
     probes: list[Probe] = []
     # seconds between probe samples (at the first step on or after each multiple); `step`: every step;

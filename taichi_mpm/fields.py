@@ -1,5 +1,6 @@
-"""The per-particle output fields: one registry (name -> unit, meaning, how computed) that the VTU/NPZ writers
-(io.py), the frame renderer (render.py) and the interactive window (gui.py) all read.
+"""The per-particle output fields: one registry (name -> unit, meaning, how computed) that config validation
+(output.fields, output.render.color_by), the VTU/NPZ writers (io/files.py), the frame renderer (io/render.py) and
+the interactive window (tools/gui.py) all read; `register` adds a field to every one of them.
 
 Every field is a function of a particle dict: `Simulation.particles()` (x, v, F, C, stress, stress3, mass, volume,
 body, damage, and the material models' states such as plastic_strain and Jp), optionally completed by `with_scene` (x0, material, interface, the scene's damage), or a state read
@@ -65,10 +66,31 @@ def embed3(a: np.ndarray, fill: float) -> np.ndarray:
     return out
 
 
-def _field(name, unit, meaning, compute, kind="scalar", needs=()):
-    REGISTRY[name] = Field(name, unit, meaning, compute, kind, tuple(needs))
+KINDS = ("scalar", "vector", "tensor", "label")
 
 
+def register(name: str, unit: str, meaning: str, compute: Callable[[dict], np.ndarray], kind: str = "scalar",
+             needs=()) -> Field:
+    """Add an output field: output.fields accepts it, the VTU and NPZ writers write it when asked, and a scalar or
+    label field is a colour field of frames (output.render.color_by, --color-by) and of the window. `compute` maps
+    a particle dict to (N,) values (vector: (N, d); tensor: (N, 3, 3)); `needs`: the particle-dict keys it reads
+    (without one of them the field is absent). docs/architecture.md, "Adding an output field"."""
+    if name in REGISTRY:
+        raise ValueError(f"output field '{name}' is already registered")
+    if kind not in KINDS:
+        raise ValueError(f"output field kind '{kind}' is not one of {', '.join(KINDS)}")
+    REGISTRY[name] = field = Field(name, unit, meaning, compute, kind, tuple(needs))
+    return field
+
+
+def unregister(name: str):
+    """Remove a field added by `register` (the built-in fields stay)."""
+    if name in BUILTIN:
+        raise ValueError(f"'{name}' is a built-in output field")
+    del REGISTRY[name]
+
+
+_field = register
 REGISTRY: dict[str, Field] = {}
 _field("velocity", "m/s", "particle velocity, at the time `velocity_time` (leapfrog: half the last step before the "
        "output time)", lambda p: np.asarray(p["v"], float), "vector", ["v"])
@@ -105,6 +127,7 @@ _field("interface", "", "1 for interface (surface) particles of bodies with inte
 for _state in material_models.output_states().values():
     _field(_state.name, _state.unit, _state.meaning, lambda p, n=_state.name: np.asarray(p[n], float), needs=[_state.name])
 STATES = tuple(material_models.output_states())  # in ALWAYS: written with every snapshot when present, like damage
+BUILTIN = frozenset(REGISTRY)    # the fields above; `register` adds more
 
 
 def with_scene(p: dict, scene) -> dict:

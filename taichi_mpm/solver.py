@@ -30,6 +30,7 @@ from .bases.shape_functions import make_basis
 from .bases.knots import grid_knots, smallest_span
 from .bases.mapped import MappedGrid
 from .bases.stencils import make_stencil
+from . import layout as field_layout   # the declared fields (layout.py)
 from .sums import ChunkSums, Slots
 from .extensions import scatter
 from .config import Config, ConfigError, load_config
@@ -134,32 +135,29 @@ class Simulation:
 
     def _allocate(self):
         self.feat = self._features()
-        self._allocate_particles(self.feat)
+        gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
+        # the fields this scene needs, declared once (layout.py; budget.py counts the same declaration)
+        self.needs = field_layout.Needs.of_simulation(self, self.feat, coloured=scatter.coloured(self.cfg, gpu))
+        self._allocate_particles(self.needs)
         self._allocate_loads(self.feat)
         self._allocate_grid(self.feat)
         self._allocate_globals()
         self.bytes_per_particle = self._bytes_per_particle()
 
-    def _allocate_particles(self, f: Features):
-        d, n = self.dim, self.n
-        self.x = ti.Vector.field(d, float, n)
-        self.v = ti.Vector.field(d, float, n)
-        self.F = ti.Matrix.field(d, d, float, n)
-        self.vol0 = ti.field(float, n)
-        self.C = ti.Matrix.field(d, d, float, n) if f.store_grad_v else None
-        self.mat = ti.field(ti.u8, n) if f.multi_material else None
-        self.body_acc = ti.Vector.field(d, float, n) if f.body_force else None
-        self.half_width = ti.field(float, n) if f.domain_per_particle else None
-        self.stress0 = ti.Matrix.field(d, d, float, n) if f.initial_stress else None
+    def _allocate_particles(self, needs: field_layout.Needs):
+        """x, v, F, vol0 and the optional per-particle fields (C, mat, body_acc, half_width, stress0, state, load,
+        body_id: None when the scene does without), as field_layout.solver_particle_fields declares them."""
+        fields = field_layout.allocate(field_layout.solver_particle_fields(needs), self.n)
+        for name in ("x", "v", "F", "vol0", "C", "mat", "body_acc", "half_width", "stress0", "state", "load",
+                     "body_id"):
+            setattr(self, name, fields.get(name))
         # per-particle material state (plastic strain, J_p, ...): only when a model of the scene has any (materials/)
-        self.state_layout = material_models.state_layout(self._materials, d)
-        self.n_state = material_models.state_size(self._materials, d)
-        self.state = ti.Vector.field(self.n_state, float, n) if self.n_state else None
+        self.state_layout = material_models.state_layout(self._materials, self.dim)
+        self.n_state = needs.n_state
 
     def _allocate_loads(self, f: Features):
         """Tractions' particle forces, grips and velocity walls (their values: loads.py, set per step)."""
-        d, n = self.dim, self.n
-        self.load = ti.Vector.field(d, float, n) if f.tractions else None
+        d = self.dim
         n_loaded = sum(len(l.particles) for l in self.scene.loads)
         self.load_slot = ti.field(ti.i32, n_loaded) if f.tractions else None      # solver slot of each loaded
         self.load_index = ti.field(ti.i32, n_loaded) if f.tractions else None     # particle, its traction
@@ -175,20 +173,20 @@ class Simulation:
         """The grid, the coloured scatter's bins, and the extensions (step/extensions.py): created, their node
         fields declared, allocated once the grid exists."""
         d, n = self.dim, self.n
-        vec = ["v"] + (["v_old"] if f.flip else []) + (["v2"] if f.musl else [])
-        vec += ["grip"] if f.grips else []  # component 0: the grip (from 1) whose particles touch the node
         shape = [self.basis.axis(a).nodes(nc) for a, nc in enumerate(self.n_cells)]
         if self.mapped is not None:
             shape = self.mapped.shape    # control points of the map, in parameter space
             self.mapped.allocate_particles(n)
-        gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
-        setup = self._setup(f, coloured=scatter.coloured(self.cfg, gpu))
+        setup = self._setup(f, coloured=self.needs.coloured)
         self.extensions = step_extensions.create(setup)
-        # the extensions' node fields (the crack finder's tensor node mass rows, normals and marks) lie apart
-        declared = [e.grid_fields() for e in self.extensions]
-        apart = [name for vectors, _ in declared for name in vectors]
-        apart_scalars = [name for _, scalars in declared for name in scalars]
-        self.grid = Grid(d, shape, self.backend.sparse, vec, apart, apart_scalars)
+        # v (v_old: FLIP, v2: MUSL, grip) by the mass (layout.main_grid); apart, the extensions' node fields (the
+        # crack finder's tensor node mass rows, node normals and marks, which layout.py declares too), few touched
+        g = field_layout.main_grid(self.needs)
+        apart, scalars = list(g.apart), list(g.scalars)
+        for vectors, more_scalars in (e.grid_fields() for e in self.extensions):
+            apart += [name for name in vectors if name not in apart]
+            scalars += [name for name in more_scalars if name not in scalars]
+        self.grid = Grid(d, shape, self.backend.sparse, list(g.vectors), apart, scalars)
         self.bins = scatter.BlockBins(d, self.grid, n) if setup.coloured else None  # atomic-free P2G (scatter.py)
         setup.grid, setup.bins = self.grid, self.bins
         for e in self.extensions:
@@ -201,7 +199,7 @@ class Simulation:
             cfg=self.cfg, scene=self.scene, dim=self.dim, n=self.n, dx=self.dx, lower=self.lower, upper=self.upper,
             n_cells=self.n_cells, basis=self.basis, mapped=self.mapped, feat=f, materials=self._materials, x=self.x,
             v=self.v, F=self.F, vol0=self.vol0, to_solver=self._to_solver, to_creation=self._to_creation,
-            perm=lambda: self._perm, coloured=coloured)
+            perm=lambda: self._perm, coloured=coloured, needs=self.needs)
 
     def extension(self, name: str):
         """The scene's extension of that name (step.moments.Extension.name: "crack", "fbar", ...), or None."""
@@ -226,7 +224,6 @@ class Simulation:
         # accumulated per step: external work (body forces, tractions, prescribed velocities), viscous and plastic
         # dissipation (the plastic work of the return mappings, docs/materials.md)
         self.work = Slots(3)
-        self.body_id = ti.field(ti.i32, n) if self.scene.body.max(initial=0) > 0 else None
         self.n_bodies = int(self.scene.body.max(initial=0)) + 1
         self.moments = ChunkSums(n, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
         # wall impulses per face (x_min, x_max, y_min, ...), summed by the grid update; only for wall probes
@@ -234,16 +231,8 @@ class Simulation:
         self.wall_reaction = ti.Vector.field(d, ti.f64, 2 * d) if wall_probes else None
 
     def _bytes_per_particle(self) -> int:
-        size = 8 if self.cfg.precision == "f64" else 4
-        d = self.dim
-        floats = 2 * d + d * d + 1
-        floats += d * d if self.C is not None else 0
-        floats += d if self.body_acc is not None else 0
-        floats += 1 if self.half_width is not None else 0
-        floats += d if self.load is not None else 0
-        floats += d * d if self.stress0 is not None else 0
-        floats += self.n_state
-        out = floats * size + (1 if self.mat is not None else 0)
+        """The solver's declared particle fields (layout.py) and the extensions'."""
+        out = field_layout.nbytes(field_layout.solver_particle_fields(self.needs), self.cfg.precision)
         return out + sum(e.bytes_per_particle() for e in self.extensions)
 
     def _block_order(self) -> np.ndarray:

@@ -19,14 +19,15 @@ PACKAGE = ROOT / "taichi_mpm"
 # module ("io" covers io.runner, "io.render_options" only itself).
 LAYERS = {
     # plain building blocks: errors, schema pieces, expressions, knot and map geometry, the material registry, the
-    # output-field registry and the names render settings accept, Taichi trace-time helpers, the bases registry
+    # output-field registry and the names render settings accept, Taichi trace-time helpers, the bases registry,
+    # the field declarations
     "foundation": ("errors", "schema", "geometry", "expressions", "bases.registry", "bases.knots", "bases.mapgeom",
-                   "traced", "jit",
-                   "sums", "materials", "fields", "io.colour_range", "io.render_options", "tools.window_layout"),
+                   "traced", "jit", "sums", "materials", "fields", "field_decl", "io.colour_range",
+                   "io.render_options", "tools.window_layout"),
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
-    "physics": ("grid", "bases", "extensions", "loads", "scene", "backend", "states", "step", "budget", "solver",
-                "analytic"),
+    "physics": ("grid", "bases", "extensions", "loads", "scene", "backend", "states", "step", "layout", "budget",
+                "solver", "analytic"),
     # output files, probes, the output-writing run, frames and plots
     "outputs": ("io", "probes"),
     # the tools: studies, stability scenarios and the CFL search, advise, compare, the windows, the config reference
@@ -35,7 +36,7 @@ LAYERS = {
 }
 # the physics core, and the modules it may never import (issue 26)
 PHYSICS = ("solver", "bases", "grid", "materials", "extensions", "sums", "traced", "jit", "scene", "loads",
-           "analytic", "budget", "backend", "states", "step", "fields")
+           "analytic", "budget", "backend", "states", "step", "fields", "layout", "field_decl")
 TOOLS = ("cli", "io", "tools", "probes")
 
 

@@ -70,9 +70,11 @@ def test_estimate_mirrors_the_solver(case):
 
 
 def test_dense_grid_bytes():
-    """Dense quadratic grid: (cells + 2)^3 nodes x (mass + velocity) x 4 bytes."""
+    """Dense quadratic grid: (cells + 2)^3 nodes x (mass + velocity) x 4 bytes, and the coloured scatter's count
+    and start per leaf block of 4^3 nodes (26^3 blocks) and its list of occupied blocks (coordinates, first and
+    last slot: 5 i32 per block)."""
     est = budget.estimate(cube(0.01, sparse=False))
-    assert est.grid_bytes == 102**3 * 4 * 4
+    assert est.grid_bytes == 102**3 * 4 * 4 + 26**3 * 2 * 4 + 26**3 * 5 * 4
 
 
 # ---------------------------------------------------------------- refusals
@@ -86,8 +88,9 @@ def test_dense_fine_3d_grid_is_refused_naming_dx_sparse_and_the_override():
     for word in ("domain.dx = 0.001", "domain.sparse = false", "domain.sparse: true", "limits.memory_gb",
                  "--allow-large", "bodies.0.particles_per_cell"):
         assert word in msg
-    # sparse: only the blocks around the body (1/8 of the domain: ~2.1 GB) and the pointers
-    assert budget.check(cube(1e-3, sparse=True, ppc=1, memory_gb=32)).grid_bytes < 2.5e9
+    # sparse: only the blocks around the body (1/8 of the domain: ~2.1 GB), the pointers and the coloured scatter's
+    # list of occupied blocks (one entry per leaf block of the domain, 251^3 x 20 B: 0.32 GB)
+    assert budget.check(cube(1e-3, sparse=True, ppc=1, memory_gb=32)).grid_bytes < 2.6e9
 
 
 def test_refused_before_anything_is_allocated():
@@ -177,10 +180,10 @@ def test_ddmp_counts_its_nodal_volume_grid():
     for sparse in (False, True):
         cfg = tm.load_config(make_cfg(2, basis="ddmp", dx=0.1, precision="f64"))
         cfg.domain.sparse = sparse
-        with_vol, _, _ = budget._grid_bytes(cfg, ".")
+        with_vol = budget._grid_bytes(cfg, ".")[0]
         nodes = math.prod(budget.grid_layout(cfg)["nodes"])
         cfg.solver.basis = "gimp"            # same grid (ghost nodes beyond the walls), no nodal-volume grid
-        plain, _, _ = budget._grid_bytes(cfg, ".")
+        plain = budget._grid_bytes(cfg, ".")[0]
         if not sparse:
             assert with_vol - plain == 8 * nodes
         else:
@@ -214,13 +217,14 @@ def test_mapped_grid_is_sized_from_its_map(sparse):
     est = budget.estimate(cfg)
     nodes = 28 * 6
     map_floats = 3 * 29 * 6 + 8 * nodes        # P (2) and w (1) per control point (the seam column twice), normals
+    knot_floats = (29 + 3 + 29) + (6 + 3 + 6)  # per axis the quadratic knot vector and its Greville abscissae
     if sparse:
         assert tuple(sim.grid.levels[0].shape) == tuple(layout["levels"][0])
         blocks = math.prod(layout["blocks"])     # every block counted: the parameter grid is small
         assert est.grid_bytes == (math.prod(layout["levels"][0]) * budget.POINTER_SLOT_BYTES
-                                  + blocks * budget.LEAF[2] ** 2 * 8 * 3 + map_floats * 8)
+                                  + blocks * budget.LEAF[2] ** 2 * 8 * 3 + (map_floats + knot_floats) * 8)
     else:
-        assert est.grid_bytes == nodes * 8 * 3 + map_floats * 8     # mass and velocity per node, f64
+        assert est.grid_bytes == nodes * 8 * 3 + (map_floats + knot_floats) * 8   # mass and velocity per node, f64
     assert sim.mapped.map.w.size * 3 + 8 * nodes == map_floats
     assert est.dt == pytest.approx(sim.stable_dt(), rel=1e-12)      # at rest: cfl h_min / c on both sides
     # the smallest cell is a radial one, 0.5 / 4 = 0.125 m (inner arcs 2 * 0.5 sin(pi / 24) = 0.13 m), not dx

@@ -32,7 +32,7 @@ Physics code only: no CLI, rendering or file I/O here.
 
 import taichi as ti
 
-from ..bases import registry as bases
+from .. import layout
 from ..grid import Grid
 
 
@@ -46,18 +46,19 @@ def create(sim):
 class FBar:
     def __init__(self, sim):
         self.sim = sim
-        self.J_start = ti.field(float, sim.n)        # J^n_p = det F_p at the start of the step
+        self.J_start = layout.FBAR_J.allocate(sim.n)   # J^n_p = det F_p at the start of the step
         self.J_start.fill(1.0)                       # the scene starts undeformed (F = I)
         # node volumes at the end and at the start of the step, sum w V0 det F and sum w V0 J^n: two scalar grids
         # (their `m`), so the scatter costs two atomic adds per node
         # quadratic and cubic B-splines: the average lives on the linear grid (cell corners), one degree below the
         # velocity space (see `build`); the other bases average with their own stencil
-        self.linear = bases.get(sim.cfg.solver.basis).fbar_linear_grid
+        decl = layout.fbar_grid(sim.needs)   # two of these: layout.grids
+        self.linear = decl.extent == "linear"
         shape = [n + 1 for n in sim.n_cells] if self.linear else sim.grid.shape
-        self.grids = [Grid(sim.dim, shape, sim.grid.sparse, []) for _ in range(2)]
+        self.grids = [Grid(sim.dim, shape, sim.grid.sparse, list(decl.vectors)) for _ in range(2)]
 
     def bytes_per_particle(self) -> int:
-        return 8 if self.sim.cfg.precision == "f64" else 4
+        return layout.FBAR_J.nbytes(self.sim.cfg.precision)
 
     def build(self, ctx):
         """Compile the kernels with the solver's stencil (stencils.KernelContext)."""

@@ -3,6 +3,7 @@ update (Newton from the old xi_p; a failure stops the step with cause code 6) an
 positions are set from outside (a particle outside the mapped region is a config error). Physics code only."""
 import numpy as np
 
+from .. import layout
 from ..bases.mapped import make_locate
 from ..errors import ConfigError
 from ..step.moments import Extension
@@ -14,14 +15,14 @@ class MappedCoordinates(Extension):
 
     def __init__(self, mapped, x, n: int, precision: str):
         self.mapped, self.x, self.n = mapped, x, n
-        self.size = 8 if precision == "f64" else 4
+        self.precision = precision
 
     @classmethod
     def create(cls, setup):
         return cls(setup.mapped, setup.x, setup.n, setup.precision) if setup.mapped is not None else None
 
     def bytes_per_particle(self) -> int:
-        return self.mapped.PARTICLE_FLOATS * self.size
+        return layout.MAPPED_XI.nbytes(self.precision)   # declared in layout.py (budget reads it)
 
     def build(self, ctx):
         self.locate, self.locate_from = make_locate(ctx, self.mapped, ctx.fail, ctx.fail_codes, self.FAIL_CODE)

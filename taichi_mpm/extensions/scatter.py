@@ -21,6 +21,7 @@ import math
 import taichi as ti
 
 from ..bases import registry as bases
+from .. import layout
 from ..grid import LEAF, Grid
 from ..sums import CPU_TASK, cpu_threads
 
@@ -53,16 +54,16 @@ class BlockBins:
         cap = max(1, min(n, math.prod(grid.blocks)))   # occupied blocks: at most one per particle
         self.count = grid.block_field(ti.i32)   # particles per block (back to 0 after each bin())
         self.start = grid.block_field(ti.i32)   # first slot of the block's particles in `order`
-        self.order = ti.field(ti.i32, max(n, 1))
-        self.home = ti.Vector.field(dim, ti.i32, max(n, 1))   # each particle's block (origin is computed once)
-        self.block = ti.Vector.field(dim, ti.i32, cap)      # occupied blocks, in the order they were found
-        self.lo = ti.field(ti.i32, cap)
-        self.hi = ti.field(ti.i32, cap)
-        self.offset = ti.field(ti.i32, self.colours + 1)
-        self.filled = ti.field(ti.i32, self.colours)
-        self.n_blocks = ti.field(ti.i32, ())
-        self.used = ti.field(ti.i32, ())
-        self.bytes_per_particle = 4 + 4 * dim   # order, home; the block lists are bounded by the occupied blocks
+        # per particle (layout.scatter_particle_fields): its slot in the bins' order and its block (the origin is
+        # computed once)
+        per_particle = layout.scatter_particle_fields(dim)
+        self.order, self.home = layout.allocate(per_particle, max(n, 1)).values()
+        # occupied blocks, in the order they were found, and their runs in `order`; the colour tables
+        self.block, self.lo, self.hi = layout.allocate(layout.scatter_block_list(dim), cap).values()
+        for f, shape in layout.scatter_tables(dim):
+            setattr(self, f.name, f.allocate(shape))
+        # the block lists are bounded by the occupied blocks (budget.py counts them with the grid)
+        self.bytes_per_particle = layout.nbytes(per_particle, "f32")
 
     def build(self, origin):
         """Define `bin()`; origin: @ti.func (p) -> the first node of p's stencil."""

@@ -29,7 +29,8 @@ from . import files as io
 from ..fields import von_mises  # noqa: F401 (the one implementation, in fields.py)
 
 from .render_options import ALIASES as _ALIASES
-from .render_options import CAMERAS, FIELDS, color_fields, options  # noqa: F401 (CAMERAS, color_fields re-exported)
+from .render_options import CAMERAS, color_fields, options, scalar_fields  # noqa: F401 (CAMERAS, color_fields re-exported)
+from .render_options import window_fields as available_fields  # noqa: F401 (the window's list, re-exported)
 
 
 # frame sizes VTK is given: each side at most MAX_SIDE pixels and at most MAX_PIXELS in all (8192 x 8192: about
@@ -93,8 +94,9 @@ def field_values(particles: dict, name: str, dim: int) -> np.ndarray:
     if m:
         i, j = "xyz".index(m.group(1)), "xyz".index(m.group(2))
         return registry.stress3(particles)[:, i, j]
-    if name not in FIELDS:
-        raise ValueError(f"unknown colour field '{name}' (choose from {', '.join(FIELDS)}, or sxx, sxy, ..., szz)")
+    if name not in scalar_fields():
+        raise ValueError(f"unknown colour field '{name}' (choose from {', '.join(scalar_fields())}, or sxx, sxy, ..., "
+                         "szz)")
     if name == "body" and "body" not in particles:
         return np.zeros(n)
     if not registry.available(particles, name):
@@ -102,13 +104,6 @@ def field_values(particles: dict, name: str, dim: int) -> np.ndarray:
             raise ValueError("this state has no damage field (the scene has no crack section)")
         raise ValueError(f"this state has no '{name}' field (it needs {', '.join(registry.REGISTRY[name].needs)})")
     return np.asarray(registry.values(particles, name), float).reshape(n)
-
-
-def available_fields(particles: dict, dim: int) -> list[str]:
-    names = ["speed", "von_mises", "J", "body", "pressure"] + ["vx", "vy", "vz"][:dim]
-    if "damage" in particles:
-        names.insert(4, "damage")
-    return names
 
 
 def _label(name):

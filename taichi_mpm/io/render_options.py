@@ -6,17 +6,29 @@ from __future__ import annotations
 from . import colour_range
 from .. import fields as registry
 
-# Scalar fields a frame can be coloured by: the registry's scalar and label fields, velocity components vx, vy, vz
-# and the components sxx, sxy, ..., szz of the full 3x3 stress.
-FIELDS = tuple(n for n, f in registry.REGISTRY.items() if f.kind in ("scalar", "label")) + ("vx", "vy", "vz")
+VELOCITY = ("vx", "vy", "vz")
 ALIASES = {"velocity": "speed", "velocity_x": "vx", "velocity_y": "vy", "velocity_z": "vz", "mises": "von_mises",
            "stress": "von_mises"}
 CAMERAS = ("iso", "xy", "xz", "yz", "front", "side", "top")  # 3D views; 2D and 1D frames are always seen along z
 
 
+def scalar_fields() -> tuple[str, ...]:
+    """The fields a frame can be coloured by: the registry's scalar and label fields (read now, so a field
+    registered later counts) and the velocity components vx, vy, vz."""
+    return tuple(n for n, f in registry.REGISTRY.items() if f.kind in ("scalar", "label")) + VELOCITY
+
+
 def color_fields() -> list[str]:
     """Every name output.render.color_by and --color-by accept: the scalar fields, aliases, vx/vy/vz, sxx ... szz."""
-    return list(FIELDS) + list(ALIASES) + [f"s{a}{b}" for a in "xyz" for b in "xyz"]
+    return list(scalar_fields()) + list(ALIASES) + [f"s{a}{b}" for a in "xyz" for b in "xyz"]
+
+
+def window_fields(particles: dict, dim: int) -> list[str]:
+    """The colour fields the window cycles through for a state: speed, then the registry's other scalar and label
+    fields the particle dict has (in registry order), then the velocity components of its dimension."""
+    names = [n for n, f in registry.REGISTRY.items()
+             if f.kind in ("scalar", "label") and registry.available(particles, n)]
+    return sorted(names, key=lambda n: n != "speed") + list(VELOCITY[:dim])
 
 
 def options(render_cfg) -> dict:

@@ -55,6 +55,7 @@ class Setup:
     to_creation: Callable           # and back
     perm: Callable                  # () -> the solver slots' creation indices (set when particles are uploaded)
     coloured: bool = False          # P2G scatters by colours (scatter.BlockBins)
+    needs: Any = None               # layout.Needs: the fields the scene declares (layout.py)
     grid: Any = None                # grid.Grid, with every extension's grid_fields (allocate on)
     bins: Any = None                # scatter.BlockBins or None (allocate on)
 

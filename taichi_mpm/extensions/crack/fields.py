@@ -1,14 +1,17 @@
 """The crack finder's fields: the node fields it adds to the solver's grid, its own per-particle, cell-list and
-kept-normal fields (allocated only with a crack section), and their bytes per particle (budget.py reads them)."""
+kept-normal fields (allocated only with a crack section). Its per-particle fields are declared (`CrackNeeds`:
+field_decl.FieldDecl) and allocated from the declaration; layout.py and budget.py read the same declaration."""
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
 
 from ...errors import ConfigError
+from ...field_decl import FieldDecl, GridDecl, allocate, nbytes
 from ...grid import Grid
-from ...materials import rankine_params
+from ...materials import MODELS, rankine_params
 from .constants import ALL, CELL_SPLIT, MAX_CELLS
 
 
@@ -19,17 +22,77 @@ def grid_fields(dim: int) -> tuple[list[str], list[str]]:
     return [f"A{a}" for a in range(dim)] + ["crack_n"], ["crack_mark"]
 
 
+# the node normals kept between refreshes: a sparse grid of their own, whatever domain.sparse says
+NODE_CACHE = GridDecl("crack node normals", ("n",), always_sparse=True)
+
+
+def has_damage_law(materials) -> bool:
+    """Whether a material of the scene has a Rankine law (materials.rankine_params is not None for it)."""
+    return any(getattr(m, "tensile_strength", None) is not None and MODELS[m.model].damage for m in materials)
+
+
+@dataclass(frozen=True)
+class CrackNeeds:
+    """What decides the finder's per-particle fields: the config's crack section, the transfer, the damage laws and
+    the stencil's size (its mask's bits)."""
+    dim: int
+    apic: bool
+    has_law: bool
+    stencil_nodes: int
+    contact: bool          # crack.contact_in_compression: normals in cell order, contact lists
+    kept_normals: bool     # crack.normal_refresh > 0
+
+    @classmethod
+    def of(cls, cfg, materials, basis) -> "CrackNeeds":
+        cc = cfg.crack
+        return cls(dim=cfg.dim, apic=cfg.solver.transfer == "apic", has_law=has_damage_law(materials),
+                   stencil_nodes=basis.contributions(cfg.dim), contact=bool(cc.contact_in_compression),
+                   kept_normals=cc.normal_refresh > 0)
+
+    @property
+    def grid_vectors(self) -> list[str]:
+        return grid_fields(self.dim)[0]
+
+    @property
+    def grid_scalars(self) -> list[str]:
+        return grid_fields(self.dim)[1]
+
+    def mask_type(self) -> str:
+        return "u64" if self.stencil_nodes > 32 else "u32"   # bit k: stencil node k lies across the discontinuity
+
+    def own_fields(self, d: int) -> list[FieldDecl]:
+        """Per particle: damage, D, interface flag, Rankine history, normal, state, mask and the family sums."""
+        return ([FieldDecl("d", "real"), FieldDecl("D", "real"), FieldDecl("iface", "f32")]
+                + ([FieldDecl("kappa", "real")] if self.has_law else [])
+                + [FieldDecl("normal", "real", (d,)), FieldDecl("state", "i32"), FieldDecl("mask", self.mask_type()),
+                   FieldDecl("sums", "real", (2,)), FieldDecl("gsum", "real", (2, d))]
+                + ([FieldDecl("cent", "real", (2, d), "apic")] if self.apic else []))
+
+    def cell_order_fields(self, d: int) -> list[FieldDecl]:
+        """Per particle: its cell, the cell order, positions, SPH weights (and normals) in cell order."""
+        return ([FieldDecl("pcell", "i32"), FieldDecl("ids", "i32"), FieldDecl("xs", "real", (d,)),
+                 FieldDecl("vs", "real", (2,))]
+                + ([FieldDecl("ns", "real", (d,), "contact in compression")] if self.contact else []))
+
+    def kept_fields(self, d: int) -> list[FieldDecl]:
+        """Per particle, with kept normals: the kept normal and state, positions at the refresh, drift, the
+        contact list's count and start, each mask's origin and period."""
+        if not self.kept_normals:
+            return []
+        return ([FieldDecl("n_cache", "real", (d,)), FieldDecl("s_cache", "i32"), FieldDecl("x_ref", "real", (d,)),
+                 FieldDecl("drift", "real")]
+                + ([FieldDecl("contact_count", "i32"), FieldDecl("contact_start", "i32")] if self.contact else [])
+                + [FieldDecl("mask_at", "i64"), FieldDecl("mask_epoch", "i32")])
+
+    def particle_fields(self, d: int) -> list[FieldDecl]:
+        return self.own_fields(d) + self.cell_order_fields(d) + self.kept_fields(d)
+
+
 def particle_bytes(d: int, precision: str, apic: bool, has_law: bool, stencil_nodes: int, cc) -> int:
-    """Bytes per particle of the finder's fields (CrackFields; budget.py estimates with it)."""
-    size = 8 if precision == "f64" else 4
-    floats = 2 + d + 2 + 2 * d + (2 * d if apic else 0) + (1 if has_law else 0)   # d, D, normal, sums, gsum, cent
-    floats += d + 2                                # xs, vs: positions and SPH weights in cell order
-    floats += d if cc.contact_in_compression else 0   # ns: normals in cell order (contact searches)
-    ints = 4 + 4 + (8 if stencil_nodes > 32 else 4) + 4 + 4   # iface, state, mask, pcell, ids
-    if cc.normal_refresh > 0:   # kept normals, positions at the last refresh, drift; their state, masks found
-        floats += 2 * d + 1
-        ints += 4 + 8 + 4 + (8 if cc.contact_in_compression else 0)   # (+ the contact list's count and start)
-    return floats * size + ints
+    """Bytes per particle of the finder's fields (CrackFinder.bytes_per_particle), from their declaration."""
+    needs = CrackNeeds(dim=d, apic=apic, has_law=has_law, stencil_nodes=stencil_nodes,
+                       contact=bool(cc.contact_in_compression), kept_normals=cc.normal_refresh > 0)
+    return nbytes(needs.particle_fields(d), precision)
 
 
 class CrackFields:
@@ -56,6 +119,8 @@ class CrackFields:
         self.has_law = any(law is not None for law in self.laws)
         self.n_nodes = view.basis.contributions(d)       # contributions per particle (stencils.py)
         self.apic = view.apic
+        self.needs = CrackNeeds(dim=d, apic=view.apic, has_law=self.has_law, stencil_nodes=self.n_nodes,
+                                contact=bool(cc.contact_in_compression), kept_normals=cc.normal_refresh > 0)
         self._particle_fields(d, n, cc)
         self._cell_list(d, n, cc)
         # normals kept between steps (crack.normal_refresh). Once a particle has moved half the skin since the last
@@ -69,18 +134,12 @@ class CrackFields:
             self._kept_normals(d, n, cc, view.grid.shape)
 
     def _particle_fields(self, d, n, cc):
-        self.d = ti.field(float, n)                     # damage d_p
-        self.D = ti.field(float, n)                     # D_p = max(d_p, I_p)
-        self.iface = ti.field(ti.f32, n)                # I_p
-        self.kappa = ti.field(float, n) if self.has_law else None
-        self.normal = ti.Vector.field(d, float, n)      # n_p (zero when not near a discontinuity)
-        self.state = ti.field(ti.i32, n)
+        for name, f in allocate(self.needs.own_fields(d), n).items():
+            setattr(self, name, f)                      # d_p, D_p = max(d_p, I_p), I_p, kappa, n_p, ...
+        self.kappa = getattr(self, "kappa", None)
+        self.cent = getattr(self, "cent", None)         # rows: sum_i N~ (x_i - x_p), APIC only
         self.contacts = ti.field(ti.i32, ())            # particles in contact this step (CONTACT)
-        self.mask_t = ti.u64 if self.n_nodes > 32 else ti.u32
-        self.mask = ti.field(self.mask_t, n)            # bit k: stencil node k lies across the discontinuity
-        self.sums = ti.Vector.field(2, float, n)        # S_t = sum_j Nt*_j, S_n = sum_j Nn*_j
-        self.gsum = ti.Matrix.field(2, d, float, n)     # rows: sum_j grad Nt*_j, sum_j grad Nn*_j
-        self.cent = ti.Matrix.field(2, d, float, n) if self.apic else None  # rows: sum_i N~ (x_i - x_p)
+        self.mask_t = ti.u64 if self.needs.mask_type() == "u64" else ti.u32
 
     def _cell_list(self, d, n, cc):
         nc = self.n_cell_total
@@ -91,18 +150,21 @@ class CrackFields:
         self.cell_hi = ti.field(float, nc)
         self.cell_varies = ti.field(ti.i32, nc)         # D varies within the cell's 5^d block (prepare)
         self.d_range = ti.field(float, 2)               # min / max of D over all particles
-        self.pcell = ti.field(ti.i32, n)
-        self.ids = ti.field(ti.i32, n)
-        self.xs = ti.Vector.field(d, float, n)          # x[ids[j]]: positions in cell order, so searches stream
-        self.vs = ti.Vector.field(2, float, n)          # (V, V D) of particle ids[j]: the SPH sums' weights
-        # normals in cell order, so the contact lists' searches stream (only with contact in compression)
-        self.ns = ti.Vector.field(d, float, n) if cc.contact_in_compression else None
+        # per particle: its cell and the cell order; positions x[ids[j]], SPH weights (V, V D) and (with contact
+        # in compression) normals in cell order, so the searches stream
+        for name, f in allocate(self.needs.cell_order_fields(d), n).items():
+            setattr(self, name, f)
+        self.ns = getattr(self, "ns", None)
 
     def _kept_normals(self, d, n, cc, grid_shape):
-        self.n_cache = ti.Vector.field(d, float, n)    # n_p as the gradient sums gave it (before band normals)
-        self.s_cache = ti.field(ti.i32, n)             # and the state they gave
-        self.x_ref = ti.Vector.field(d, float, n)      # positions at the last refresh
-        self.drift = ti.field(float, n)                # bound on the neighbours' motion against p since n_p was
+        # per particle: n_p as the gradient sums gave it (before band normals) and the state they gave, positions at
+        # the last refresh, the bound on the neighbours' motion against p since n_p was found; with contact lists,
+        # each particle's list (count -1: search each step, a band particle whose normal follows its neighbours;
+        # start: in a growing pool); each mask's stencil origin (+1, flat) and period of kept normals (`epoch`)
+        # when it was found (same origin and period: the same mask, as a node's side depends only on the kept
+        # node and particle normals)
+        for name, f in allocate(self.needs.kept_fields(d), n).items():
+            setattr(self, name, f)
         self.stale = ti.field(ti.i32, ())              # KEEP, DRIFTED (a particle moved) or ALL (D changed)
         self.stale[None] = ALL
         self.recomputed = ti.field(ti.i64, ())         # normals recomputed in all (diagnostics, tests)
@@ -110,21 +172,14 @@ class CrackFields:
         self.cell_dlo = ti.Vector.field(d, float, self.n_cell_total)
         self.cell_dhi = ti.Vector.field(d, float, self.n_cell_total)
         self.cell_drift = ti.field(float, self.n_cell_total)
-        # contact list: per particle, the particles that could face it within reach until the next refresh,
-        # found when the normals are computed; the contact test sums over them instead of searching each step.
-        # count -1: search each step (a band particle: its normal follows its neighbours); ids: a growing pool
+        # contact lists: the particles that could face each one within reach until the next refresh, found when
+        # the normals are computed; the contact test sums over them instead of searching each step
         self.listed = bool(cc.contact_in_compression)
         if self.listed:
-            self.contact_count = ti.field(ti.i32, n)
-            self.contact_start = ti.field(ti.i32, n)
             self.contact_fill = ti.field(ti.i32, ())
             self.contact_over = ti.field(ti.i32, ())   # slots the lists that outgrew theirs need
             self.cell_dir = ti.Vector.field(d, float, self.n_cell_total)   # the cells' normal cones (build)
             self.cell_spread = ti.field(float, self.n_cell_total)
-        # each mask's stencil origin (+1, flat) and period of kept normals (`epoch`) when it was found; same
-        # origin and period: the same mask (a node's side depends only on the kept node and particle normals)
-        self.mask_at = ti.field(ti.i64, n)
-        self.mask_epoch = ti.field(ti.i32, n)
         # node normals computed since: m = 1 (normal in n) or 2 (on the discontinuity); 0: not yet
-        self.node_cache = Grid(d, grid_shape, True, ["n"])
+        self.node_cache = Grid(d, grid_shape, NODE_CACHE.always_sparse, list(NODE_CACHE.vectors))
         self.node_cache_fill = ti.field(ti.i32, ())
