@@ -147,10 +147,13 @@ class MapSize:
     key: str
 
     def field_floats(self) -> int:
-        """The map's fields: control points (2) and weights (1) per control point, wall normals (8) per node, and
-        per axis the quadratic knot vector (control points + 3 knots) and its Greville abscissae (one per control
-        point: bases.shape_functions.KnotData)."""
-        return 3 * math.prod(self.ctrl) + 8 * math.prod(self.shape) + sum(2 * c + 3 for c in self.ctrl)
+        """As MappedGrid.field_floats: control points (2) and weights (1) per control point, wall normals (8) per node."""
+        return 3 * math.prod(self.ctrl) + 8 * math.prod(self.shape)
+
+    def knot_floats(self) -> int:
+        """Per axis, the quadratic knot vector (control points + 3 knots) and its Greville abscissae (one per control
+        point: bases.shape_functions.KnotData), which MappedGrid.field_floats leaves out."""
+        return sum(2 * c + 3 for c in self.ctrl)
 
     def build_bytes(self) -> int:
         return MAP_BYTES_PER_CONTROL_POINT * math.prod(self.ctrl) + MAP_BYTES_PER_CELL * math.prod(self.cells)
@@ -304,7 +307,7 @@ def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None, particles:
     size = 8 if cfg.precision == "f64" else 4
     grids = grid_sizes(cfg, base_dir, mapped, body_force)
     total = sum(g.bytes for g in grids) + _bin_list_bytes(cfg, particles, grids[0].nodes, body_force)
-    total += mapped.field_floats() * size if mapped is not None else 0
+    total += (mapped.field_floats() + mapped.knot_floats()) * size if mapped is not None else 0
     cells = grid_layout(cfg, mapped)["cells"]
     main = grids[0]
     if not main.sparse:

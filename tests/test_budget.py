@@ -72,9 +72,9 @@ def test_estimate_mirrors_the_solver(case):
 def test_dense_grid_bytes():
     """Dense quadratic grid: (cells + 2)^3 nodes x (mass + velocity) x 4 bytes, and the coloured scatter's count
     and start per leaf block of 4^3 nodes (26^3 blocks) and its list of occupied blocks (coordinates, first and
-    last slot: 5 i32 per block)."""
+    last slot: 5 i32 per block) with its colour tables (2 x 8 + 3 i32)."""
     est = budget.estimate(cube(0.01, sparse=False))
-    assert est.grid_bytes == 102**3 * 4 * 4 + 26**3 * 2 * 4 + 26**3 * 5 * 4
+    assert est.grid_bytes == 102**3 * 4 * 4 + 26**3 * 2 * 4 + 26**3 * 5 * 4 + (2 * 8 + 3) * 4
 
 
 # ---------------------------------------------------------------- refusals
