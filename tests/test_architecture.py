@@ -24,7 +24,7 @@ LAYERS = {
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
     "physics": ("grid", "basis", "nurbs", "stencils", "mapped", "scatter", "fbar", "crack", "loads", "scene", "backend",
-                "states", "step", "budget", "solver", "analytic"),
+                "states", "causes", "step", "budget", "solver", "analytic"),
     # output files, probes, the output-writing run, frames and plots
     "outputs": ("io", "probes", "observe", "runner", "render", "plots", "config_reference"),
     # the tools: studies, stability scenarios and the CFL search, advise, compare, the windows
@@ -33,8 +33,8 @@ LAYERS = {
 }
 # the physics core, and the modules it may never import (issue 26)
 PHYSICS = ("solver", "basis", "grid", "stencils", "materials", "crack", "fbar", "mapped", "mapgeom", "nurbs", "knots",
-           "scatter", "sums", "traced", "jit", "scene", "loads", "analytic", "budget", "backend", "states", "step",
-           "fields")
+           "scatter", "sums", "traced", "jit", "scene", "loads", "analytic", "budget", "backend", "states", "causes",
+           "step", "fields")
 TOOLS = ("cli", "render", "gui", "ggui", "io", "runner", "study", "advise", "compare", "stability", "plots", "probes",
          "observe")
 
