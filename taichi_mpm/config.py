@@ -116,9 +116,10 @@ class Box(Strict):
     @model_validator(mode="after")
     def _ordered(self):
         if len(self.lower) != len(self.upper):
-            raise ValueError("lower and upper must have the same length")
+            raise _Located("upper", f"lower and upper must have the same length ({len(self.lower)} and "
+                                    f"{len(self.upper)})")
         if any(u <= l for l, u in zip(self.lower, self.upper)):
-            raise ValueError("upper must exceed lower on every axis")
+            raise _Located("upper", "upper must exceed lower on every axis")
         return self
 
 
@@ -137,7 +138,7 @@ class Ring(Strict):
     @model_validator(mode="after")
     def _radii(self):
         if self.inner_radius >= self.outer_radius:
-            raise ValueError("inner_radius must be smaller than outer_radius")
+            raise _Located("inner_radius", "inner_radius must be smaller than outer_radius")
         return self
 
 

@@ -34,6 +34,7 @@ from . import layout as field_layout   # the declared fields (layout.py)
 from .sums import ChunkSums, Slots
 from .extensions import scatter
 from .config import Config, ConfigError, load_config
+from .causes import load_scale_causes
 from .errors import InstabilityError
 from .grid import Grid, make_wall_condition
 from .loads import Loads
@@ -482,7 +483,10 @@ class Simulation:
         s = self.cfg.solver
         detail = f"dt={dt:.3g}, max speed={self._vmax:.3g}; {self._hint(dt)}"
         hint = bases.get(s.basis).inversion_hint
-        if kind == 1 and hint:
+        causes = load_scale_causes(self.cfg, self._gravity) if kind in (1, 2, 3, 5) else []
+        if causes:   # a load no time step can follow: that, not the step, is what to fix (causes.py)
+            detail += "; likely cause: " + causes[0]
+        elif kind == 1 and hint:
             detail += "; " + hint
         elif kind == 5:
             detail += ("; a corner x_p + F r0 of the particle's CPDI domain crossed a wall, where the linear grid "
@@ -573,9 +577,15 @@ class Simulation:
                         f"{bal['work']:.4g} - dissipated {bal['dissipated']:.4g} by {bal['ratio']:.0%} of the "
                         f"largest kinetic + strain energy (limit {limit:.0%}; balance includes "
                         f"{', '.join(terms) or 'no external work'}); particle named: the fastest. Likely cause: "
-                        f"the time step is past the stability limit of basis {self.cfg.solver.basis} with "
-                        f"{self.cfg.solver.transfer}: {self._hint(self.dt)}. Fix: lower solver.cfl (or solver.dt); "
-                        f"largest stable CFL per basis and transfer: docs/accuracy.md"))
+                        f"{self._energy_growth_cause()}"))
+
+    def _energy_growth_cause(self) -> str:
+        causes = load_scale_causes(self.cfg, self._gravity)
+        if causes:
+            return causes[0]
+        return (f"the time step is past the stability limit of basis {self.cfg.solver.basis} with "
+                f"{self.cfg.solver.transfer}: {self._hint(self.dt)}. Fix: lower solver.cfl (or solver.dt); "
+                f"largest stable CFL per basis and transfer: docs/accuracy.md")
 
     def _check_fracture(self):
         """Numerical fracture: a solid body whose particles spread apart further than their own F says (a body

@@ -1,7 +1,25 @@
 """Shared test helpers. Taichi's offline cache stays on, so kernels compiled by one test are reused."""
 import copy
+import os
+import sys
+from pathlib import Path
 
 import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _checkout_first():
+    """The checkout under test is the taichi_mpm every test imports, in this process and in every process a test
+    launches (GUI scripts, study cases, `python -m taichi_mpm`, the console script), however pytest was started
+    (`pytest` or `python -m pytest`, from any folder) and wherever an editable install of the environment points."""
+    if sys.path[:1] != [str(REPO)]:
+        sys.path.insert(0, str(REPO))
+    rest = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p and p != str(REPO)]
+    os.environ["PYTHONPATH"] = os.pathsep.join([str(REPO), *rest])
+
+
+_checkout_first()
 
 
 def make_cfg(dim=2, *, basis="quadratic", transfer="apic", precision="f64", dx=0.1, extent=1.0,

@@ -222,10 +222,17 @@ def test_ctrl_c_keeps_checkpoint_and_resume_matches(tmp_path, full_run):
         if s.n_steps == 5:
             os.kill(os.getpid(), signal.SIGINT)  # the real signal: the handler lets the step finish
 
-    before = signal.getsignal(signal.SIGINT)   # Python's default, or SIG_IGN under nohup / a background job
-    with pytest.raises(Interrupted):
-        run.execute(on_step=ctrl_c_at_step_5)
-    assert signal.getsignal(signal.SIGINT) is before  # the handler it found is restored
+    # Ctrl-C in a terminal: Python's handler. Set here, not assumed: a background job (a script's `cmd &`, whose
+    # pytest workers inherit it) or some CI runners start with SIGINT ignored, where a run rightly keeps it ignored
+    # and nothing stops it (test_run_restores_an_ignored_sigint); the handler found is put back after
+    found = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        before = signal.getsignal(signal.SIGINT)
+        with pytest.raises(Interrupted):
+            run.execute(on_step=ctrl_c_at_step_5)
+        assert signal.getsignal(signal.SIGINT) is before  # the handler it found is restored
+    finally:
+        signal.signal(signal.SIGINT, found if found is not None else signal.SIG_DFL)
     state, meta = io.load_checkpoint(tmp_path / "cut" / "checkpoint.npz")
     assert state["n_steps"] == 5 and 0.02 < state["time"] < 0.08  # between two output times
     assert main(["run", str(path), "--out", str(tmp_path / "cut"), "--quiet", "--resume"]) == 0

@@ -75,7 +75,7 @@ BAD = [
     ("{type: box, lower: [0.3, 0.3], upper: [0.6, 0.6]}", "{type: sphere, center: [0.5, 0.5], radius: 0}",
      "bodies.0.shape.radius", 16, "greater than 0"),
     ("{type: box, lower: [0.3, 0.3], upper: [0.6, 0.6]}", "{type: box, lower: [0.6, 0.3], upper: [0.3, 0.6]}",
-     "bodies.0.shape", 16, "upper must exceed lower"),
+     "bodies.0.shape.upper", 16, "upper must exceed lower"),
     ("{type: box, lower: [0.3, 0.3], upper: [0.6, 0.6]}", "{type: box, lower: [0.3, 0.3], upper: [0.6, 0.6], rotation: abc}",
      "bodies.0.shape.rotation", 16, "number or a list"),
     ("    velocity: [0.5, 0.2]\n", "    velocity: [0.5, 0.2]\n    angular_velocity: [1, 2]\n",

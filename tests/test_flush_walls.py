@@ -96,15 +96,26 @@ def check(r, gravity):
 
 
 LEFT, CORNER = "particle left the domain", "particle domain corner left the domain (cpdi)"
+GROWTH = "energy growth beyond the work done on the system"
 
 
 def expected_stop(basis, wall, dim, gravity, placement):
     """The cases that must stop, and with which cause (never silently): a free face is no wall, so under gravity
     the bulge carries particles placed on it out of the domain (step 2); a CPDI particle on a face has half its
-    domain beyond it (step 1: the particle itself or a corner is out first), and a CPDI body against a free face under gravity bulges its outer domains through
-    it by more than the corner check's 0.01 dx."""
+    domain beyond it (step 1: the particle itself or a corner is out first), and a CPDI body against a free face
+    under gravity bulges its outer domains through it by more than the corner check's 0.01 dx. In 1D there is no
+    bulge: the free face is the bar's top, which sinks away from it and comes back to it at the rebound of the
+    undamped release, where a particle placed on it may leave (None among the causes: it may also finish; cubic
+    leaves at step 98, the others not within the 100 steps). The linear basis with APIC is unstable at the
+    default CFL 0.4 (docs/accuracy.md: 'unstable even at 0.1' under impact): the 1D bar whose top is free to leave
+    its face (slip, free) gains energy as its particles cross cells (stopped at step 54-67; the same for a bar
+    flush with nothing falling on a slip floor, step 114; it runs at CFL 0.1 or with FLIP)."""
     if basis == "cpdi" and placement == "on_wall":
         return (CORNER, LEFT)      # its domain reaches past the face: the particle or a corner leaves first
+    if dim == 1:
+        if basis == "linear" and gravity and wall in ("slip", "free") and placement == "seeded":
+            return (GROWTH,)
+        return (LEFT, None) if wall == "free" and gravity and placement == "on_wall" else None
     if basis == "cpdi" and wall == "free" and gravity:
         return (CORNER,)
     if wall == "free" and gravity and placement == "on_wall":
@@ -115,8 +126,9 @@ def expected_stop(basis, wall, dim, gravity, placement):
 CASES = [(b, w, d, g, pl) for b in BASES for w in WALLS for d in (1, 2, 3) for g in (True, False)
          for pl in ("seeded", "on_wall") if not (d == 1 and w == "friction")]     # no tangent in 1D
 # the default run: each basis and each wall type once, both placements, each dimension, with and without gravity,
-# and one expected stop
-FAST = [("cubic", "sticky", 2, True, "on_wall"), ("gimp", "slip", 2, True, "on_wall"),
+# and one expected stop; cubic on a sticky floor and wall, on the faces, under gravity in 2D (the issue's inverting
+# case) is test_soft_block_in_a_sticky_corner's default case
+FAST = [("gimp", "slip", 2, True, "on_wall"),
         ("quadratic", "roller", 3, True, "seeded"), ("linear", "free", 1, False, "on_wall"),
         ("cpdi", "velocity", 2, True, "seeded"), ("ddmp", "friction", 2, False, "on_wall"),
         ("cpdi", "sticky", 2, True, "on_wall")]
@@ -127,6 +139,13 @@ def test_body_flush_against_walls(basis, wall, dim, gravity, placement):
     cause = expected_stop(basis, wall, dim, gravity, placement)
     if cause is None:
         check(run_case(basis, wall, dim, gravity, placement), gravity)
+    elif None in cause:   # may stop, with that cause, or finish and pass the checks
+        try:
+            r = run_case(basis, wall, dim, gravity, placement)
+        except tm.InstabilityError as e:
+            assert e.cause in cause, e
+        else:
+            check(r, gravity)
     else:
         with pytest.raises(tm.InstabilityError) as err:
             run_case(basis, wall, dim, gravity, placement)

@@ -202,6 +202,30 @@ def test_results_guard_covers_probe_files_and_plots(tmp_path, capsys, planted):
     assert planted == "probes/tip.csv" or not (out / planted).exists()   # replaced (tip.csv) or removed
 
 
+def test_config_yaml_is_guarded_and_the_config_a_run_reads_is_never_replaced(tmp_path, capsys):
+    """Before: config.yaml was written over whatever held the name: another file in the folder without a word, and
+    the config being run when it lived there as config.yaml (`run out/config.yaml --out out`), comments lost, even
+    without --overwrite."""
+    path = scene(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "config.yaml").write_text("# someone's notes\n")
+    code, err = run(capsys, "run", path, "--quiet", "--out", out)
+    assert code == 2 and "already holds a run's results (config.yaml)" in err, err
+    assert (out / "config.yaml").read_text() == "# someone's notes\n"
+    mine = out / "config.yaml"
+    text = "# my scene, with comments\n" + path.read_text()
+    mine.write_text(text)
+    for flags in ([], ["--overwrite"]):
+        code, err = run(capsys, "run", mine, "--quiet", "--out", out, *flags)
+        assert code == 2 and "is the config file this run reads" in err and "output.dir" in err, err
+        assert mine.read_text() == text and not (out / "checkpoint.npz").exists()
+    other = tmp_path / "done"
+    assert run(capsys, "run", path, "--quiet", "--out", other)[0] == 0
+    # a run folder's own config.yaml, run again into its folder: written unchanged, no loss
+    assert run(capsys, "run", other / "config.yaml", "--quiet", "--out", other, "--overwrite")[0] == 0
+
+
 # ---------------------------------------------------------------- operating-system errors: one line, exit 4
 def _failing(real, fail_at: int, err=errno.ENOSPC):
     """A stand-in for a writer that fails from its `fail_at`-th call on with an OSError (disk full by default)."""

@@ -425,3 +425,27 @@ def test_expression_velocities_count_in_the_estimated_step():
     est = budget.estimate(cfg)
     # the body's box reaches x = 0.6 (180 m/s), its particles 0.575: the estimate is on the safe side, close
     assert sim.stable_dt() * 0.9 < est.dt <= sim.stable_dt() and sim.dt_limit == "speed"
+
+
+@pytest.mark.parametrize("case,key", [
+    ("mohr_coulomb", "materials.m.dilatancy"), ("drucker_prager", "materials.m.dilatancy"),
+    ("box", "bodies.0.shape.upper"), ("box_lengths", "bodies.0.shape.upper"),
+    ("ring", "bodies.0.shape.inner_radius"), ("region", "output.probes.0.region.upper")])
+def test_cross_field_errors_name_the_field_and_the_file_line(tmp_path, case, key):
+    """A check between two keys of one section names the key to change (before: mohr_coulomb's dilatancy above
+    its friction angle named 'materials.m', a box with upper <= lower or a ring with inner >= outer radius named
+    the whole shape); a material's error names the material in its key."""
+    data = make_cfg(2)
+    if case in ("mohr_coulomb", "drucker_prager"):
+        data["materials"]["m"] = dict(model=case, density=1600.0, E=1e6, friction_angle=30.0, dilatancy=45.0)
+    elif case == "box":
+        data["bodies"][0]["shape"] = dict(type="box", lower=[0.6, 0.3], upper=[0.3, 0.6])
+    elif case == "box_lengths":
+        data["bodies"][0]["shape"] = dict(type="box", lower=[0.3, 0.3], upper=[0.6])
+    elif case == "ring":
+        data["bodies"][0]["shape"] = dict(type="ring", center=[0.5, 0.5], inner_radius=0.3, outer_radius=0.2)
+    else:
+        data["output"] = dict(probes=[dict(name="r", type="region", region=dict(type="box", lower=[0.5, 0.5],
+                                                                                  upper=[0.5, 0.9]))])
+    e = config_error(data, tmp_path, key)
+    assert str(e).startswith(f"{tmp_path / 'c.yaml'}:{e.line}, key '{key}': "), str(e)

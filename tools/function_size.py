@@ -70,9 +70,14 @@ def complexities(package: Path, limit: int = MAX_COMPLEXITY) -> dict[str, int] |
     ruff = shutil.which("ruff") or (Path(sys.executable).parent / "ruff")
     if not Path(ruff).exists():
         return None
-    cmd = [str(ruff), "check", "--isolated", "--select", "C901", "--output-format", "json",
+    # --no-cache: ruff's cache goes to .ruff_cache in the working folder, and in a read-only checkout ruff then
+    # fails with no output, which read as "nothing over the limit"; a ruff that fails is an error, never a pass
+    cmd = [str(ruff), "check", "--isolated", "--no-cache", "--select", "C901", "--output-format", "json",
            "--config", f"lint.mccabe.max-complexity = {limit}", str(package)]
-    found = json.loads(subprocess.run(cmd, capture_output=True, text=True, check=False).stdout or "[]")
+    res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if res.returncode not in (0, 1):   # 1: findings; anything else: ruff could not check
+        raise RuntimeError(f"ruff failed (exit {res.returncode}): {(res.stderr.strip().splitlines() or [''])[0]}")
+    found = json.loads(res.stdout or "[]")
     by_line = {(f.file, f.line): f for f in functions(package)}
     out = {}
     for item in found:

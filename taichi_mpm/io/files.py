@@ -549,7 +549,12 @@ def config_dict(cfg) -> dict:
     return data
 
 
+def config_text(cfg) -> str:
+    """What write_config writes."""
+    return yaml.safe_dump(config_dict(cfg), sort_keys=False, default_flow_style=None)
+
+
 def write_config(path, cfg):
-    text = yaml.safe_dump(config_dict(cfg), sort_keys=False, default_flow_style=None)
+    text = config_text(cfg)
     with atomic_write(path, "w") as f:
         f.write(text)

@@ -165,7 +165,7 @@ class Run:
     # every kind of result: what a fresh run refuses to replace without --overwrite, and what --overwrite removes
     STALE = ("particles_*.vtu", "particles_*.npz", io.PVD_NAME, io.DIAGNOSTICS_NAME, io.CHECKPOINT_NAME,
              "frames/frame_*.png", "frames/.record_*.npz", "movie.mp4", "movie.gif", f"{probes.PROBES_DIR}/*.csv",
-             "plots/probe_*.png", "plots/energy.png")
+             "plots/probe_*.png", "plots/energy.png", io.CONFIG_NAME)
 
     def __init__(self, sim, out_dir=None, formats=None, every: Optional[float] = None, resume: bool = False,
                  log: Optional[Callable[[str], None]] = None, overwrite: bool = False):
@@ -239,7 +239,23 @@ class Run:
         """The results of an earlier run in the output folder (what a fresh run would replace)."""
         return [p for p in self.STALE if self._matching(p)]
 
+    def _refuse_replacing_the_input(self):
+        """A fresh run writes config.yaml into its folder: never over the config file it reads (a config kept as
+        config.yaml in the output folder would lose its comments and layout; --overwrite included). A file the
+        run would write unchanged (re-running a run folder's own config.yaml) is no loss."""
+        target, source = self.out_dir / io.CONFIG_NAME, self.cfg._source
+        try:
+            same = bool(source) and target.is_file() and not target.is_symlink() and os.path.samefile(source, target)
+            if not same or target.read_text() == io.config_text(self.cfg):
+                return
+        except (OSError, UnicodeDecodeError):
+            return   # unreadable: the write reports it
+        raise ConfigError(f"{target} is the config file this run reads, and the run writes its resolved config to "
+                          f"that name (replacing your file, its comments included): keep the config outside the "
+                          f"output folder or give it another name", key="output.dir")
+
     def _fresh(self, overwrite: bool = False):
+        self._refuse_replacing_the_input()
         held = self.held()
         if held and not overwrite:
             raise ConfigError(f"{self.out_dir} already holds a run's results ({', '.join(held[:4])}"

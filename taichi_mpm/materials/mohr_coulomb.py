@@ -34,6 +34,7 @@ from typing import Literal
 import numpy as np
 from pydantic import model_validator
 
+from ..schema import Located
 from .base import use_taichi, ElasticModuli, Funcs, Model, NonNegative, finish, param, register
 from .drucker_prager import JP, Angle
 from .von_mises import HELD_STRETCH, PLASTIC_STRAIN
@@ -76,7 +77,8 @@ class MohrCoulomb(Model):
         @model_validator(mode="after")
         def _dilatancy_below_friction(self):
             if self.dilatancy > self.friction_angle:
-                raise ValueError(f"dilatancy {self.dilatancy:g} must not exceed friction_angle {self.friction_angle:g}")
+                raise Located("dilatancy", f"dilatancy {self.dilatancy:g} must not exceed friction_angle "
+                                           f"{self.friction_angle:g}")
             return self
 
     @classmethod
