@@ -26,7 +26,8 @@ LAYERS = {
                    "io.render_options", "tools.window_layout"),
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
-    "physics": ("grid", "bases", "extensions", "loads", "scene", "backend", "states", "causes", "step", "layout", "budget",
+    "physics": ("grid", "bases", "extensions", "loads", "scene", "backend", "states", "causes", "step", "layout",
+                "budget",
                 "solver", "analytic"),
     # output files, probes, the output-writing run, frames and plots
     "outputs": ("io", "probes"),
