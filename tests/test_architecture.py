@@ -27,8 +27,7 @@ LAYERS = {
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
     "physics": ("grid", "bases", "extensions", "loads", "scene", "backend", "states", "causes", "step", "layout",
-                "budget",
-                "solver", "analytic"),
+                "budget", "solver", "analytic"),
     # output files, probes, the output-writing run, frames and plots
     "outputs": ("io", "probes"),
     # the tools: studies, stability scenarios and the CFL search, advise, compare, the windows, the config reference
