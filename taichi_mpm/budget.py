@@ -31,6 +31,7 @@ from .bases.mapped import MappedGrid
 from .config import Config, ConfigError
 from .grid import LEAF, MAX_TOP_POINTERS, _pow2
 from . import materials as material_models
+from . import schemes as transfer_schemes
 from .materials import wave_speed
 from .scene import base_dir_of, shape_bounds, shape_volume
 
@@ -128,7 +129,7 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
     tests/test_budget.py holds them equal)."""
     d, size = cfg.dim, 8 if cfg.precision == "f64" else 4
     mats = _used_materials(cfg)
-    apic = cfg.solver.transfer == "apic"
+    apic = transfer_schemes.get(cfg.solver.transfer).affine   # apic, mls: the C field
     viscous = any(getattr(m, "viscosity", 0.0) > 0 for m in mats)
     spacings = {cfg.domain.dx / b.particles_per_cell for b in cfg.bodies}
     floats = 2 * d + d * d + 1                                   # x, v, F, vol0

@@ -26,6 +26,7 @@ from .expressions import largest_magnitude, parse as parse_expression
 from .schema import Located as _Located, PositiveFloat, Real, Strict, Vec, _no_bool  # noqa: F401 (re-exported)
 from . import geometry
 from . import materials as material_models
+from . import schemes as transfer_schemes
 
 
 class ConfigWarning(UserWarning):
@@ -286,7 +287,7 @@ class Cpdi(Strict):
 
 class Solver(Strict):
     basis: Literal["linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp"] = "quadratic"
-    transfer: Literal["pic", "flip", "apic"] = "apic"
+    transfer: Literal[transfer_schemes.names()] = "apic"   # the registered schemes (schemes/)
     update: Literal["usl", "musl"] = "usl"
     flip_blend: Annotated[float, Field(ge=0, le=1)] = 0.99
     gimp_domain: Literal["uniform", "deforming"] = "uniform"
@@ -560,6 +561,7 @@ class Config(Strict):
             self._check_body(i, b)
         self._check_velocity_walls()
         self._check_crack_combinations()
+        self._check_transfer()
         self._check_unused_settings()
         if self.solver.basis == "cpdi" and self.solver.cpdi.variant == "cpdi2":
             raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
@@ -632,6 +634,17 @@ class Config(Strict):
             raise _Located("crack", "the crack finder does not support basis ddmp: two interface blocks pulled apart "
                                     "kept only 0.185 of their 0.2 m/s (measured; the finder's separation bound is "
                                     "5 %); use cpdi, quadratic, cubic, gimp or linear with a crack section")
+
+    def _check_transfer(self):
+        """The transfer works with the basis (its declaration in schemes/ lists them) and the crack finder."""
+        s = self.solver
+        scheme = transfer_schemes.get(s.transfer)
+        if not transfer_schemes.works_with(s.transfer, s.basis):
+            raise _Located("solver.transfer", f"{s.transfer} works with the bases {', '.join(scheme.bases)} only "
+                                              f"(the basis is {s.basis}): {scheme.summary}")
+        if scheme.moment_gradient and self.crack is not None:
+            raise _Located("solver.transfer", f"{s.transfer} cannot be combined with the crack finder (section "
+                                              "'crack'): its modified shape functions use grad w")
 
     def _check_unused_settings(self):
         """Settings given that nothing would read: an error at validation rather than a run that ignores them."""

@@ -21,6 +21,7 @@ LAYERS = {
     # plain building blocks: errors, schema pieces, expressions, knot and map geometry, the material registry, the
     # output-field registry and the names render settings accept, Taichi trace-time helpers
     "foundation": ("errors", "schema", "geometry", "expressions", "bases.knots", "bases.mapgeom", "traced", "jit",
+                   "schemes",
                    "sums", "materials", "fields", "io.colour_range", "io.render_options", "tools.window_layout"),
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
@@ -34,7 +35,7 @@ LAYERS = {
 }
 # the physics core, and the modules it may never import (issue 26)
 PHYSICS = ("solver", "bases", "grid", "materials", "extensions", "sums", "traced", "jit", "scene", "loads",
-           "analytic", "budget", "backend", "states", "step", "fields")
+           "analytic", "budget", "backend", "states", "step", "fields", "schemes")
 TOOLS = ("cli", "io", "tools", "probes")
 
 

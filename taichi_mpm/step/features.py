@@ -8,13 +8,15 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from .. import schemes
 from ..materials import MODELS
 
 
 @dataclass(frozen=True)
 class Features:
-    apic: bool                  # solver.transfer apic: the C field holds APIC's B_p or C_p
+    apic: bool                  # an affine transfer (apic, mls): the C field holds APIC's B_p or C_p
     flip: bool                  # solver.transfer flip: the grid keeps v before forces (v_old)
+    mls: bool                   # the force and grad v through w D_p^-1 r (schemes/gradient.py)
     musl: bool                  # solver.update musl: a second P2G of the new momentum (grid v2)
     store_grad_v: bool          # a C field: APIC's B_p or C_p, or grad v (viscosity)
     multi_material: bool        # a per-particle material index
@@ -30,13 +32,14 @@ class Features:
     @classmethod
     def of(cls, cfg, scene, materials: list, body_force: bool, moving_walls: bool) -> "Features":
         """The features of a scene: its config, particles (scene.Scene), material configs in slot order."""
-        transfer = cfg.solver.transfer
+        transfer = schemes.get(cfg.solver.transfer)   # its declaration (schemes/)
         viscosity = any(getattr(m, "viscosity", 0.0) > 0 for m in materials)
         return cls(
-            apic=transfer == "apic",
-            flip=transfer == "flip",
+            apic=transfer.affine,
+            flip=transfer.keeps_old_grid,
+            mls=transfer.moment_gradient,
             musl=cfg.solver.update == "musl",
-            store_grad_v=transfer == "apic" or viscosity,
+            store_grad_v=transfer.affine or viscosity,
             multi_material=len(materials) > 1,
             body_force=body_force,
             domain_per_particle=cfg.solver.basis in ("gimp", "cpdi") and len(np.unique(scene.spacing)) > 1,

@@ -11,6 +11,7 @@ Physics code only: no CLI, rendering or file I/O here.
 import taichi as ti
 
 from ..bases.stencils import make_corner_check, make_wall_hold
+from ..schemes.gradient import make_gradient
 
 FLUID_J_MIN = 0.2           # a weakly compressible fluid squeezed below this volume ratio has collapsed
 
@@ -71,10 +72,12 @@ def make_p2g(ctx, mf, af, external_force):
     flip, viscosity, crack = ctx.feat.flip, ctx.feat.viscosity, crk is not None
     density, kirchhoff, viscous_power = mf.density, mf.kirchhoff, mf.viscous_power
     affine, node_momentum = af.affine, af.node_momentum
+    grad = make_gradient(sten, ctx.feat.mls)   # grad w, or MLS-MPM's w D_p^-1 r
 
     @ti.func
     def p2g_particle(p, kick):
         st = sten.at(p)
+        M = grad.prepare(st)
         Fp = F[p]
         mp = density(p) * vol0[p]
         stress = -vol0[p] * kirchhoff(p, Fp)
@@ -96,7 +99,7 @@ def make_p2g(ctx, mf, af, external_force):
                 I, w, gw, r = sten.node(st, o + inner[k])
                 add(gm, I, w * mp)
                 mom = node_momentum(vp, Ap, r)
-                add(gv, I, w * mp * mom + kick * (stress @ gw + w * force_density))
+                add(gv, I, w * mp * mom + kick * (stress @ grad.force(M, w, gw, r) + w * force_density))
                 if ti.static(flip):
                     add(gv_old, I, w * mp * vp)
 
@@ -177,6 +180,7 @@ def make_g2p(ctx, mf, af, external_force):
     project_here = f.plastic and not ctx.fbar   # with F-bar: after its average (project_all)
     alpha, work, fail, vmax2, n_codes = ctx.flip_blend, ctx.work, ctx.fail, ctx.vmax2, ctx.fail_codes
     failure = make_failure_code(ctx, mf)
+    grad = make_gradient(sten, f.mls)   # grad v from grad w, or MLS-MPM's w D_p^-1 r
     keep_inside = make_wall_hold(ctx)   # B-spline particles in a holding face's wall layer stay inside
     is_fluid, project = mf.is_fluid, mf.project
 
@@ -187,6 +191,7 @@ def make_g2p(ctx, mf, af, external_force):
         dv = ti.Vector.zero(float, dim)
         B = ti.Matrix.zero(float, dim, dim)
         G = ti.Matrix.zero(float, dim, dim)
+        M = grad.prepare(st)
         for o in ti.grouped(ti.ndrange(*outer)):
           for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
             I, w, gw, r = sten.node(st, o + inner[k])
@@ -197,10 +202,10 @@ def make_g2p(ctx, mf, af, external_force):
             if ti.static(velocity and apic and not apic_gradient):
                 B += w * vi.outer_product(r)
             if ti.static(deform):
-                G += vgrad[I].outer_product(gw)
+                G += grad.term(M, vgrad[I], w, gw, r)
             elif ti.static(apic and apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
                 G += vi.outer_product(gw)
-        return v_pic, dv, B, G
+        return v_pic, dv, B, grad.finish(M, G)
 
     @ti.func
     def new_velocity(p, kick, v_pic, dv, B, G):

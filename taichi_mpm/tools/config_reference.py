@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from .. import config, fields, materials
+from .. import config, fields, materials, schemes
 from ..io import files as io
 
 FACE_NAMES = "x_min, x_max, y_min, y_max, z_min, z_max"
@@ -85,7 +85,9 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.cpdi": ("", "options of basis cpdi"),
     "solver.cpdi.variant": ("", "cpdi1: parallelogram / parallelepiped domains with half-edges F r0 (Sadeghirad et "
                                 "al. 2011); cpdi2 (corners tracked as points) is not implemented yet"),
-    "solver.transfer": ("", "particle-grid velocity transfer: pic, flip or apic"),
+    "solver.transfer": ("", "particle-grid velocity transfer (docs/transfers.md): " + "; ".join(
+        f"{s.name}: {s.summary}" + (f" (bases {', '.join(s.bases)})" if s.bases else "")
+        for s in schemes.SCHEMES.values())),
     "solver.update": ("", "usl (update stress last) or musl (F from re-mapped velocities, Sulsky 1995)"),
     "solver.flip_blend": ("1", "FLIP fraction of the velocity update when transfer is flip (1: pure FLIP)"),
     "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa only; "

@@ -1,0 +1,10 @@
+"""MLS-MPM (Hu et al. 2018): APIC's affine velocity, and the internal force and the F update taken through the
+same affine moment matrix: grad w_i is replaced by w_i D_p^-1 (x_i - x_p). The scheme of Taichi's mpm88/mpm3d
+and taichi_elements. It needs a D_p that is never singular, so multilinear weights (linear, ddmp) are out."""
+from .base import Scheme, register
+
+MLS = register(Scheme(
+    name="mls", summary="MLS-MPM: APIC with the force and grad v through w D_p^-1 (x_i - x_p)",
+    reference="Hu et al. 2018, ACM TOG 37(4) 150",
+    cost="APIC's B_p; no shape-function gradients (w D_p^-1 r instead)",
+    bases=("quadratic", "cubic", "gimp", "cpdi"), affine=True, moment_gradient=True))
