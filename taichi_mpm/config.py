@@ -288,7 +288,7 @@ class Cpdi(Strict):
 class Solver(Strict):
     basis: Literal["linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp"] = "quadratic"
     transfer: Literal[transfer_schemes.names()] = "apic"   # the registered schemes (schemes/)
-    update: Literal["usl", "musl"] = "usl"
+    update: Literal["usl", "musl", "usf"] = "usl"
     flip_blend: Annotated[float, Field(ge=0, le=1)] = 0.99
     gimp_domain: Literal["uniform", "deforming"] = "uniform"
     cpdi: Cpdi = Cpdi()
@@ -642,6 +642,10 @@ class Config(Strict):
         if not transfer_schemes.works_with(s.transfer, s.basis):
             raise _Located("solver.transfer", f"{s.transfer} works with the bases {', '.join(scheme.bases)} only "
                                               f"(the basis is {s.basis}): {scheme.summary}")
+        if s.update == "usf" and (self.crack is not None or s.volumetric == "fbar"):
+            what = "the crack finder (section 'crack')" if self.crack is not None else "volumetric: fbar"
+            raise _Located("solver.update", f"usf cannot be combined with {what}: it updates F before the forces, "
+                                            "in a pass of its own; use usl or musl")
         if scheme.moment_gradient and self.crack is not None:
             raise _Located("solver.transfer", f"{s.transfer} cannot be combined with the crack finder (section "
                                               "'crack'): its modified shape functions use grad w")

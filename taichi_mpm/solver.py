@@ -43,7 +43,7 @@ from .scene import Scene, build_scene
 from . import step as step_kernels
 from .step import Features, StepContext
 from .step.extensions import ColouredScatter, DualDomainFill, MappedCoordinates, VolumeAverage
-from .step.transfers import FLUID_J_MIN
+from .step.transfers import DEFORM_F, DEFORM_X, FLUID_J_MIN
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                2: "non-finite value (NaN or infinity) in velocity or deformation",
@@ -415,6 +415,20 @@ class Simulation:
         for colour in range(self._p2g_passes):
             self._k[kernel](*args, colour)
 
+    def _update_stress_first(self, dt: float):
+        """solver.update usf, its first pass: mass and momentum to the grid (no forces), the node velocities under
+        walls and grips, and F and the stress from them; the step then maps the new stress's forces as USL does."""
+        self.grid.clear()
+        for e in self.extensions:
+            e.before_p2g()
+        self._scatter("p2g", 0.0)
+        if self.feat.grips:
+            self._k["flag_grip_nodes"]()
+        self._k["grid_velocity"]()
+        self.fail[None] = _NO_FAIL
+        self.vmax2[None] = 0.0
+        self._k["g2p"](dt, 0.0, velocity=False, deform=DEFORM_F)
+
     @states.stepping   # a failed simulation is not stepped again (states.py)
     def step(self, dt: Optional[float] = None) -> float:
         """Advance one step (dt from the CFL rule unless given); returns dt."""
@@ -438,6 +452,8 @@ class Simulation:
         kick_before, kick_after = self._half_dt, 0.5 * dt
         kick = kick_before + kick_after
         self._prescribe(dt)
+        if self.feat.usf:
+            self._update_stress_first(dt)
         self.grid.clear()
         for e in self.extensions:
             e.before_p2g()   # ddmp's nodal volumes (a stencil that reads grid state), the coloured scatter's bins
@@ -449,15 +465,16 @@ class Simulation:
         # the node mass is a tensor only at nodes of particles in contact (crack.py); without any, the plain update
         tensor = self.crack is not None and self.crack.in_contact()
         k["grid_update_tensor" if tensor else "grid_update"](kick_before, kick_after)
-        self.fail[None] = _NO_FAIL
-        self.vmax2[None] = 0.0
+        if not self.feat.usf:   # USF's first pass reset them, and may have found a failed particle
+            self.fail[None] = _NO_FAIL
+            self.vmax2[None] = 0.0
         if self.feat.musl:
             k["g2p"](dt, kick, velocity=True, deform=False)
             self._scatter("p2g_momentum")  # the first g2p pass left the positions: the same bins
             k["grid_remap_tensor" if tensor else "grid_remap"]()
             k["g2p"](dt, kick, velocity=False, deform=True)
-        else:
-            k["g2p"](dt, kick, velocity=True, deform=True)
+        else:   # USF updated F in its first pass: the positions only
+            k["g2p"](dt, kick, velocity=True, deform=DEFORM_X if self.feat.usf else True)
         for e in self.extensions:
             e.after_g2p()   # the mapped grid's xi_p, F-bar's volume average
         self.dt, self._half_dt = dt, 0.5 * dt

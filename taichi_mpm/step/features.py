@@ -18,6 +18,7 @@ class Features:
     flip: bool                  # solver.transfer flip: the grid keeps v before forces (v_old)
     mls: bool                   # the force and grad v through w D_p^-1 r (schemes/gradient.py)
     musl: bool                  # solver.update musl: a second P2G of the new momentum (grid v2)
+    usf: bool                   # solver.update usf: F and the stress from the velocities before forces
     store_grad_v: bool          # a C field: APIC's B_p or C_p, or grad v (viscosity)
     multi_material: bool        # a per-particle material index
     body_force: bool            # Simulation(body_force=...): a per-particle body acceleration
@@ -39,6 +40,7 @@ class Features:
             flip=transfer.keeps_old_grid,
             mls=transfer.moment_gradient,
             musl=cfg.solver.update == "musl",
+            usf=cfg.solver.update == "usf",
             store_grad_v=transfer.affine or viscosity,
             multi_material=len(materials) > 1,
             body_force=body_force,

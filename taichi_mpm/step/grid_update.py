@@ -63,14 +63,24 @@ def make_grid_update(ctx):
                 if ti.static(flip):
                     gv_old[I] = gv_old[I] / m
 
-    @ti.kernel
-    def grid_remap():
+    @ti.func
+    def velocities(g: ti.template()):
+        """g = momentum / mass under the walls and grips, unmeasured (the step's measured update is grid_update)."""
         for I in ti.grouped(gm):
             m = gm[I]
             if m > 0:
-                gv2[I] = grip_condition(I, wall(I, gv2[I] / m), m, measure=False)
+                g[I] = grip_condition(I, wall(I, g[I] / m), m, measure=False)
 
-    return dict(grid_update=grid_update, grid_remap=grid_remap)
+    @ti.kernel
+    def grid_remap():
+        velocities(gv2)
+
+    @ti.kernel
+    def grid_velocity():
+        """USF's first pass: the velocities before forces, from which it updates F and the stress."""
+        velocities(gv)
+
+    return dict(grid_update=grid_update, grid_remap=grid_remap, grid_velocity=grid_velocity)
 
 
 def make_motion(ctx):

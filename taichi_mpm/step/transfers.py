@@ -14,6 +14,7 @@ from ..bases.stencils import make_corner_check, make_wall_hold
 from ..schemes.gradient import make_gradient
 
 FLUID_J_MIN = 0.2           # a weakly compressible fluid squeezed below this volume ratio has collapsed
+DEFORM_F, DEFORM_X = 2, 3   # g2p's deform for one half of the update (USF: F before the forces, x after them)
 
 
 def make_add(coloured: bool):
@@ -166,6 +167,15 @@ def make_failure_code(ctx, mf):
     return failure
 
 
+def _moves_F(deform) -> bool:
+    """g2p's deform (False, True, DEFORM_F, DEFORM_X): whether the pass updates F."""
+    return deform in (True, DEFORM_F)
+
+
+def _moves_x(deform) -> bool:
+    return deform in (True, DEFORM_X)
+
+
 def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
     dim, basis = ctx.dim, ctx.basis
@@ -201,7 +211,7 @@ def make_g2p(ctx, mf, af, external_force):
                 dv += w * (vi - gv_old[I])
             if ti.static(velocity and apic and not apic_gradient):
                 B += w * vi.outer_product(r)
-            if ti.static(deform):
+            if ti.static(_moves_F(deform)):
                 G += grad.term(M, vgrad[I], w, gw, r)
             elif ti.static(apic and apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
                 G += vi.outer_product(gw)
@@ -225,18 +235,24 @@ def make_g2p(ctx, mf, af, external_force):
                 C[p] = B  # store_B
 
     @ti.func
-    def deform_particle(p, dt, v_pic, G):
-        """Positions x += dt v_grid, F = (I + dt grad v) F (fluids keep only J), return mapping, checks."""
-        xp = keep_inside(p, x[p], x[p] + dt * v_pic)
-        Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
+    def deform_particle(p, dt, v_pic, G, deform: ti.template()):
+        """Positions x += dt v_grid, F = (I + dt grad v) F (fluids keep only J), return mapping, checks.
+        deform True: both; DEFORM_F or DEFORM_X: only that (USF updates F before the forces, x after them)."""
+        xp = x[p]
+        if ti.static(_moves_x(deform)):
+            xp = keep_inside(p, x[p], x[p] + dt * v_pic)
+        Fp = F[p]
+        if ti.static(_moves_F(deform)):
+            Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
         J = Fp.determinant()
-        if is_fluid(p):
-            Fp = ti.Matrix.identity(float, dim) * ti.pow(ti.abs(J), 1.0 / dim)
-        if ti.static(project_here):
-            Fp = project(p, Fp)
+        if ti.static(_moves_F(deform)):
+            if is_fluid(p):
+                Fp = ti.Matrix.identity(float, dim) * ti.pow(ti.abs(J), 1.0 / dim)
+            if ti.static(project_here):
+                Fp = project(p, Fp)
         x[p] = xp
         F[p] = Fp
-        if ti.static(has_C and not apic):
+        if ti.static(has_C and not apic and _moves_F(deform)):
             C[p] = G
         speed2 = v[p].norm_sqr()
         ti.atomic_max(vmax2[None], speed2)
@@ -248,8 +264,9 @@ def make_g2p(ctx, mf, af, external_force):
     def g2p(dt: float, kick: float, velocity: ti.template(), deform: ti.template()):
         """Grid to particles. velocity: new v (PIC, FLIP or APIC) and APIC's C, and the work of body forces
         and tractions over the kick, by the trapezoid of the old and new velocities (exact for a uniform force:
-        the kinetic energy's change). deform: positions x += dt v_grid, F = (I + dt grad v) F, and checks.
-        USL does both in one pass; MUSL does them in two passes around the momentum remap."""
+        the kinetic energy's change). deform: positions x += dt v_grid, F = (I + dt grad v) F, and checks
+        (True; DEFORM_F or DEFORM_X for one of them). USL does both in one pass; MUSL does them in two passes around the
+        momentum remap; USF updates F (deform "F") before the forces and the rest after them."""
         for p in x:
             st = sten.at(p)
             v_pic = ti.Vector.zero(float, dim)
@@ -266,6 +283,6 @@ def make_g2p(ctx, mf, af, external_force):
             if ti.static(velocity):
                 new_velocity(p, kick, v_pic, dv, B, G)
             if ti.static(deform):
-                deform_particle(p, dt, v_pic, G)
+                deform_particle(p, dt, v_pic, G, deform)
 
     return dict(g2p=g2p)

@@ -88,7 +88,9 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.transfer": ("", "particle-grid velocity transfer (docs/transfers.md): " + "; ".join(
         f"{s.name}: {s.summary}" + (f" (bases {', '.join(s.bases)})" if s.bases else "")
         for s in schemes.SCHEMES.values())),
-    "solver.update": ("", "usl (update stress last) or musl (F from re-mapped velocities, Sulsky 1995)"),
+    "solver.update": ("", "usl (update stress last), musl (F from re-mapped velocities, Sulsky 1995) or usf "
+                          "(update stress first: F and the stress from the velocities before forces, Bardenhagen "
+                          "2002; docs/transfers.md)"),
     "solver.flip_blend": ("1", "FLIP fraction of the velocity update when transfer is flip (1: pure FLIP)"),
     "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa only; "
                                "superseded by basis cpdi, which follows the full F)"),
