@@ -259,7 +259,8 @@ def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None) -> tuple[i
     layout = grid_layout(cfg, mapped)
     map_bytes = mapped.field_floats() * size if mapped is not None else 0
     crack_vectors, crack_scalars = crack_grid_fields(d) if cfg.crack else ([], [])
-    vectors = 1 + (cfg.solver.transfer == "flip") + (cfg.solver.update == "musl") + len(crack_vectors)
+    scheme = transfer_schemes.get(cfg.solver.transfer)   # flip and xpic keep v_old; xpic three vectors more
+    vectors = 1 + scheme.keeps_old_grid + 3 * scheme.extended + (cfg.solver.update == "musl") + len(crack_vectors)
     node_bytes = size * (1 + d * vectors + len(crack_scalars))
     nodes = math.prod(layout["nodes"])
     ddmp = cfg.solver.basis == "ddmp"   # its nodal volumes live on a grid of their own, one scalar per node

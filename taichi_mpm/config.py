@@ -290,6 +290,8 @@ class Solver(Strict):
     transfer: Literal[transfer_schemes.names()] = "apic"   # the registered schemes (schemes/)
     update: Literal["usl", "musl", "usf"] = "usl"
     flip_blend: Annotated[float, Field(ge=0, le=1)] = 0.99
+    # XPIC's order m (transfer xpic only): 1 is PIC; each order one more particle pass (docs/transfers.md)
+    xpic_order: Annotated[int, BeforeValidator(_no_bool), Field(ge=1, le=8)] = 2
     gimp_domain: Literal["uniform", "deforming"] = "uniform"
     cpdi: Cpdi = Cpdi()
     cfl: PositiveFloat = 0.4
@@ -646,9 +648,12 @@ class Config(Strict):
             what = "the crack finder (section 'crack')" if self.crack is not None else "volumetric: fbar"
             raise _Located("solver.update", f"usf cannot be combined with {what}: it updates F before the forces, "
                                             "in a pass of its own; use usl or musl")
-        if scheme.moment_gradient and self.crack is not None:
+        if s.xpic_order != 2 and s.transfer != "xpic":
+            raise _Located("solver.xpic_order", f"is read by solver.transfer xpic only (the transfer is "
+                                                f"{s.transfer}): remove it or use transfer xpic")
+        if (scheme.moment_gradient or scheme.extended) and self.crack is not None:
             raise _Located("solver.transfer", f"{s.transfer} cannot be combined with the crack finder (section "
-                                              "'crack'): its modified shape functions use grad w")
+                                              "'crack'): its modified transfers are PIC, FLIP or APIC's")
 
     def _check_unused_settings(self):
         """Settings given that nothing would read: an error at validation rather than a run that ignores them."""

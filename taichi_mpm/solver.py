@@ -44,6 +44,7 @@ from . import step as step_kernels
 from .step import Features, StepContext
 from .step.extensions import ColouredScatter, DualDomainFill, MappedCoordinates, VolumeAverage
 from .step.transfers import DEFORM_F, DEFORM_X, FLUID_J_MIN
+from .step.xpic import XPIC_VECTORS
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                2: "non-finite value (NaN or infinity) in velocity or deformation",
@@ -176,6 +177,7 @@ class Simulation:
         """The grid, and what shares its nodes: the coloured scatter's bins, the crack finder, F-bar."""
         d, n = self.dim, self.n
         vec = ["v"] + (["v_old"] if f.flip else []) + (["v2"] if f.musl else [])
+        vec += list(XPIC_VECTORS) if f.xpic else []   # XPIC's v*, its increment and S+S sums (step/xpic.py)
         vec += ["grip"] if f.grips else []  # component 0: the grip (from 1) whose particles touch the node
         shape = [self.basis.axis(a).nodes(nc) for a, nc in enumerate(self.n_cells)]
         if self.mapped is not None:
@@ -415,6 +417,13 @@ class Simulation:
         for colour in range(self._p2g_passes):
             self._k[kernel](*args, colour)
 
+    def _extend_velocities(self):
+        """solver.transfer xpic: v* to order solver.xpic_order, one particle and one grid pass per order above 1."""
+        self._k["xpic_start"]()
+        for _ in range(self.cfg.solver.xpic_order - 1):
+            self._scatter("xpic_pass")
+            self._k["xpic_update"]()
+
     def _update_stress_first(self, dt: float):
         """solver.update usf, its first pass: mass and momentum to the grid (no forces), the node velocities under
         walls and grips, and F and the stress from them; the step then maps the new stress's forces as USL does."""
@@ -465,6 +474,8 @@ class Simulation:
         # the node mass is a tensor only at nodes of particles in contact (crack.py); without any, the plain update
         tensor = self.crack is not None and self.crack.in_contact()
         k["grid_update_tensor" if tensor else "grid_update"](kick_before, kick_after)
+        if self.feat.xpic:
+            self._extend_velocities()
         if not self.feat.usf:   # USF's first pass reset them, and may have found a failed particle
             self.fail[None] = _NO_FAIL
             self.vmax2[None] = 0.0

@@ -105,8 +105,8 @@ def run_sandbox(transfer, x0, v0, steps):
     # mpm88's v0 is the velocity of t = -dt/2 (it kicks over a whole dt from the start): give the state at t = 0
     sim.set_particles(x=x0, v=v0 + [0.0, -0.5 * DT * GRAVITY])
     sim.step(DT)                      # compile
-    sim.set_particles(x=x0, v=v0 + [0.0, -0.5 * DT * GRAVITY], F=np.tile(np.eye(2), (sim.n, 1, 1)),
-                      C=np.zeros((sim.n, 2, 2)))
+    affine = {"C": np.zeros((sim.n, 2, 2))} if sim.feat.apic else {}   # the C field exists for apic and mls
+    sim.set_particles(x=x0, v=v0 + [0.0, -0.5 * DT * GRAVITY], F=np.tile(np.eye(2), (sim.n, 1, 1)), **affine)
     t0 = time.perf_counter()
     for _ in range(steps):
         sim.step(DT)
@@ -199,11 +199,12 @@ def test_mls_conserves_momentum():
 
 def test_transfer_switch_skips_what_the_basis_lacks():
     """The GUI's transfer switch and advise's candidates take every registered scheme, each only with the bases
-    it declares: after apic comes mls with quadratic, pic with linear (mls needs a regular D_p)."""
+    it declares: after apic comes mls with quadratic, xpic with linear (mls needs a regular D_p)."""
     from taichi_mpm import schemes
     from taichi_mpm.tools.gui import TRANSFERS, _next_option
 
     assert TRANSFERS == schemes.names() and "mls" in TRANSFERS
     assert _next_option(TRANSFERS, "apic", "quadratic") == "mls"
-    assert _next_option(TRANSFERS, "apic", "linear") == "pic"
-    assert _next_option(TRANSFERS, "mls", "cubic") == "pic"
+    assert _next_option(TRANSFERS, "apic", "linear") == "xpic"   # mls skipped
+    assert _next_option(TRANSFERS, "mls", "cubic") == "xpic"
+    assert _next_option(TRANSFERS, TRANSFERS[-1], "cubic") == "pic"

@@ -15,7 +15,8 @@ from ..materials import MODELS
 @dataclass(frozen=True)
 class Features:
     apic: bool                  # an affine transfer (apic, mls): the C field holds APIC's B_p or C_p
-    flip: bool                  # solver.transfer flip: the grid keeps v before forces (v_old)
+    flip: bool                  # flip or xpic: the grid keeps v before forces (v_old)
+    xpic: bool                  # solver.transfer xpic: v_p = S (v_L - v + v*), v* on three grid vectors more
     mls: bool                   # the force and grad v through w D_p^-1 r (schemes/gradient.py)
     musl: bool                  # solver.update musl: a second P2G of the new momentum (grid v2)
     usf: bool                   # solver.update usf: F and the stress from the velocities before forces
@@ -39,6 +40,7 @@ class Features:
             apic=transfer.affine,
             flip=transfer.keeps_old_grid,
             mls=transfer.moment_gradient,
+            xpic=transfer.extended,
             musl=cfg.solver.update == "musl",
             usf=cfg.solver.update == "usf",
             store_grad_v=transfer.affine or viscosity,

@@ -47,7 +47,7 @@ def make_external_force(ctx, mf):
     return external_force
 
 
-def _colour_loop(ctx, particle):
+def colour_loop(ctx, particle):
     """@ti.func (colour, arg) -> particle(p, arg) for every particle: of the blocks of `colour` with the coloured
     scatter (scatter.BlockBins, one kernel call per colour), else all of them (the colour is then unused)."""
     x, bins = ctx.x, ctx.bins
@@ -121,8 +121,8 @@ def make_p2g(ctx, mf, af, external_force):
                 I, w, gw, r = sten.node(st, o + inner[k])
                 add(gv2, I, w * mp * node_momentum(vp, Ap, r))
 
-    p2g_loop = _colour_loop(ctx, p2g_particle)
-    momentum_loop = _colour_loop(ctx, p2g_momentum_particle)
+    p2g_loop = colour_loop(ctx, p2g_particle)
+    momentum_loop = colour_loop(ctx, p2g_momentum_particle)
 
     @ti.kernel
     def p2g(kick: float, colour: int):
@@ -185,6 +185,7 @@ def make_g2p(ctx, mf, af, external_force):
     gv, gv_old, vgrad = ctx.gv, ctx.gv_old, ctx.vgrad   # MUSL takes grad v from the remapped velocities
     f = ctx.feat
     flip, apic, crack, has_C = f.flip, f.apic, crk is not None, C is not None
+    xpic, v_star = f.xpic, ctx.grid.vec.get("xpic_sum")   # XPIC's v* (step/xpic.py)
     apic_gradient = basis.apic_gradient
     works = ctx.body_acc is not None or f.tractions
     project_here = f.plastic and not ctx.fbar   # with F-bar: after its average (project_all)
@@ -196,7 +197,7 @@ def make_g2p(ctx, mf, af, external_force):
 
     @ti.func
     def g2p_sums(p, st, velocity: ti.template(), deform: ti.template()):
-        """A particle's G2P sums over its stencil: (v_pic, FLIP increment, APIC B, velocity gradient G)."""
+        """A particle's G2P sums over its stencil: (v_pic, FLIP or XPIC increment, APIC B, velocity gradient G)."""
         v_pic = ti.Vector.zero(float, dim)
         dv = ti.Vector.zero(float, dim)
         B = ti.Matrix.zero(float, dim, dim)
@@ -207,7 +208,9 @@ def make_g2p(ctx, mf, af, external_force):
             I, w, gw, r = sten.node(st, o + inner[k])
             vi = gv[I]
             v_pic += w * vi
-            if ti.static(velocity and flip):
+            if ti.static(velocity and xpic):
+                dv += w * (v_star[I] - gv_old[I])
+            elif ti.static(velocity and flip):
                 dv += w * (vi - gv_old[I])
             if ti.static(velocity and apic and not apic_gradient):
                 B += w * vi.outer_product(r)
@@ -219,9 +222,11 @@ def make_g2p(ctx, mf, af, external_force):
 
     @ti.func
     def new_velocity(p, kick, v_pic, dv, B, G):
-        """v_p by PIC, FLIP or APIC, APIC's C_p, and the work of body forces and tractions over the kick."""
+        """v_p by PIC, FLIP, APIC or XPIC, APIC's C_p, and the work of body forces and tractions over the kick."""
         v_old = v[p]
-        if ti.static(flip):
+        if ti.static(xpic):
+            v[p] = v_pic + dv
+        elif ti.static(flip):
             a = alpha[None]
             v[p] = a * (v_old + dv) + (1.0 - a) * v_pic
         else:

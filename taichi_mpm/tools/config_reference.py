@@ -91,6 +91,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.update": ("", "usl (update stress last), musl (F from re-mapped velocities, Sulsky 1995) or usf "
                           "(update stress first: F and the stress from the velocities before forces, Bardenhagen "
                           "2002; docs/transfers.md)"),
+    "solver.xpic_order": ("1", "XPIC's order m when transfer is xpic: 1 is PIC, each order one more particle-grid "
+                              "pass and less numerical dissipation (Hammerquist & Nairn 2017; docs/transfers.md)"),
     "solver.flip_blend": ("1", "FLIP fraction of the velocity update when transfer is flip (1: pure FLIP)"),
     "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa only; "
                                "superseded by basis cpdi, which follows the full F)"),
