@@ -285,6 +285,14 @@ class Cpdi(Strict):
     variant: Literal["cpdi1", "cpdi2"] = "cpdi1"
 
 
+class Asflip(Strict):
+    # ASFLIP's parameters (transfer asflip only; Fei et al. 2021): the FLIP part of the velocity update, and the
+    # position correction of particles not compressed (J >= 1) and of compressed ones
+    flip: Annotated[float, Field(ge=0, le=1)] = 1.0
+    position: Annotated[float, Field(ge=0, le=1)] = 1.0
+    position_min: Annotated[float, Field(ge=0, le=1)] = 0.0
+
+
 class Solver(Strict):
     basis: Literal["linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp"] = "quadratic"
     transfer: Literal[transfer_schemes.names()] = "apic"   # the registered schemes (schemes/)
@@ -292,6 +300,7 @@ class Solver(Strict):
     flip_blend: Annotated[float, Field(ge=0, le=1)] = 0.99
     # XPIC's order m (transfer xpic only): 1 is PIC; each order one more particle pass (docs/transfers.md)
     xpic_order: Annotated[int, BeforeValidator(_no_bool), Field(ge=1, le=8)] = 2
+    asflip: Asflip = Asflip()
     gimp_domain: Literal["uniform", "deforming"] = "uniform"
     cpdi: Cpdi = Cpdi()
     cfl: PositiveFloat = 0.4
@@ -651,7 +660,13 @@ class Config(Strict):
         if s.xpic_order != 2 and s.transfer != "xpic":
             raise _Located("solver.xpic_order", f"is read by solver.transfer xpic only (the transfer is "
                                                 f"{s.transfer}): remove it or use transfer xpic")
-        if (scheme.moment_gradient or scheme.extended) and self.crack is not None:
+        if s.asflip != Asflip() and s.transfer != "asflip":
+            raise _Located("solver.asflip", f"is read by solver.transfer asflip only (the transfer is "
+                                            f"{s.transfer}): remove it or use transfer asflip")
+        if scheme.separating and s.update != "usl":
+            raise _Located("solver.update", f"transfer asflip moves particles with its velocity update: usl only "
+                                            f"(the update is {s.update})")
+        if (scheme.moment_gradient or scheme.extended or scheme.separating) and self.crack is not None:
             raise _Located("solver.transfer", f"{s.transfer} cannot be combined with the crack finder (section "
                                               "'crack'): its modified transfers are PIC, FLIP or APIC's")
 

@@ -313,7 +313,7 @@ class Simulation:
 
     def _step_context(self) -> StepContext:
         dim, dx, c = self.dim, self.dx, self.cfg
-        walls = c.domain.boundaries
+        walls, asf = c.domain.boundaries, c.solver.asflip
         faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(dim)]
         friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
         moving = (self.loads.wall_given(), self.wall_v, self.work) if self.feat.moving_walls else None
@@ -334,6 +334,7 @@ class Simulation:
             state=self.state, stress0=self.stress0, body_acc=self.body_acc,
             gravity=self.gravity_field, gravity_before=self.gravity_before_field, stiffness=self.stiffness_field,
             flip_blend=self.flip_blend_field, work=self.work, fail=self.fail, vmax2=self.vmax2, fail_codes=_CODES,
+            asflip=(asf.flip, asf.position_min, asf.position),
             load=self.load, load_slot=self.load_slot, load_index=self.load_index, load_force=self.load_force,
             n_loads=len(self.scene.loads), grip_slot=self.grip_slot, grip_index=self.grip_index, grip_v=self.grip_v,
             grip_impulse=self.grip_impulse, grip_given=self.loads.grip_given(), wall_v=self.wall_v,

@@ -7,6 +7,6 @@ Config validation reads the declarations (names, bases, parameters) without Taic
 kernel builders call with their context. Physics and config both import this module: it imports neither.
 """
 from .base import SCHEMES, Scheme, get, names, register, works_with
-from . import pic, flip, apic, mls, xpic  # noqa: E402,F401  (each module registers its scheme, in this order)
+from . import pic, flip, apic, mls, xpic, asflip  # noqa: E402,F401  (each module registers its scheme, in this order)
 
 __all__ = ["SCHEMES", "Scheme", "get", "names", "register", "works_with"]

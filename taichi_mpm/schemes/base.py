@@ -16,6 +16,7 @@ class Scheme:
     parameters: tuple = ()         # solver.* keys it reads
     affine: bool = False           # carries APIC's affine part (the C field: B_p, or C_p for multilinear weights)
     keeps_old_grid: bool = False   # the grid keeps v before forces (FLIP's increment, XPIC's v)
+    separating: bool = False       # ASFLIP: a FLIP part on APIC, and the position correction (solver.asflip)
     extended: bool = False         # XPIC: v_p = S (v_L - v + v*), v* to order solver.xpic_order (step/xpic.py)
     # the force and the velocity gradient through the affine moment matrix, w D_p^-1 (x_i - x_p), instead of
     # grad w (MLS-MPM; schemes/gradient.py)

@@ -17,6 +17,7 @@ class Features:
     apic: bool                  # an affine transfer (apic, mls): the C field holds APIC's B_p or C_p
     flip: bool                  # flip or xpic: the grid keeps v before forces (v_old)
     xpic: bool                  # solver.transfer xpic: v_p = S (v_L - v + v*), v* on three grid vectors more
+    asflip: bool                # solver.transfer asflip: APIC plus a FLIP part and the position correction
     mls: bool                   # the force and grad v through w D_p^-1 r (schemes/gradient.py)
     musl: bool                  # solver.update musl: a second P2G of the new momentum (grid v2)
     usf: bool                   # solver.update usf: F and the stress from the velocities before forces
@@ -41,6 +42,7 @@ class Features:
             flip=transfer.keeps_old_grid,
             mls=transfer.moment_gradient,
             xpic=transfer.extended,
+            asflip=transfer.separating,
             musl=cfg.solver.update == "musl",
             usf=cfg.solver.update == "usf",
             store_grad_v=transfer.affine or viscosity,

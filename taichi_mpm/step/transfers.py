@@ -71,6 +71,7 @@ def make_p2g(ctx, mf, af, external_force):
     outer, inner = sten.outer, sten.inner
     gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
     flip, viscosity, crack = ctx.feat.flip, ctx.feat.viscosity, crk is not None
+    asflip = ctx.feat.asflip
     density, kirchhoff, viscous_power = mf.density, mf.kirchhoff, mf.viscous_power
     affine, node_momentum = af.affine, af.node_momentum
     grad = make_gradient(sten, ctx.feat.mls)   # grad w, or MLS-MPM's w D_p^-1 r
@@ -101,7 +102,9 @@ def make_p2g(ctx, mf, af, external_force):
                 add(gm, I, w * mp)
                 mom = node_momentum(vp, Ap, r)
                 add(gv, I, w * mp * mom + kick * (stress @ grad.force(M, w, gw, r) + w * force_density))
-                if ti.static(flip):
+                if ti.static(flip and asflip):   # ASFLIP's v_old: the grid velocity before forces, affine part too
+                    add(gv_old, I, w * mp * mom)
+                elif ti.static(flip):
                     add(gv_old, I, w * mp * vp)
 
     @ti.func
@@ -176,6 +179,43 @@ def _moves_x(deform) -> bool:
     return deform in (True, DEFORM_X)
 
 
+def make_velocity_update(ctx):
+    """@ti.func (v_p, v_pic, dv) -> the new v_p of the transfer; dv = sum w (v_i - v_old_i) (FLIP, ASFLIP) or
+    sum w (v*_i - v_old_i) (XPIC)."""
+    f, alpha = ctx.feat, ctx.flip_blend
+    flip, xpic, asflip, as_flip = f.flip, f.xpic, f.asflip, ctx.asflip[0]
+
+    @ti.func
+    def velocity(v_old, v_pic, dv):
+        out = v_pic
+        if ti.static(xpic):
+            out = v_pic + dv
+        elif ti.static(asflip):   # v_pic - dv = sum w v_old_i
+            out = v_pic + as_flip * (v_old - v_pic + dv)
+        elif ti.static(flip):
+            a = alpha[None]
+            out = a * (v_old + dv) + (1.0 - a) * v_pic
+        return out
+    return velocity
+
+
+def make_position_update(ctx):
+    """@ti.func (p, dt, v_pic) -> the particle's new position, after G2P set v_p: x + dt v_pic, and ASFLIP's
+    correction b (v_p - v_pic); B-spline particles in a holding face's wall layer stay inside."""
+    x, v, F = ctx.x, ctx.v, ctx.F
+    asflip, (_, beta_min, beta) = ctx.feat.asflip, ctx.asflip
+    keep_inside = make_wall_hold(ctx)
+
+    @ti.func
+    def position(p, dt, v_pic):
+        step = v_pic
+        if ti.static(asflip):   # the FLIP part moves the particle too, fully where it is not compressed
+            b = beta if F[p].determinant() >= 1.0 else beta_min
+            step += b * (v[p] - v_pic)
+        return keep_inside(p, x[p], x[p] + dt * step)
+    return position
+
+
 def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
     dim, basis = ctx.dim, ctx.basis
@@ -186,13 +226,13 @@ def make_g2p(ctx, mf, af, external_force):
     f = ctx.feat
     flip, apic, crack, has_C = f.flip, f.apic, crk is not None, C is not None
     xpic, v_star = f.xpic, ctx.grid.vec.get("xpic_sum")   # XPIC's v* (step/xpic.py)
+    transfer_velocity, new_position = make_velocity_update(ctx), make_position_update(ctx)
     apic_gradient = basis.apic_gradient
     works = ctx.body_acc is not None or f.tractions
     project_here = f.plastic and not ctx.fbar   # with F-bar: after its average (project_all)
-    alpha, work, fail, vmax2, n_codes = ctx.flip_blend, ctx.work, ctx.fail, ctx.vmax2, ctx.fail_codes
+    work, fail, vmax2, n_codes = ctx.work, ctx.fail, ctx.vmax2, ctx.fail_codes
     failure = make_failure_code(ctx, mf)
     grad = make_gradient(sten, f.mls)   # grad v from grad w, or MLS-MPM's w D_p^-1 r
-    keep_inside = make_wall_hold(ctx)   # B-spline particles in a holding face's wall layer stay inside
     is_fluid, project = mf.is_fluid, mf.project
 
     @ti.func
@@ -224,13 +264,7 @@ def make_g2p(ctx, mf, af, external_force):
     def new_velocity(p, kick, v_pic, dv, B, G):
         """v_p by PIC, FLIP, APIC or XPIC, APIC's C_p, and the work of body forces and tractions over the kick."""
         v_old = v[p]
-        if ti.static(xpic):
-            v[p] = v_pic + dv
-        elif ti.static(flip):
-            a = alpha[None]
-            v[p] = a * (v_old + dv) + (1.0 - a) * v_pic
-        else:
-            v[p] = v_pic
+        v[p] = transfer_velocity(v_old, v_pic, dv)
         if ti.static(works):
             work[0][None] += 0.5 * kick * external_force(p).dot(v_old + v[p])
         if ti.static(apic):
@@ -245,7 +279,7 @@ def make_g2p(ctx, mf, af, external_force):
         deform True: both; DEFORM_F or DEFORM_X: only that (USF updates F before the forces, x after them)."""
         xp = x[p]
         if ti.static(_moves_x(deform)):
-            xp = keep_inside(p, x[p], x[p] + dt * v_pic)
+            xp = new_position(p, dt, v_pic)
         Fp = F[p]
         if ti.static(_moves_F(deform)):
             Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]

@@ -93,6 +93,11 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                           "2002; docs/transfers.md)"),
     "solver.xpic_order": ("1", "XPIC's order m when transfer is xpic: 1 is PIC, each order one more particle-grid "
                               "pass and less numerical dissipation (Hammerquist & Nairn 2017; docs/transfers.md)"),
+    "solver.asflip": ("", "ASFLIP's parameters when transfer is asflip (Fei et al. 2021; docs/transfers.md)"),
+    "solver.asflip.flip": ("1", "ASFLIP's FLIP part: v = v_PIC + flip (v_p - sum w v_old)"),
+    "solver.asflip.position": ("1", "ASFLIP's position correction for particles not compressed (J >= 1): x += dt "
+                                    "(v_PIC + position (v_new - v_PIC))"),
+    "solver.asflip.position_min": ("1", "ASFLIP's position correction for compressed particles (J < 1)"),
     "solver.flip_blend": ("1", "FLIP fraction of the velocity update when transfer is flip (1: pure FLIP)"),
     "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa only; "
                                "superseded by basis cpdi, which follows the full F)"),
