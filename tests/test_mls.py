@@ -208,3 +208,13 @@ def test_transfer_switch_skips_what_the_basis_lacks():
     assert _next_option(TRANSFERS, "apic", "linear") == "xpic"   # mls skipped
     assert _next_option(TRANSFERS, "mls", "cubic") == "xpic"
     assert _next_option(TRANSFERS, TRANSFERS[-1], "cubic") == "pic"
+
+
+def test_advise_ranks_every_registered_transfer():
+    """advise's candidates are the registered schemes; each has a rank for its tie-break, and a basis a scheme
+    lacks is never a candidate (mls with linear)."""
+    from taichi_mpm import schemes
+    from taichi_mpm.tools.advise import ACCURACY, TRANSFERS
+
+    assert set(TRANSFERS) == set(schemes.names()) <= set(ACCURACY)
+    assert not schemes.works_with("mls", "linear") and schemes.works_with("xpic", "linear")

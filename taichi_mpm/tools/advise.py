@@ -40,7 +40,8 @@ from .study import (case_config, default_jobs, finished_records, load_study, pre
 
 BASES = ("linear", "gimp", "quadratic", "cubic")          # cheapest stencil first
 TRANSFERS = transfer_schemes.names()   # every registered scheme (schemes/)
-ACCURACY = {"cubic": 4, "quadratic": 3, "gimp": 2, "linear": 1, "apic": 3, "mls": 3, "flip": 2, "pic": 1}
+ACCURACY = {"cubic": 4, "quadratic": 3, "gimp": 2, "linear": 1,   # a tie-break among equally cheap candidates
+            "apic": 3, "mls": 3, "asflip": 3, "xpic": 2, "flip": 2, "pic": 1}
 COSTS = ("step_time", "wall_time", "work")
 STENCIL = {"linear": 2, "gimp": 3, "quadratic": 3, "cubic": 4}   # nodes per particle and axis
 ADVICE = "advice.md"
