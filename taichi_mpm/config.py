@@ -28,6 +28,7 @@ from .schema import Located as _Located, OneOf, PositiveFloat, Real, Strict, Vec
 from . import fields as field_registry
 from . import geometry
 from . import materials as material_models
+from . import schemes as transfer_schemes
 
 
 class ConfigWarning(UserWarning):
@@ -307,11 +308,22 @@ def _basis_name(v):
     return v
 
 
+class Asflip(Strict):
+    # ASFLIP's parameters (transfer asflip only; Fei et al. 2021): the FLIP part of the velocity update, and the
+    # position correction of particles not compressed (J >= 1) and of compressed ones
+    flip: Annotated[float, Field(ge=0, le=1)] = 1.0
+    position: Annotated[float, Field(ge=0, le=1)] = 1.0
+    position_min: Annotated[float, Field(ge=0, le=1)] = 0.0
+
+
 class Solver(Strict):
     basis: Annotated[str, BeforeValidator(_basis_name), OneOf(bases.names)] = bases.DEFAULT
-    transfer: Literal["pic", "flip", "apic"] = "apic"
-    update: Literal["usl", "musl"] = "usl"
+    transfer: Literal[transfer_schemes.names()] = "apic"   # the registered schemes (schemes/)
+    update: Literal["usl", "musl", "usf"] = "usl"
     flip_blend: Annotated[float, Field(ge=0, le=1)] = 0.99
+    # XPIC's order m (transfer xpic only): 1 is PIC; each order one more particle pass (docs/transfers.md)
+    xpic_order: Annotated[int, BeforeValidator(_no_bool), Field(ge=1, le=8)] = 2
+    asflip: Asflip = Asflip()
     gimp_domain: Literal["uniform", "deforming"] = "uniform"
     cpdi: Cpdi = Cpdi()
     cfl: PositiveFloat = 0.4
@@ -595,6 +607,7 @@ class Config(Strict):
             self._check_body(i, b)
         self._check_velocity_walls()
         self._check_crack_combinations()
+        self._check_transfer()
         self._check_unused_settings()
         if self.solver.cpdi.variant == "cpdi2":   # (solver.cpdi is refused above unless the basis reads it)
             raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
@@ -679,6 +692,33 @@ class Config(Strict):
         if self.crack is not None and why is not None:
             raise _Located("crack", f"the crack finder does not support basis {self.solver.basis}: {why}; use "
                                     f"{bases.listed(bases.names(crack=None))} with a crack section")
+
+    def _check_transfer(self):
+        """The transfer works with the basis (its declaration in schemes/ tests the basis') and the crack finder."""
+        s = self.solver
+        scheme = transfer_schemes.get(s.transfer)
+        if not transfer_schemes.works_with(s.transfer, s.basis):
+            raise _Located("solver.transfer", f"{s.transfer} needs {scheme.basis_why}: it works with the bases "
+                                              f"{bases.listed(transfer_schemes.bases_for(s.transfer))} only (the "
+                                              f"basis is {s.basis}): {scheme.summary}")
+        if s.update == "usf" and (self.crack is not None or s.volumetric == "fbar"):
+            what = "the crack finder (section 'crack')" if self.crack is not None else "volumetric: fbar"
+            raise _Located("solver.update", f"usf cannot be combined with {what}: it updates F before the forces, "
+                                            "in a pass of its own; use usl or musl")
+        # the newer schemes' own keys (declared in their `parameters`): a value other than the default with another
+        # transfer is refused (solver.flip_blend stays unchecked, as before the registry)
+        for key, default in (("xpic_order", 2), ("asflip", Asflip())):
+            readers = [n for n in transfer_schemes.names() if f"solver.{key}" in transfer_schemes.get(n).parameters]
+            if getattr(s, key) != default and s.transfer not in readers:
+                raise _Located(f"solver.{key}", f"is read by solver.transfer {bases.listed(readers)} only (the "
+                                                f"transfer is {s.transfer}): remove it or use transfer "
+                                                f"{bases.listed(readers)}")
+        if scheme.separating and s.update != "usl":
+            raise _Located("solver.update", f"transfer {s.transfer} moves particles with its velocity update: usl "
+                                            f"only (the update is {s.update})")
+        if (scheme.moment_gradient or scheme.extended or scheme.separating) and self.crack is not None:
+            raise _Located("solver.transfer", f"{s.transfer} cannot be combined with the crack finder (section "
+                                              "'crack'): its modified transfers are PIC, FLIP or APIC's")
 
     def _check_unused_settings(self):
         """Settings given that nothing would read: an error at validation rather than a run that ignores them."""

@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 
 from . import materials as material_models
+from . import schemes as transfer_schemes
 from .bases import registry as bases
 from .extensions.crack.fields import NODE_CACHE as CRACK_NODE_CACHE, CrackNeeds
 from .field_decl import FieldDecl, GridDecl, allocate, nbytes  # noqa: F401 (allocate, nbytes: the layout's API)
@@ -30,7 +31,8 @@ class Needs:
     initial_stress: bool
     tractions: bool
     n_state: int                # material state floats (materials/), 0: no state field
-    flip: bool
+    flip: bool                  # the grid keeps v before forces, v_old (flip, xpic, asflip: schemes/)
+    transfer_vectors: tuple     # the transfer's own node vectors (xpic's three: schemes/xpic.py)
     musl: bool
     grips: bool
     mapped: bool                # domain.map: parametric coordinates xi_p
@@ -48,7 +50,8 @@ class Needs:
                    multi_material=feat.multi_material, multi_body=bool(sim.scene.body.max(initial=0) > 0),
                    body_force=feat.body_force, domain_per_particle=feat.domain_per_particle,
                    initial_stress=feat.initial_stress, tractions=feat.tractions,
-                   n_state=material_models.state_size(sim._materials, sim.dim), flip=feat.flip, musl=feat.musl,
+                   n_state=material_models.state_size(sim._materials, sim.dim), flip=feat.flip,
+                   transfer_vectors=transfer_schemes.get(c.solver.transfer).grid_vectors, musl=feat.musl,
                    grips=feat.grips, mapped=sim.mapped is not None, **_common(c, coloured),
                    crack=CrackNeeds.of(c, sim._materials, sim.basis) if c.crack is not None else None)
 
@@ -59,12 +62,13 @@ class Needs:
         viscous = any(getattr(m, "viscosity", 0.0) > 0 for m in mats)
         spacings = {cfg.domain.dx / b.particles_per_cell for b in cfg.bodies}
         s = cfg.solver
-        return cls(dim=cfg.dim, precision=cfg.precision, store_grad_v=s.transfer == "apic" or viscous,
+        scheme = transfer_schemes.get(s.transfer)   # its declaration (schemes/)
+        return cls(dim=cfg.dim, precision=cfg.precision, store_grad_v=scheme.affine or viscous,
                    multi_material=len(mats) > 1, multi_body=len(cfg.bodies) > 1, body_force=body_force,
                    domain_per_particle=bases.get(s.basis).particle_domains and len(spacings) > 1,
                    initial_stress=any(b.stress is not None for b in cfg.bodies),
                    tractions=any(b.tractions for b in cfg.bodies), n_state=material_models.state_size(mats, cfg.dim),
-                   flip=s.transfer == "flip", musl=s.update == "musl",
+                   flip=scheme.keeps_old_grid, transfer_vectors=scheme.grid_vectors, musl=s.update == "musl",
                    grips=any(b.prescribed_velocity for b in cfg.bodies), mapped=cfg.domain.map is not None,
                    **_common(cfg, coloured), crack=CrackNeeds.of(cfg, mats, basis) if cfg.crack is not None else None)
 
@@ -132,7 +136,7 @@ def particle_fields(n: Needs) -> list[FieldDecl]:
 
 
 def main_grid(n: Needs) -> GridDecl:
-    vec = ("v",) + (("v_old",) if n.flip else ()) + (("v2",) if n.musl else ())
+    vec = ("v",) + (("v_old",) if n.flip else ()) + (("v2",) if n.musl else ()) + n.transfer_vectors
     vec += ("grip",) if n.grips else ()   # component 0: the grip (from 1) whose particles touch the node
     apart, scalars = ((), ())
     if n.crack is not None:   # the crack finder's node fields: few particles touch them

@@ -44,7 +44,7 @@ from .scene import Scene, build_scene
 from . import step as step_kernels
 from .step import Features, StepContext
 from .step import extensions as step_extensions
-from .step.transfers import FLUID_J_MIN
+from .step.transfers import DEFORM_F, DEFORM_X, FLUID_J_MIN
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                2: "non-finite value (NaN or infinity) in velocity or deformation",
@@ -180,8 +180,9 @@ class Simulation:
             self.mapped.allocate_particles(n)
         setup = self._setup(f, coloured=self.needs.coloured)
         self.extensions = step_extensions.create(setup)
-        # v (v_old: FLIP, v2: MUSL, grip) by the mass (layout.main_grid); apart, the extensions' node fields (the
-        # crack finder's tensor node mass rows, node normals and marks, which layout.py declares too), few touched
+        # v (v_old: FLIP, XPIC, ASFLIP; XPIC's three; v2: MUSL; grip) by the mass (layout.main_grid); apart, the
+        # extensions' node fields (the crack finder's tensor node mass rows, node normals and marks, which layout.py
+        # declares too), few touched
         g = field_layout.main_grid(self.needs)
         apart, scalars = list(g.apart), list(g.scalars)
         for vectors, more_scalars in (e.grid_fields() for e in self.extensions):
@@ -303,7 +304,7 @@ class Simulation:
 
     def _step_context(self) -> StepContext:
         dim, dx, c = self.dim, self.dx, self.cfg
-        walls = c.domain.boundaries
+        walls, asf = c.domain.boundaries, c.solver.asflip
         faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(dim)]
         friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
         moving = (self.loads.wall_given(), self.wall_v, self.work) if self.feat.moving_walls else None
@@ -324,6 +325,7 @@ class Simulation:
             state=self.state, stress0=self.stress0, body_acc=self.body_acc,
             gravity=self.gravity_field, gravity_before=self.gravity_before_field, stiffness=self.stiffness_field,
             flip_blend=self.flip_blend_field, work=self.work, fail=self.fail, vmax2=self.vmax2, fail_codes=_CODES,
+            asflip=(asf.flip, asf.position_min, asf.position),
             load=self.load, load_slot=self.load_slot, load_index=self.load_index, load_force=self.load_force,
             n_loads=len(self.scene.loads), grip_slot=self.grip_slot, grip_index=self.grip_index, grip_v=self.grip_v,
             grip_impulse=self.grip_impulse, grip_given=self.loads.grip_given(), wall_v=self.wall_v,
@@ -407,6 +409,27 @@ class Simulation:
         for colour in range(self._p2g_passes):
             self._k[kernel](*args, colour)
 
+    def _extend_velocities(self):
+        """solver.transfer xpic: v* to order solver.xpic_order, one particle and one grid pass per order above 1."""
+        self._k["xpic_start"]()
+        for _ in range(self.cfg.solver.xpic_order - 1):
+            self._scatter("xpic_pass")
+            self._k["xpic_update"]()
+
+    def _update_stress_first(self, dt: float):
+        """solver.update usf, its first pass: mass and momentum to the grid (no forces), the node velocities under
+        walls and grips, and F and the stress from them; the step then maps the new stress's forces as USL does."""
+        self.grid.clear()
+        for e in self.extensions:
+            e.before_p2g()
+        self._scatter("p2g", 0.0)
+        if self.feat.grips:
+            self._k["flag_grip_nodes"]()
+        self._k["grid_velocity"](any(e.node_solve_active() for e in self.extensions))   # the chain, no forces
+        self.fail[None] = _NO_FAIL
+        self.vmax2[None] = 0.0
+        self._k["g2p"](dt, 0.0, velocity=False, deform=DEFORM_F)
+
     @states.stepping   # a failed simulation is not stepped again (states.py)
     def step(self, dt: Optional[float] = None) -> float:
         """Advance one step (dt from the CFL rule unless given); returns dt."""
@@ -430,6 +453,8 @@ class Simulation:
         kick_before, kick_after = self._half_dt, 0.5 * dt
         kick = kick_before + kick_after
         self._prescribe(dt)
+        if self.feat.usf:
+            self._update_stress_first(dt)
         self.grid.clear()
         for e in self.extensions:
             e.before_p2g()   # ddmp's nodal volumes, the coloured scatter's bins, the crack finder's normals
@@ -439,15 +464,18 @@ class Simulation:
         # an extension's own node solve (the crack finder's tensor node mass, only with particles in contact)
         special = any(e.node_solve_active() for e in self.extensions)
         k["grid_update"](kick_before, kick_after, special)
-        self.fail[None] = _NO_FAIL
-        self.vmax2[None] = 0.0
+        if self.feat.xpic:
+            self._extend_velocities()
+        if not self.feat.usf:   # USF's first pass reset them, and may have found a failed particle
+            self.fail[None] = _NO_FAIL
+            self.vmax2[None] = 0.0
         if self.feat.musl:
             k["g2p"](dt, kick, velocity=True, deform=False)
             self._scatter("p2g_momentum")  # the first g2p pass left the positions: the same bins
             k["grid_remap"](special)
             k["g2p"](dt, kick, velocity=False, deform=True)
-        else:
-            k["g2p"](dt, kick, velocity=True, deform=True)
+        else:   # USF updated F in its first pass: the positions only
+            k["g2p"](dt, kick, velocity=True, deform=DEFORM_X if self.feat.usf else True)
         for e in self.extensions:
             e.after_g2p()   # the mapped grid's xi_p, F-bar's volume average
         self.dt, self._half_dt = dt, 0.5 * dt

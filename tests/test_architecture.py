@@ -20,9 +20,9 @@ PACKAGE = ROOT / "taichi_mpm"
 LAYERS = {
     # plain building blocks: errors, schema pieces, expressions, knot and map geometry, the material registry, the
     # output-field registry and the names render settings accept, Taichi trace-time helpers, the bases registry,
-    # the field declarations
+    # the field declarations, the transfer-scheme registry (its declarations and gradient pieces)
     "foundation": ("errors", "schema", "geometry", "expressions", "bases.registry", "bases.knots", "bases.mapgeom",
-                   "traced", "jit", "sums", "materials", "fields", "field_decl", "io.colour_range",
+                   "traced", "jit", "sums", "materials", "fields", "field_decl", "schemes", "io.colour_range",
                    "io.render_options", "tools.window_layout"),
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
@@ -36,7 +36,7 @@ LAYERS = {
 }
 # the physics core, and the modules it may never import (issue 26)
 PHYSICS = ("solver", "bases", "grid", "materials", "extensions", "sums", "traced", "jit", "scene", "loads",
-           "analytic", "budget", "backend", "states", "causes", "step", "fields", "layout", "field_decl")
+           "analytic", "budget", "backend", "states", "causes", "step", "fields", "layout", "field_decl", "schemes")
 TOOLS = ("cli", "io", "tools", "probes")
 
 

@@ -207,8 +207,8 @@ def test_session_sliders_switch_and_energy_chart():
     x = sim.particles()["x"]
     push_particles(sim, x[0], [2.0, 0.0], radius=0.05, strength=0.5)
     assert sim.particles()["v"][0, 0] == pytest.approx(0.5 + 0.5 * (2.0 - 0.5))
-    assert s.switch("transfer")                                   # apic -> pic: a new simulation from t = 0
-    assert s.sim is not sim and s.sim.cfg.solver.transfer == "pic" and s.sim.time == 0.0
+    assert s.switch("transfer")                                   # apic -> mls: a new simulation from t = 0
+    assert s.sim is not sim and s.sim.cfg.solver.transfer == "mls" and s.sim.time == 0.0
     assert s.sim.cfg.solver.cfl == pytest.approx(0.25 * s.base_cfl)  # the scale carries over to the new scene
     assert not s.switch("basis", "wavelet") and "not possible" in s.message
 

@@ -221,6 +221,12 @@ CASES = {
                                                      model="snow", hardening=10.0),
     "2d stress, tractions, grip, wall probe": _loads,
     "2d viscous fluid": _viscous,
+    # transfers (issue 28): XPIC's v_old and three grid vectors more, ASFLIP's v_old and C, MLS's C; USF
+    "2d xpic": lambda: make_cfg(2, transfer="xpic", xpic_order=3),
+    "3d xpic dense f32": lambda: _dense(make_cfg(3, transfer="xpic", precision="f32", dx=0.1)),
+    "2d asflip": lambda: make_cfg(2, transfer="asflip"),
+    "2d mls cubic": lambda: make_cfg(2, basis="cubic", transfer="mls"),
+    "2d mls gimp usf": lambda: make_cfg(2, basis="gimp", transfer="mls", update="usf"),
 }
 BODY_FORCE = {"2d body force": lambda: make_cfg(2)}
 

@@ -104,14 +104,14 @@ def test_scenarios_scale_with_wave_speed():
 
 @pytest.mark.slow
 def test_full_stability_map(tmp_path):
-    """The bundled map: 29 scenarios x 3 transfers; nothing errors and nothing ends as silent garbage."""
+    """The bundled map: 29 scenarios x 6 transfers; nothing errors and nothing ends as silent garbage."""
     out = run_study(ROOT / "configs/studies/stability_map.yaml", out=tmp_path / "map", jobs=2)
     rows = _rows(out)
-    assert len(rows) == 87
+    assert len(rows) == 174
     for row in rows:
         _check_never_garbage(row)
     by = {(r["solver.transfer"], r.get("problem.type") or "impact", r.get("problem.boundary")): r for r in rows}
-    for transfer in ("pic", "flip", "apic"):
+    for transfer in ("pic", "flip", "apic", "mls", "xpic", "asflip"):
         assert by[transfer, "edge", "free"]["cause"] == "particle left the domain"
         assert by[transfer, "edge", "slip"]["outcome"] == "ok"
 

@@ -5,6 +5,7 @@
     affine.py        APIC's affine part and the velocity gradient a particle carries
     materials.py     the per-material dispatch (written once) and the material funcs: stress, energy, ...
     transfers.py     P2G, G2P, MUSL's momentum remap; the F update and the particle checks
+    xpic.py          XPIC(m)'s grid passes (v*, order by order)
     grid_update.py   gravity, walls and grips on the grid; tractions' forces, grip and wall velocities
     diagnostics.py   energies, momenta, body moments, stresses, volume ratios
     moments.py       the extension protocol: Extension and its moments, Setup, the contributions extensions make
@@ -27,6 +28,7 @@ from .features import Features
 from .grid_update import make_gravity_kick, make_grid_update, make_motion
 from .materials import MaterialFuncs, make_material_funcs
 from .transfers import make_add, make_external_force, make_g2p, make_p2g
+from .xpic import make_xpic
 
 __all__ = ["Features", "StepContext", "StepFuncs", "make_funcs", "make_gravity_kick", "make_kernels"]
 
@@ -57,4 +59,6 @@ def make_kernels(ctx: StepContext, funcs: StepFuncs) -> dict:
     kernels.update(make_g2p(ctx, mf, af, external_force))
     kernels.update(make_motion(ctx))
     kernels.update(make_diagnostics(ctx, mf, af))
+    if ctx.feat.xpic:
+        kernels.update(make_xpic(ctx, mf))
     return kernels

@@ -24,6 +24,7 @@ class StepContext(KernelContext):
     gravity_before: Any = None       # the last step's gravity (see gravity_kick)
     stiffness: Any = None            # per material slot
     flip_blend: Any = None
+    asflip: tuple = (1.0, 0.0, 1.0)  # solver.asflip: FLIP part a, position correction b compressed, b otherwise
     # accumulators: work[0] external work, work[1] viscous, work[2] plastic dissipation (sums.Slots)
     work: Any = None
     fail: Any = None                 # smallest solver slot * codes + cause of a failed particle

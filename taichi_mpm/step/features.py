@@ -8,15 +8,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import schemes
 from ..bases import registry as bases
 from ..materials import MODELS
 
 
 @dataclass(frozen=True)
 class Features:
-    apic: bool                  # solver.transfer apic: the C field holds APIC's B_p or C_p
-    flip: bool                  # solver.transfer flip: the grid keeps v before forces (v_old)
+    apic: bool                  # an affine transfer (apic, mls): the C field holds APIC's B_p or C_p
+    flip: bool                  # flip, xpic, asflip: the grid keeps v before forces (v_old)
+    xpic: bool                  # solver.transfer xpic: v_p = S (v_L - v + v*), v* on three grid vectors more
+    asflip: bool                # solver.transfer asflip: APIC plus a FLIP part and the position correction
+    mls: bool                   # the force and grad v through w D_p^-1 r (schemes/gradient.py)
     musl: bool                  # solver.update musl: a second P2G of the new momentum (grid v2)
+    usf: bool                   # solver.update usf: F and the stress from the velocities before forces
     store_grad_v: bool          # a C field: APIC's B_p or C_p, or grad v (viscosity)
     multi_material: bool        # a per-particle material index
     body_force: bool            # Simulation(body_force=...): a per-particle body acceleration
@@ -31,13 +36,17 @@ class Features:
     @classmethod
     def of(cls, cfg, scene, materials: list, body_force: bool, moving_walls: bool) -> "Features":
         """The features of a scene: its config, particles (scene.Scene), material configs in slot order."""
-        transfer = cfg.solver.transfer
+        transfer = schemes.get(cfg.solver.transfer)   # its declaration (schemes/)
         viscosity = any(getattr(m, "viscosity", 0.0) > 0 for m in materials)
         return cls(
-            apic=transfer == "apic",
-            flip=transfer == "flip",
+            apic=transfer.affine,
+            flip=transfer.keeps_old_grid,
+            mls=transfer.moment_gradient,
+            xpic=transfer.extended,
+            asflip=transfer.separating,
             musl=cfg.solver.update == "musl",
-            store_grad_v=transfer == "apic" or viscosity,
+            usf=cfg.solver.update == "usf",
+            store_grad_v=transfer.affine or viscosity,
             multi_material=len(materials) > 1,
             body_force=body_force,
             domain_per_particle=bases.get(cfg.solver.basis).particle_domains and len(np.unique(scene.spacing)) > 1,

@@ -87,9 +87,11 @@ def make_accelerations(ctx):
 
 
 def make_grid_update(ctx):
-    """Kernels grid_update(kick_before, kick_after, special) and grid_remap(special) (MUSL): the grid solve, one
-    chain for every node and every extension (step.moments.GridSolve): node velocity from momentum, gravity, the
-    extensions' accelerations, walls, grips. special: some extension's node solve acts this step."""
+    """Kernels grid_update(kick_before, kick_after, special), grid_remap(special) (MUSL) and grid_velocity(special)
+    (USF's first pass): the grid solve, one chain for every node and every extension (step.moments.GridSolve): node
+    velocity from momentum, gravity, the extensions' accelerations, walls, grips; the remap and USF's first pass take
+    the same chain without the forces (gravity, accelerations). special: some extension's node solve acts this
+    step."""
     gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
     flip, wall, gravity_kick = ctx.feat.flip, ctx.wall, ctx.gravity_kick
     grip_condition = make_grip_condition(ctx)
@@ -109,14 +111,26 @@ def make_grid_update(ctx):
                 if ti.static(flip):
                     gv_old[I] = node_velocity(I, m, gv_old[I], special)
 
-    @ti.kernel
-    def grid_remap(special: ti.template()):
+    @ti.func
+    def velocities(g: ti.template(), special: ti.template()):
+        """The chain without forces, unmeasured (the step's measured update is grid_update): g = the node solve of
+        the momentum g under the walls and grips."""
         for I in ti.grouped(gm):
             m = gm[I]
             if has_mass(I, m, special):
-                gv2[I] = grip_condition(I, wall(I, node_velocity(I, m, gv2[I], special)), m, measure=False)
+                g[I] = grip_condition(I, wall(I, node_velocity(I, m, g[I], special)), m, measure=False)
 
-    return dict(grid_update=grid_update, grid_remap=grid_remap)
+    @ti.kernel
+    def grid_remap(special: ti.template()):
+        """MUSL: the remapped momentum's velocities."""
+        velocities(gv2, special)
+
+    @ti.kernel
+    def grid_velocity(special: ti.template()):
+        """USF's first pass: the velocities before forces, from which it updates F and the stress."""
+        velocities(gv, special)
+
+    return dict(grid_update=grid_update, grid_remap=grid_remap, grid_velocity=grid_velocity)
 
 
 def make_motion(ctx):

@@ -11,8 +11,10 @@ Physics code only: no CLI, rendering or file I/O here.
 import taichi as ti
 
 from ..bases.stencils import make_corner_check, make_wall_hold
+from ..schemes.gradient import make_gradient
 
 FLUID_J_MIN = 0.2           # a weakly compressible fluid squeezed below this volume ratio has collapsed
+DEFORM_F, DEFORM_X = 2, 3   # g2p's deform for one half of the update (USF: F before the forces, x after them)
 
 
 def make_add(coloured: bool):
@@ -45,7 +47,7 @@ def make_external_force(ctx, mf):
     return external_force
 
 
-def _colour_loop(ctx, particle):
+def colour_loop(ctx, particle):
     """@ti.func (colour, arg) -> particle(p, arg) for every particle: of the blocks of `colour` with the coloured
     scatter (scatter.BlockBins, one kernel call per colour), else all of them (the colour is then unused)."""
     x, bins = ctx.x, ctx.bins
@@ -69,12 +71,15 @@ def make_p2g(ctx, mf, af, external_force):
     outer, inner = sten.outer, sten.inner
     gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
     flip, viscosity, taken, degraded = ctx.feat.flip, ctx.feat.viscosity, pt is not None, dg is not None
+    asflip = ctx.feat.asflip
     density, kirchhoff, viscous_power = mf.density, mf.kirchhoff, mf.viscous_power
     affine, node_momentum = af.affine, af.node_momentum
+    grad = make_gradient(sten, ctx.feat.mls)   # grad w, or MLS-MPM's w D_p^-1 r
 
     @ti.func
     def p2g_particle(p, kick):
         st = sten.at(p)
+        M = grad.prepare(st)
         Fp = F[p]
         mp = density(p) * vol0[p]
         stress = -vol0[p] * kirchhoff(p, Fp)
@@ -96,8 +101,10 @@ def make_p2g(ctx, mf, af, external_force):
                 I, w, gw, r = sten.node(st, o + inner[k])
                 add(gm, I, w * mp)
                 mom = node_momentum(vp, Ap, r)
-                add(gv, I, w * mp * mom + kick * (stress @ gw + w * force_density))
-                if ti.static(flip):
+                add(gv, I, w * mp * mom + kick * (stress @ grad.force(M, w, gw, r) + w * force_density))
+                if ti.static(flip and asflip):   # ASFLIP's v_old: the grid velocity before forces, affine part too
+                    add(gv_old, I, w * mp * mom)
+                elif ti.static(flip):
                     add(gv_old, I, w * mp * vp)
 
     @ti.func
@@ -117,8 +124,8 @@ def make_p2g(ctx, mf, af, external_force):
                 I, w, gw, r = sten.node(st, o + inner[k])
                 add(gv2, I, w * mp * node_momentum(vp, Ap, r))
 
-    p2g_loop = _colour_loop(ctx, p2g_particle)
-    momentum_loop = _colour_loop(ctx, p2g_momentum_particle)
+    p2g_loop = colour_loop(ctx, p2g_particle)
+    momentum_loop = colour_loop(ctx, p2g_momentum_particle)
 
     @ti.kernel
     def p2g(kick: float, colour: int):
@@ -163,6 +170,52 @@ def make_failure_code(ctx, mf):
     return failure
 
 
+def _moves_F(deform) -> bool:
+    """g2p's deform (False, True, DEFORM_F, DEFORM_X): whether the pass updates F."""
+    return deform in (True, DEFORM_F)
+
+
+def _moves_x(deform) -> bool:
+    return deform in (True, DEFORM_X)
+
+
+def make_velocity_update(ctx):
+    """@ti.func (v_p, v_pic, dv) -> the new v_p of the transfer; dv = sum w (v_i - v_old_i) (FLIP, ASFLIP) or
+    sum w (v*_i - v_old_i) (XPIC)."""
+    f, alpha = ctx.feat, ctx.flip_blend
+    flip, xpic, asflip, as_flip = f.flip, f.xpic, f.asflip, ctx.asflip[0]
+
+    @ti.func
+    def velocity(v_old, v_pic, dv):
+        out = v_pic
+        if ti.static(xpic):
+            out = v_pic + dv
+        elif ti.static(asflip):   # v_pic - dv = sum w v_old_i
+            out = v_pic + as_flip * (v_old - v_pic + dv)
+        elif ti.static(flip):
+            a = alpha[None]
+            out = a * (v_old + dv) + (1.0 - a) * v_pic
+        return out
+    return velocity
+
+
+def make_position_update(ctx):
+    """@ti.func (p, dt, v_pic) -> the particle's new position, after G2P set v_p: x + dt v_pic, and ASFLIP's
+    correction b (v_p - v_pic); B-spline particles in a holding face's wall layer stay inside."""
+    x, v, F = ctx.x, ctx.v, ctx.F
+    asflip, (_, beta_min, beta) = ctx.feat.asflip, ctx.asflip
+    keep_inside = make_wall_hold(ctx)
+
+    @ti.func
+    def position(p, dt, v_pic):
+        step = v_pic
+        if ti.static(asflip):   # the FLIP part moves the particle too, fully where it is not compressed
+            b = beta if F[p].determinant() >= 1.0 else beta_min
+            step += b * (v[p] - v_pic)
+        return keep_inside(p, x[p], x[p] + dt * step)
+    return position
+
+
 def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
     dim, basis = ctx.dim, ctx.basis
@@ -172,45 +225,46 @@ def make_g2p(ctx, mf, af, external_force):
     gv, gv_old, vgrad = ctx.gv, ctx.gv_old, ctx.vgrad   # MUSL takes grad v from the remapped velocities
     f = ctx.feat
     flip, apic, taken, has_C = f.flip, f.apic, pt is not None, C is not None
+    xpic, v_star = f.xpic, ctx.grid.vec.get("xpic_sum")   # XPIC's v* (step/xpic.py)
+    transfer_velocity, new_position = make_velocity_update(ctx), make_position_update(ctx)
     apic_gradient = basis.apic_gradient
     works = ctx.body_acc is not None or f.tractions
     project_here = f.plastic and not ctx.project_after_g2p   # with F-bar: after its average (project_all)
-    alpha, work, fail, vmax2, n_codes = ctx.flip_blend, ctx.work, ctx.fail, ctx.vmax2, ctx.fail_codes
+    work, fail, vmax2, n_codes = ctx.work, ctx.fail, ctx.vmax2, ctx.fail_codes
     failure = make_failure_code(ctx, mf)
-    keep_inside = make_wall_hold(ctx)   # B-spline particles in a holding face's wall layer stay inside
+    grad = make_gradient(sten, f.mls)   # grad v from grad w, or MLS-MPM's w D_p^-1 r
     is_fluid, project = mf.is_fluid, mf.project
 
     @ti.func
     def g2p_sums(p, st, velocity: ti.template(), deform: ti.template()):
-        """A particle's G2P sums over its stencil: (v_pic, FLIP increment, APIC B, velocity gradient G)."""
+        """A particle's G2P sums over its stencil: (v_pic, FLIP or XPIC increment, APIC B, velocity gradient G)."""
         v_pic = ti.Vector.zero(float, dim)
         dv = ti.Vector.zero(float, dim)
         B = ti.Matrix.zero(float, dim, dim)
         G = ti.Matrix.zero(float, dim, dim)
+        M = grad.prepare(st)
         for o in ti.grouped(ti.ndrange(*outer)):
           for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
             I, w, gw, r = sten.node(st, o + inner[k])
             vi = gv[I]
             v_pic += w * vi
-            if ti.static(velocity and flip):
+            if ti.static(velocity and xpic):
+                dv += w * (v_star[I] - gv_old[I])
+            elif ti.static(velocity and flip):
                 dv += w * (vi - gv_old[I])
             if ti.static(velocity and apic and not apic_gradient):
                 B += w * vi.outer_product(r)
-            if ti.static(deform):
-                G += vgrad[I].outer_product(gw)
+            if ti.static(_moves_F(deform)):
+                G += grad.term(M, vgrad[I], w, gw, r)
             elif ti.static(apic and apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
                 G += vi.outer_product(gw)
-        return v_pic, dv, B, G
+        return v_pic, dv, B, grad.finish(M, G)
 
     @ti.func
     def new_velocity(p, kick, v_pic, dv, B, G):
-        """v_p by PIC, FLIP or APIC, APIC's C_p, and the work of body forces and tractions over the kick."""
+        """v_p by PIC, FLIP, APIC or XPIC, APIC's C_p, and the work of body forces and tractions over the kick."""
         v_old = v[p]
-        if ti.static(flip):
-            a = alpha[None]
-            v[p] = a * (v_old + dv) + (1.0 - a) * v_pic
-        else:
-            v[p] = v_pic
+        v[p] = transfer_velocity(v_old, v_pic, dv)
         if ti.static(works):
             work[0][None] += 0.5 * kick * external_force(p).dot(v_old + v[p])
         if ti.static(apic):
@@ -220,18 +274,24 @@ def make_g2p(ctx, mf, af, external_force):
                 C[p] = B  # store_B
 
     @ti.func
-    def deform_particle(p, dt, v_pic, G):
-        """Positions x += dt v_grid, F = (I + dt grad v) F (fluids keep only J), return mapping, checks."""
-        xp = keep_inside(p, x[p], x[p] + dt * v_pic)
-        Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
+    def deform_particle(p, dt, v_pic, G, deform: ti.template()):
+        """Positions x += dt v_grid, F = (I + dt grad v) F (fluids keep only J), return mapping, checks.
+        deform True: both; DEFORM_F or DEFORM_X: only that (USF updates F before the forces, x after them)."""
+        xp = x[p]
+        if ti.static(_moves_x(deform)):
+            xp = new_position(p, dt, v_pic)
+        Fp = F[p]
+        if ti.static(_moves_F(deform)):
+            Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
         J = Fp.determinant()
-        if is_fluid(p):
-            Fp = ti.Matrix.identity(float, dim) * ti.pow(ti.abs(J), 1.0 / dim)
-        if ti.static(project_here):
-            Fp = project(p, Fp)
+        if ti.static(_moves_F(deform)):
+            if is_fluid(p):
+                Fp = ti.Matrix.identity(float, dim) * ti.pow(ti.abs(J), 1.0 / dim)
+            if ti.static(project_here):
+                Fp = project(p, Fp)
         x[p] = xp
         F[p] = Fp
-        if ti.static(has_C and not apic):
+        if ti.static(has_C and not apic and _moves_F(deform)):
             C[p] = G
         speed2 = v[p].norm_sqr()
         ti.atomic_max(vmax2[None], speed2)
@@ -243,8 +303,9 @@ def make_g2p(ctx, mf, af, external_force):
     def g2p(dt: float, kick: float, velocity: ti.template(), deform: ti.template()):
         """Grid to particles. velocity: new v (PIC, FLIP or APIC) and APIC's C, and the work of body forces
         and tractions over the kick, by the trapezoid of the old and new velocities (exact for a uniform force:
-        the kinetic energy's change). deform: positions x += dt v_grid, F = (I + dt grad v) F, and checks.
-        USL does both in one pass; MUSL does them in two passes around the momentum remap."""
+        the kinetic energy's change). deform: positions x += dt v_grid, F = (I + dt grad v) F, and checks
+        (True; DEFORM_F or DEFORM_X for one of them). USL does both in one pass; MUSL does them in two passes
+        around the momentum remap; USF updates F (DEFORM_F) before the forces and the rest (DEFORM_X) after them."""
         for p in x:
             st = sten.at(p)
             v_pic = ti.Vector.zero(float, dim)
@@ -261,6 +322,6 @@ def make_g2p(ctx, mf, af, external_force):
             if ti.static(velocity):
                 new_velocity(p, kick, v_pic, dv, B, G)
             if ti.static(deform):
-                deform_particle(p, dt, v_pic, G)
+                deform_particle(p, dt, v_pic, G, deform)
 
     return dict(g2p=g2p)

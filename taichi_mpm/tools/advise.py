@@ -32,14 +32,16 @@ from typing import Optional
 
 import yaml
 
+from .. import schemes as transfer_schemes
 from . import observe as obs
 from ..bases import registry as basis_registry
 from ..config import ConfigError
 from .study import (case_config, default_jobs, finished_records, load_study, prepare_out, print_progress, run_cases,
                     study_dump, write_reports)
 
-TRANSFERS = ("pic", "flip", "apic")
-TRANSFER_ACCURACY = {"apic": 3, "flip": 2, "pic": 1}   # a basis's rank is its declaration's `accuracy`
+TRANSFERS = transfer_schemes.names()   # every registered scheme (schemes/)
+# a tie-break among equally cheap candidates: a basis's rank is its declaration's `accuracy`, a transfer's too
+TRANSFER_ACCURACY = {name: transfer_schemes.get(name).accuracy for name in TRANSFERS}
 COSTS = ("step_time", "wall_time", "work")
 ADVICE = "advice.md"
 
@@ -141,7 +143,8 @@ class _Sweep:
         self.name = re.sub(r"[^A-Za-z0-9_.-]", "_", cfg.name)[:80] or "run"
         self.dim, self.nbodies = cfg.dim, len(cfg.bodies)
         self.dxs = [cfg.domain.dx / 2**k for k in range(levels)]
-        self.combos = [(b, t, n) for b in bases for t in transfers for n in (list(ppc) if ppc else [None])]
+        self.combos = [(b, t, n) for b in bases for t in transfers for n in (list(ppc) if ppc else [None])
+                       if transfer_schemes.works_with(t, b)]   # mls needs a D_p that is never singular
         study = dict(base_study, study=f"advise_{self.name}",
                      cases=[self.params(b, t, dx, n) for (b, t, n) in self.combos for dx in self.dxs])
         self.st = load_study(study, allow_problems)              # every candidate's config validated up front

@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from .. import config, fields, materials
+from .. import config, fields, materials, schemes
 from ..io import files as io
 from ..bases import registry as bases
 from ..schema import OneOf
@@ -86,8 +86,19 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.cpdi": ("", "options of basis cpdi"),
     "solver.cpdi.variant": ("", "cpdi1: parallelogram / parallelepiped domains with half-edges F r0 (Sadeghirad et "
                                 "al. 2011); cpdi2 (corners tracked as points) is not implemented yet"),
-    "solver.transfer": ("", "particle-grid velocity transfer: pic, flip or apic"),
-    "solver.update": ("", "usl (update stress last) or musl (F from re-mapped velocities, Sulsky 1995)"),
+    "solver.transfer": ("", "particle-grid velocity transfer (docs/transfers.md): " + "; ".join(
+        f"{s.name}: {s.summary}" + (f" (bases {', '.join(schemes.bases_for(s.name))})" if s.basis_need else "")
+        for s in schemes.SCHEMES.values())),
+    "solver.update": ("", "usl (update stress last), musl (F from re-mapped velocities, Sulsky 1995) or usf "
+                          "(update stress first: F and the stress from the velocities before forces, Bardenhagen "
+                          "2002; docs/transfers.md)"),
+    "solver.xpic_order": ("1", "XPIC's order m when transfer is xpic: 1 is PIC, each order one more particle-grid "
+                              "pass and less numerical dissipation (Hammerquist & Nairn 2017; docs/transfers.md)"),
+    "solver.asflip": ("", "ASFLIP's parameters when transfer is asflip (Fei et al. 2021; docs/transfers.md)"),
+    "solver.asflip.flip": ("1", "ASFLIP's FLIP part: v = v_PIC + flip (v_p - sum w v_old)"),
+    "solver.asflip.position": ("1", "ASFLIP's position correction for particles not compressed (J >= 1): x += dt "
+                                    "(v_PIC + position (v_new - v_PIC))"),
+    "solver.asflip.position_min": ("1", "ASFLIP's position correction for compressed particles (J < 1)"),
     "solver.flip_blend": ("1", "FLIP fraction of the velocity update when transfer is flip (1: pure FLIP)"),
     "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa only; "
                                "superseded by basis cpdi, which follows the full F)"),

@@ -27,12 +27,24 @@ import time as _time
 
 import numpy as np
 
+from .. import schemes as transfer_schemes
 from ..bases import registry as basis_registry
 from ..io.colour_range import LiveLimits
 from ..io.render import available_fields, field_values
 from .window_layout import CHART, CHART_COLOURS, CHART_LENGTH, HELP, SLIDER_TOLERANCE
 
-TRANSFERS = ("pic", "flip", "apic")
+TRANSFERS = transfer_schemes.names()   # every registered scheme (schemes/); the switch skips those the basis lacks
+
+
+def _next_option(options, current, basis=None):
+    """The option after `current` (cyclic; the first when `current` is not listed); for transfers, the next one
+    the basis works with (schemes/: a scheme's basis_need reads the basis' declaration)."""
+    start = options.index(current) + 1 if current in options else 0
+    for k in range(len(options)):
+        value = options[(start + k) % len(options)]
+        if basis is None or transfer_schemes.works_with(value, basis):
+            return value
+    return options[start % len(options)]
 
 
 class View:
@@ -356,7 +368,7 @@ class Session:
                         "transfer": ("solver.transfer", TRANSFERS)}[what]
         current = getattr(self.cfg.solver, what)
         if value is None:
-            value = options[(options.index(current) + 1) % len(options)] if current in options else options[0]
+            value = _next_option(options, current, self.cfg.solver.basis if what == "transfer" else None)
         data = self.cfg.to_dict()
         data["solver"][what] = value
         data["solver"]["cfl"] = self.base_cfl

@@ -12,6 +12,7 @@ from ...errors import ConfigError
 from ...field_decl import FieldDecl, GridDecl, allocate, nbytes
 from ...grid import Grid
 from ...materials import MODELS, rankine_params
+from ...schemes import get as transfer_scheme
 from .constants import ALL, CELL_SPLIT, MAX_CELLS
 
 
@@ -45,7 +46,8 @@ class CrackNeeds:
     @classmethod
     def of(cls, cfg, materials, basis) -> "CrackNeeds":
         cc = cfg.crack
-        return cls(dim=cfg.dim, apic=cfg.solver.transfer == "apic", has_law=has_damage_law(materials),
+        # an affine transfer's centroid field (config allows apic only of the affine ones with a crack section)
+        return cls(dim=cfg.dim, apic=transfer_scheme(cfg.solver.transfer).affine, has_law=has_damage_law(materials),
                    stencil_nodes=basis.contributions(cfg.dim), contact=bool(cc.contact_in_compression),
                    kept_normals=cc.normal_refresh > 0)
 

@@ -5,6 +5,7 @@ import json
 import sys
 from pathlib import Path
 
+from ... import schemes as transfer_schemes
 from .cfl import CFL_SPEC, cfl_markdown, cfl_table
 from .picture import plot_map
 
@@ -14,7 +15,7 @@ def main(argv=None):
     sub = ap.add_subparsers(dest="cmd", required=True)
     c = sub.add_parser("cfl", help="largest stable CFL number per basis and transfer")
     c.add_argument("--bases", help="comma-separated (default: the registry's swept bases, bases/registry.py)")
-    c.add_argument("--transfers", default="pic,flip,apic")
+    c.add_argument("--transfers", default=",".join(transfer_schemes.names()))
     c.add_argument("--spec", default=json.dumps(CFL_SPEC), help="scenario spec (JSON)")
     c.add_argument("--lo", type=float, default=0.1)
     c.add_argument("--hi", type=float, default=1.5)

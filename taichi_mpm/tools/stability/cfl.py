@@ -5,6 +5,7 @@ import json
 import math
 from typing import Optional
 
+from ... import schemes as transfer_schemes
 from ...bases import registry as basis_registry
 from ..study import execute_case, user_paths
 
@@ -56,12 +57,14 @@ def largest_stable_cfl(basis: str, transfer: str, spec: dict, lo: float = 0.1, h
 CFL_SPEC = {"type": "impact", "dim": 2, "cells": 16, "mach": 0.1, "transits": 24.0}  # 6 transits was too short
 
 
-def cfl_table(bases=None, transfers=("pic", "flip", "apic"), spec=None, jobs: int = 1, **kw) -> list[dict]:
+def cfl_table(bases=None, transfers=None, spec=None, jobs: int = 1, **kw) -> list[dict]:
     """largest_stable_cfl for every basis x transfer (combinations in parallel with `jobs`); bases: default the
-    registry's swept bases (bases/registry.py)."""
+    registry's swept bases (bases/registry.py); transfers: every registered scheme by default, each only with the
+    bases it works with (schemes/)."""
     spec = spec or CFL_SPEC
     bases = basis_registry.swept() if bases is None else bases
-    combos = [(b, t) for b in bases for t in transfers]
+    transfers = transfers or transfer_schemes.names()
+    combos = [(b, t) for b in bases for t in transfers if transfer_schemes.works_with(t, b)]
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         return list(pool.map(lambda bt: largest_stable_cfl(bt[0], bt[1], spec, **kw), combos))
 
@@ -74,7 +77,7 @@ def cfl_markdown(rows: list[dict], spec: dict) -> str:
     for b in bases:
         cells = []
         for t in transfers:
-            r = next(r for r in rows if r["basis"] == b and r["transfer"] == t)
-            cells.append("< lo" if r["cfl"] is None else f"{r['cfl']:.2f}")
+            r = next((r for r in rows if r["basis"] == b and r["transfer"] == t), None)
+            cells.append("n/a" if r is None else "< lo" if r["cfl"] is None else f"{r['cfl']:.2f}")
         lines.append(f"| {b} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
