@@ -119,7 +119,7 @@ ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = henck
 hencky_energy = None
 
 TENSOR_NAMES = ("embed3", "embed_held", "top_left", "rotation", "eigh", "principal_matrix", "hencky",
-                "rescale_principal", "hencky_energy", "hencky_elasticity")
+                "rescale_principal", "hencky_energy", "hencky_elasticity", "elastic_full")
 
 
 def use_taichi(namespace: dict):

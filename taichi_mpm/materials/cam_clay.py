@@ -72,7 +72,7 @@ from .von_mises import HELD_STRETCH, PLASTIC_STRAIN
 
 # `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
 ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = hencky = rescale_principal = None
-hencky_energy = hencky_elasticity = None
+hencky_energy = hencky_elasticity = elastic_full = None
 
 Index = Annotated[float, BeforeValidator(_no_bool)]
 EXP_LIMIT = 80.0       # exponents of the elastic law clamped to +-80 (f32 overflows at 88): strains of 80 kappa*
@@ -137,14 +137,7 @@ class CamClay(Model):
         r23, r32 = math.sqrt(2.0 / 3.0), math.sqrt(1.5)
         P, JPS, Z = 0, 1, 2  # state slots: plastic strain, J_p, held stretch
 
-        @ti.func
-        def full(F, q):
-            F3 = ti.Matrix.identity(float, 3)
-            if ti.static(dim == 3):
-                F3 = F
-            else:
-                F3 = embed_held(F, q[Z])
-            return F3
+        full = elastic_full(dim, Z)   # the 3D elastic F (materials/tensor.py)
 
         @ti.func
         def principal_stress(eps):

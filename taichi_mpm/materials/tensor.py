@@ -140,11 +140,9 @@ def hencky_energy(eps, mu, lam):
     return mu * eps.dot(eps) + 0.5 * lam * tr * tr
 
 
-def hencky_elasticity(mu: float, lam: float, dim: int, held: int):
-    """The elastic part shared by the Hencky-strain plastic models (von_mises, drucker_prager), as Taichi funcs of the
-    elastic F and the state q: `full` (the 3D elastic F; in 1D/2D the held axes' elastic stretch is state slot `held`),
-    the model's `kirchhoff3`/`kirchhoff` (tau = Q (2 mu eps + lam tr eps) Q^T of the full F) and `energy` (the
-    elastic energy density)."""
+def elastic_full(dim: int, held: int):
+    """The 3D elastic F of a particle as a Taichi func of F and the state q: F itself in 3D; in 1D/2D embedded with
+    the held axes' elastic stretch, state slot `held` (the Hencky-strain plastic models and cam_clay)."""
 
     @ti.func
     def full(F, q):
@@ -154,6 +152,16 @@ def hencky_elasticity(mu: float, lam: float, dim: int, held: int):
         else:
             F3 = embed_held(F, q[held])
         return F3
+
+    return full
+
+
+def hencky_elasticity(mu: float, lam: float, dim: int, held: int):
+    """The elastic part shared by the Hencky-strain plastic models (von_mises, drucker_prager), as Taichi funcs of the
+    elastic F and the state q: `full` (the 3D elastic F; in 1D/2D the held axes' elastic stretch is state slot `held`),
+    the model's `kirchhoff3`/`kirchhoff` (tau = Q (2 mu eps + lam tr eps) Q^T of the full F) and `energy` (the
+    elastic energy density)."""
+    full = elastic_full(dim, held)
 
     @ti.func
     def tau3(F3):
