@@ -405,6 +405,7 @@ def _gliding_pair(refresh):
     return sim
 
 
+@pytest.mark.slow   # 16 s of kernels; the kept normals' refresh is checked by default in the two tests around it
 def test_a_body_moving_as_a_whole_keeps_its_normals():
     """A refresh recomputes a normal only where the neighbours moved against each other by the skin: the blocks
     gliding together refresh at every step (particles move more than 0.5 % of r in each) and never recompute one after
