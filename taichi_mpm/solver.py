@@ -180,14 +180,13 @@ class Simulation:
             self.mapped.allocate_particles(n)
         setup = self._setup(f, coloured=self.needs.coloured)
         self.extensions = step_extensions.create(setup)
-        # v (v_old: FLIP, XPIC, ASFLIP; XPIC's three; v2: MUSL; grip) by the mass (layout.main_grid); apart, the
-        # extensions' node fields (the crack finder's tensor node mass rows, node normals and marks, which layout.py
-        # declares too), few touched
+        # v (v_old: FLIP, XPIC, ASFLIP; XPIC's three; v2: MUSL; grip) by the mass, and apart, few touched, the crack
+        # finder's node fields (tensor node mass rows, normals, marks): all declared in layout.main_grid; then the
+        # node fields of an extension layout.py does not know (a plug-in's grid_fields)
         g = field_layout.main_grid(self.needs)
-        apart, scalars = list(g.apart), list(g.scalars)
-        for vectors, more_scalars in (e.grid_fields() for e in self.extensions):
-            apart += [name for name in vectors if name not in apart]
-            scalars += [name for name in more_scalars if name not in scalars]
+        declared = [e.grid_fields() for e in self.extensions]
+        apart = list(g.apart) + [name for vectors, _ in declared for name in vectors]
+        scalars = list(g.scalars) + [name for _, more in declared for name in more]
         self.grid = Grid(d, shape, self.backend.sparse, list(g.vectors), apart, scalars)
         self.bins = scatter.BlockBins(d, self.grid, n) if setup.coloured else None  # atomic-free P2G (scatter.py)
         setup.grid, setup.bins = self.grid, self.bins

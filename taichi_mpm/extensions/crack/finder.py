@@ -13,7 +13,7 @@ from .contact import contact_test_funcs
 from .contact_lists import ContactPool, contact_list_kernel
 from .context import crack_context
 from .damage import damage_funcs
-from .fields import CrackFields, grid_fields, particle_bytes
+from .fields import CrackFields, particle_bytes
 from .inspection import partition_check_kernel
 from .nodes import node_cache_kernels, node_normals_func
 from .normals import particle_normal_funcs
@@ -51,9 +51,6 @@ class CrackFinder(Extension):
         self._k = {}               # kernels by name (build)
 
     # ------------------------------------------------------------------ the step's moments
-    def grid_fields(self) -> tuple[list, list]:
-        return grid_fields(self.dim)
-
     def allocate(self, setup):
         self.view = view_of(setup)   # everything the finder reads of the scene and the solver's fields
         self.fields = CrackFields(self.view, self.cc)
