@@ -9,6 +9,8 @@ import math
 
 import taichi as ti
 
+from .friction import friction_loss
+
 LEAF = {1: 64, 2: 8, 3: 4}          # nodes per axis of a dense leaf block
 MAX_TOP_POINTERS = 1 << 16          # pointer slots at the top level before a second level is added
 
@@ -122,10 +124,7 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
         else:
             v -= vn * n
         if ti.static(mu > 0 and dim > 1):
-            vt = v - v.dot(n) * n
-            speed = vt.norm()
-            if speed > 0.0:
-                v -= vt * ti.min(1.0, mu * into / speed)
+            v -= friction_loss(v - v.dot(n) * n, into, mu)
         return v
 
     @ti.func

@@ -27,7 +27,7 @@ LAYERS = {
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
     "physics": ("grid", "bases", "extensions", "loads", "scene", "backend", "states", "causes", "step", "layout",
-                "budget", "solver", "analytic"),
+                "budget", "solver", "analytic", "friction"),
     # output files, probes, the output-writing run, frames and plots
     "outputs": ("io", "probes"),
     # the tools: studies, stability scenarios and the CFL search, advise, compare, the windows, the config reference
@@ -36,7 +36,8 @@ LAYERS = {
 }
 # the physics core, and the modules it may never import (issue 26)
 PHYSICS = ("solver", "bases", "grid", "materials", "extensions", "sums", "traced", "jit", "scene", "loads",
-           "analytic", "budget", "backend", "states", "causes", "step", "fields", "layout", "field_decl", "schemes")
+           "analytic", "budget", "backend", "states", "causes", "step", "fields", "layout", "field_decl", "schemes",
+           "friction")
 TOOLS = ("cli", "io", "tools", "probes")
 
 
