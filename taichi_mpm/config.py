@@ -175,7 +175,7 @@ WALL_TYPES = ("slip", "roller", "sticky", "free", "velocity")
 class Face(Strict):
     """One wall: `slip` (a wall type alone), `{type: slip, friction: 0.3}` or `{type: velocity, velocity: [..]}`."""
     __shorthand__ = "type"  # a plain string stands for {type: <string>}
-    type: Literal[WALL_TYPES]
+    type: Literal[WALL_TYPES]  # type: ignore[valid-type]  # the names, built at import
     friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
     # type velocity: per axis a number or an expression of t (m/s), null leaves that component free
     velocity: Optional[list[FreeTimeExpr]] = None
@@ -318,7 +318,7 @@ class Asflip(Strict):
 
 class Solver(Strict):
     basis: Annotated[str, BeforeValidator(_basis_name), OneOf(bases.names)] = bases.DEFAULT
-    transfer: Literal[transfer_schemes.names()] = "apic"   # the registered schemes (schemes/)
+    transfer: Literal[transfer_schemes.names()] = "apic"  # type: ignore[valid-type]  # the registered schemes
     update: Literal["usl", "musl", "usf"] = "usl"
     flip_blend: Annotated[float, Field(ge=0, le=1)] = 0.99
     # XPIC's order m (transfer xpic only): 1 is PIC; each order one more particle pass (docs/transfers.md)
@@ -422,7 +422,7 @@ class Traction(Strict):
     """A prescribed surface traction or pressure on a body (docs/loads.md): particle forces on the body's exposed
     particle faces inside `region`, force = traction x face area, scaled by `ramp` (a function of t)."""
     region: Optional[Shape] = None               # box or sphere; null: the body's whole surface
-    faces: Optional[list[Literal[FACES]]] = None  # outward normals of the faces loaded; null: every exposed face
+    faces: Optional[list[Literal[FACES]]] = None  # type: ignore[valid-type]  # outward normals loaded; null: all
     traction: Optional[list[Real]] = None         # Pa, per axis
     pressure: Optional[Real] = None               # Pa, positive pushes inward (along -n)
     ramp: TimeExpr = 1.0                          # factor of time, e.g. "min(t / 0.01, 1)"
@@ -523,11 +523,11 @@ def _probe_every(v):
 class Probe(Strict):
     """A quantity sampled over time into probes/NAME.csv (taichi_mpm/io/probes.py)."""
     name: str
-    type: Literal[PROBE_TYPES]
+    type: Literal[PROBE_TYPES]  # type: ignore[valid-type]  # the names, built at import
     point: Optional[Vec] = None                      # point: the particle nearest this point at t = 0
     body: Annotated[Optional[Union[int, str]], BeforeValidator(_body_ref)] = None  # body: a body's name or index
     region: Optional[Shape] = None                   # region: a box or sphere; the particles inside at t = 0
-    face: Optional[Literal[FACES]] = None            # wall: the domain face
+    face: Optional[Literal[FACES]] = None  # type: ignore[valid-type]  # wall: the domain face
     grip: Optional[Annotated[int, Field(ge=0)]] = None  # grip: a bodies[].prescribed_velocity entry, counted over all bodies
 
     @field_validator("name")
@@ -577,7 +577,7 @@ class Config(Strict):
     domain: Domain
     solver: Solver
     crack: Optional[Crack] = None
-    materials: dict[str, AnyMaterial]
+    materials: dict[str, AnyMaterial]  # type: ignore[valid-type]  # the registered models' union, built at import
     bodies: Annotated[list[Body], Field(min_length=1)]
     output: Output = Output()
     limits: Limits = Limits()
@@ -1377,7 +1377,7 @@ def validate(data: dict, lines: dict | None = None, file=None, overrides: dict |
         if n_more and not msg.startswith("must be a number or a list"):
             msg += f" (and {n_more} more problem{'s' if n_more > 1 else ''})"
         source = _from_override(key, overrides)
-        if source is not None:
+        if source is not None and overrides is not None:
             raise ConfigError(f"{msg} (from --set {source}={overrides[source]})", key=key or None) from None
         raise ConfigError(msg, key=key or None, line=_nearest_line(lines, key), file=file) from None
 
@@ -1399,7 +1399,8 @@ def locate(err: ConfigError, cfg: Config) -> ConfigError:
 
 def load_config(source, overrides: dict[str, Any] | None = None) -> Config:
     """Load and validate a config from a YAML path, a dict or a `Config`; apply dotted overrides first."""
-    file, lines = None, {}
+    file: str | Path | None = None
+    lines: dict = {}
     if isinstance(source, Config):
         file, lines = source._source, source._lines
         source = source.to_dict()

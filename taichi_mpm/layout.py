@@ -138,7 +138,8 @@ def particle_fields(n: Needs) -> list[FieldDecl]:
 def main_grid(n: Needs) -> GridDecl:
     vec = ("v",) + (("v_old",) if n.flip else ()) + (("v2",) if n.musl else ()) + n.transfer_vectors
     vec += ("grip",) if n.grips else ()   # component 0: the grip (from 1) whose particles touch the node
-    apart, scalars = ((), ())
+    apart: tuple[str, ...] = ()
+    scalars: tuple[str, ...] = ()
     if n.crack is not None:   # the crack finder's node fields: few particles touch them
         apart, scalars = tuple(n.crack.grid_vectors), tuple(n.crack.grid_scalars)
     # the coloured scatter's count and start per block (in the block's pointer cell)

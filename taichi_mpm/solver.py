@@ -36,8 +36,7 @@ from .extensions import scatter
 from .config import Config, ConfigError, load_config
 from .causes import load_scale_causes
 from .errors import InstabilityError
-from .grid import Grid, make_wall_condition
-from .loads import Loads
+from .grid import Grid
 from . import materials as material_models
 from .materials import MODELS, wave_speed
 from .scene import Scene, build_scene
@@ -70,16 +69,12 @@ def thread_independent(cfg: Config, body_force: bool = False) -> bool:
     """Whether every sum a CPU step and its diagnostics make has one order whatever the threads: P2G by the coloured
     scatter (scatter.py), energies and momenta by chunks (sums.py), and none of the parts that still add in the
     threads' order (the extensions that say so: ddmp's nodal volumes, F-bar's averages, the crack finder's node
-    sums; and the accumulators of external work, dissipation, wall and grip impulses). tests/test_scatter.py checks
-    1 and 2 threads bit-identical."""
+    sums; the tractions', grips' and walls' work and impulses; and the accumulators of body forces' work and of
+    dissipation). tests/test_scatter.py checks 1 and 2 threads bit-identical."""
     if not scatter.coloured(cfg, gpu=False):
         return False
     mats = [cfg.materials[b.material] for b in cfg.bodies]
-    walls = cfg.domain.boundaries
     return not (step_extensions.adds_in_thread_order(cfg) or body_force
-                or any(b.tractions or b.prescribed_velocity for b in cfg.bodies)
-                or any(walls.face(a, side) == "velocity" for a in range(cfg.dim) for side in (0, 1))
-                or any(p.type == "wall" for p in cfg.output.probes)
                 or any(getattr(m, "viscosity", 0.0) > 0 or MODELS[m.model].plastic for m in mats))
 
 
@@ -121,7 +116,6 @@ class Simulation:
         self._balance = None  # energy balance reference (see _check_energy_balance)
         self._potentials = {}  # step -> strain + gravity potential of that state (energy_balance's pairing)
         self._body_acc_time, self._body_acc_max = None, 0.0
-        self.loads = Loads(c, self.scene)  # tractions, grips, velocity walls (their time functions)
         self._allocate()
         self._build_kernels()
         self._upload()
@@ -131,8 +125,7 @@ class Simulation:
 
     # ------------------------------------------------------------------ fields
     def _features(self) -> Features:
-        return Features.of(self.cfg, self.scene, self._materials, body_force=self.body_force is not None,
-                           moving_walls=bool(self.loads.walls))
+        return Features.of(self.cfg, self.scene, self._materials, body_force=self.body_force is not None)
 
     def _allocate(self):
         self.feat = self._features()
@@ -140,9 +133,8 @@ class Simulation:
         # the fields this scene needs, declared once (layout.py; budget.py counts the same declaration)
         self.needs = field_layout.Needs.of_simulation(self, self.feat, coloured=scatter.coloured(self.cfg, gpu))
         self._allocate_particles(self.needs)
-        self._allocate_loads(self.feat)
-        self._allocate_grid(self.feat)
         self._allocate_globals()
+        self._allocate_grid(self.feat)
         self.bytes_per_particle = self._bytes_per_particle()
 
     def _allocate_particles(self, needs: field_layout.Needs):
@@ -155,20 +147,6 @@ class Simulation:
         # per-particle material state (plastic strain, J_p, ...): only when a model of the scene has any (materials/)
         self.state_layout = material_models.state_layout(self._materials, self.dim)
         self.n_state = needs.n_state
-
-    def _allocate_loads(self, f: Features):
-        """Tractions' particle forces, grips and velocity walls (their values: loads.py, set per step)."""
-        d = self.dim
-        n_loaded = sum(len(l.particles) for l in self.scene.loads)
-        self.load_slot = ti.field(ti.i32, n_loaded) if f.tractions else None      # solver slot of each loaded
-        self.load_index = ti.field(ti.i32, n_loaded) if f.tractions else None     # particle, its traction
-        self.load_force = ti.Vector.field(d, float, n_loaded) if f.tractions else None  # and force at ramp 1
-        n_grips, n_gripped = len(self.scene.grips), sum(len(g.particles) for g in self.scene.grips)
-        self.grip_slot = ti.field(ti.i32, n_gripped) if f.grips else None    # solver slot of each gripped particle
-        self.grip_index = ti.field(ti.i32, n_gripped) if f.grips else None   # its grip, from 1
-        self.grip_v = ti.Vector.field(d, float, n_grips) if f.grips else None
-        self.grip_impulse = ti.Vector.field(d, ti.f64, n_grips) if f.grips else None
-        self.wall_v = ti.Vector.field(d, float, 2 * d) if f.moving_walls else None
 
     def _allocate_grid(self, f: Features):
         """The grid, the coloured scatter's bins, and the extensions (step/extensions.py): created, their node
@@ -200,7 +178,7 @@ class Simulation:
             cfg=self.cfg, scene=self.scene, dim=self.dim, n=self.n, dx=self.dx, lower=self.lower, upper=self.upper,
             n_cells=self.n_cells, basis=self.basis, mapped=self.mapped, feat=f, materials=self._materials, x=self.x,
             v=self.v, F=self.F, vol0=self.vol0, to_solver=self._to_solver, to_creation=self._to_creation,
-            perm=lambda: self._perm, coloured=coloured, needs=self.needs)
+            perm=lambda: self._perm, coloured=coloured, needs=self.needs, work=self.work, load=self.load)
 
     def extension(self, name: str):
         """The scene's extension of that name (step.moments.Extension.name: "crack", "fbar", ...), or None."""
@@ -227,9 +205,6 @@ class Simulation:
         self.work = Slots(3)
         self.n_bodies = int(self.scene.body.max(initial=0)) + 1
         self.moments = ChunkSums(n, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
-        # wall impulses per face (x_min, x_max, y_min, ...), summed by the grid update; only for wall probes
-        wall_probes = any(p.type == "wall" for p in self.cfg.output.probes)
-        self.wall_reaction = ti.Vector.field(d, ti.f64, 2 * d) if wall_probes else None
 
     def _bytes_per_particle(self) -> int:
         """The solver's declared particle fields (layout.py) and the extensions'."""
@@ -272,29 +247,18 @@ class Simulation:
             self.body_id.from_numpy(self._to_solver(s.body).astype(np.int32))
         if self.stress0 is not None:  # S0 = the initial Cauchy stress (F = I at t = 0), held as a 2nd P-K stress
             self.stress0.from_numpy(self._to_solver(s.stress).reshape(self.n, d, d))
-        slot_of = np.argsort(self._perm)  # creation index -> solver slot
-        if self.load_slot is not None:
-            self.load_slot.from_numpy(np.concatenate([slot_of[l.particles] for l in s.loads]).astype(np.int32))
-            self.load_index.from_numpy(np.concatenate([np.full(len(l.particles), k, np.int32)
-                                                       for k, l in enumerate(s.loads)]))
-            self.load_force.from_numpy(np.concatenate([l.force for l in s.loads]).astype(np.float64))
-        self._ramps = None  # the traction ramps last applied
-        if self.grip_slot is not None:
-            self.grip_slot.from_numpy(np.concatenate([slot_of[g.particles] for g in s.grips]).astype(np.int32))
-            self.grip_index.from_numpy(np.concatenate([np.full(len(g.particles), k + 1, np.int32)
-                                                       for k, g in enumerate(s.grips)]))
-            self.grip_impulse.fill(0)
-        self._motion_time = None  # when grip and wall velocities were last uploaded
         if self.state is not None:
             self.state.from_numpy(self._to_solver(self._initial_state()))
         for e in self.extensions:
-            e.upload()   # the crack finder's initial damage and interface flags
+            e.upload()   # the crack finder's initial damage and interface flags, the loaded and gripped particles
 
     # ------------------------------------------------------------------ kernels
     def _build_kernels(self):
         """The step's kernels (step/): the context, the stencil, the material funcs, then the extensions' kernels
         (which read them and add their contributions to the context), then the solver's own kernels with those."""
         ctx = self.ctx = self._step_context()
+        for e in self.extensions:
+            e.prepare(ctx)   # what the stencil reads: the walls' condition (ctx.wall)
         ctx.stencil = make_stencil(ctx)
         funcs = step_kernels.make_funcs(ctx)   # sets ctx.density, ctx.kirchhoff, ctx.project, ctx.add
         for e in self.extensions:
@@ -303,20 +267,14 @@ class Simulation:
 
     def _step_context(self) -> StepContext:
         dim, dx, c = self.dim, self.dx, self.cfg
-        walls, asf = c.domain.boundaries, c.solver.asflip
-        faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(dim)]
-        friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(dim)]
-        moving = (self.loads.wall_given(), self.wall_v, self.work) if self.feat.moving_walls else None
-        # a mapped grid's walls act on its parameter faces, along their normals
-        wall = make_wall_condition(dim, self.n_cells, faces, self.basis, friction, self.wall_reaction, moving,
-                                   self.mapped)
+        asf = c.solver.asflip
         nq = max(1, self.n_state)
         return StepContext(
             dim=dim, dx=dx, lower=ti.Vector(self.lower.tolist()), upper=ti.Vector(self.upper.tolist()),
             n_cells=self.n_cells, basis=self.basis, feat=self.feat, precision=c.precision,
             x=self.x, v=self.v, F=self.F, C=self.C, vol0=self.vol0, mat=self.mat, half_width=self.half_width,
             domain_lp0=0.5 * float(self.scene.spacing[0]) / dx if self.n else 0.5,
-            gimp_deforming=c.solver.gimp_domain == "deforming", unroll=c.solver.unroll, grid=self.grid, wall=wall,
+            gimp_deforming=c.solver.gimp_domain == "deforming", unroll=c.solver.unroll, grid=self.grid,
             gravity_kick=step_kernels.make_gravity_kick(self.gravity_field, self.gravity_before_field),
             extra=dict(mapped=self.mapped),
             # each material's Taichi funcs, its parameters compile-time constants (materials/: the model registry)
@@ -324,10 +282,7 @@ class Simulation:
             state=self.state, stress0=self.stress0, body_acc=self.body_acc,
             gravity=self.gravity_field, gravity_before=self.gravity_before_field, stiffness=self.stiffness_field,
             flip_blend=self.flip_blend_field, work=self.work, fail=self.fail, vmax2=self.vmax2, fail_codes=_CODES,
-            asflip=(asf.flip, asf.position_min, asf.position),
-            load=self.load, load_slot=self.load_slot, load_index=self.load_index, load_force=self.load_force,
-            n_loads=len(self.scene.loads), grip_slot=self.grip_slot, grip_index=self.grip_index, grip_v=self.grip_v,
-            grip_impulse=self.grip_impulse, grip_given=self.loads.grip_given(), wall_v=self.wall_v,
+            asflip=(asf.flip, asf.position_min, asf.position), load=self.load,
             diag=self.diag, moments=self.moments, body_id=self.body_id, bins=self.bins)
 
     # ------------------------------------------------------------------ stepping
@@ -384,25 +339,6 @@ class Simulation:
             self._body_acc_time, self._body_acc_max = self.time, _max_speed(acc) if self.n else 0.0
         return self._body_acc_max
 
-    def _prescribe(self, dt: float):
-        """Upload this step's tractions (ramps at the middle of the kick, t + (dt - dt_prev) / 4: the exact impulse
-        of a linear ramp) and grip and wall velocities (at t + dt/2: the velocity that moves the positions over the
-        step, exact displacement for a linear motion)."""
-        L = self.loads
-        if self.load is not None:
-            ramps = L.ramps(self.time + 0.25 * dt - 0.5 * self._half_dt)
-            if ramps != self._ramps:
-                self._k["apply_loads"](ti.Vector(list(ramps)))
-                self._ramps = ramps
-        if self.grip_v is None and self.wall_v is None:
-            return
-        if self._motion_time is not None and L.motion_constant:
-            return
-        t = self.time + 0.5 * dt
-        rows = np.concatenate([L.grip_velocities(t), L.wall_velocities(t)])  # the layout set_motion reads
-        self._k["set_motion"](ti.Matrix(rows.tolist()))
-        self._motion_time = t
-
     def _scatter(self, kernel: str, *args):
         """Run a P2G kernel: once, or once per colour of the coloured scatter (scatter.py)."""
         for colour in range(self._p2g_passes):
@@ -422,8 +358,8 @@ class Simulation:
         for e in self.extensions:
             e.before_p2g()
         self._scatter("p2g", 0.0)
-        if self.feat.grips:
-            self._k["flag_grip_nodes"]()
+        for e in self.extensions:
+            e.after_p2g()
         self._k["grid_velocity"](any(e.node_solve_active() for e in self.extensions))   # the chain, no forces
         self.fail[None] = _NO_FAIL
         self.vmax2[None] = 0.0
@@ -451,15 +387,16 @@ class Simulation:
         # uniform acceleration at any sequence of steps (docs/accuracy.md, "Time integration").
         kick_before, kick_after = self._half_dt, 0.5 * dt
         kick = kick_before + kick_after
-        self._prescribe(dt)
+        for e in self.extensions:   # this step's tractions, grip and wall velocities
+            e.before_step(self.time, dt, self._half_dt)
         if self.feat.usf:
             self._update_stress_first(dt)
         self.grid.clear()
         for e in self.extensions:
             e.before_p2g()   # ddmp's nodal volumes, the coloured scatter's bins, the crack finder's normals
         self._scatter("p2g", kick)
-        if self.feat.grips:
-            k["flag_grip_nodes"]()
+        for e in self.extensions:
+            e.after_p2g()   # grips mark their nodes
         # an extension's own node solve (the crack finder's tensor node mass, only with particles in contact)
         special = any(e.node_solve_active() for e in self.extensions)
         k["grid_update"](kick_before, kick_after, special)
@@ -594,8 +531,7 @@ class Simulation:
             speed = np.sum(self._read("v") ** 2, axis=1)
             terms = ["gravity"] if self._g_norm > 0 else []
             terms += ["body forces"] if self.body_acc is not None else []
-            terms += ["tractions"] if self.load is not None else []
-            terms += ["prescribed velocities"] if self.grip_v is not None or self.wall_v is not None else []
+            terms += list(dict.fromkeys(e.work_term for e in self.extensions if e.work_term))
             terms += ["viscous dissipation"] if self.feat.viscosity else []
             terms += ["plastic dissipation"] if self.feat.plastic else []
             raise InstabilityError(
@@ -919,24 +855,17 @@ class Simulation:
         update. Divided by the time since the reset it is the mean wall reaction force. Needs a wall probe in
         output.probes (otherwise nothing is accumulated and this raises)."""
         self._check_live()
-        if self.wall_reaction is None:
-            raise RuntimeError("no wall reaction is accumulated: the config has no wall probe in output.probes")
-        out = self.wall_reaction.to_numpy().reshape(2 * self.dim, self.dim)
-        if reset:
-            self.wall_reaction.fill(0)
-        return out
+        return self.extension("walls").impulse(reset)
 
     def prescribed_impulse(self, reset: bool = True) -> np.ndarray:
         """(K, dim) impulse (N s; per metre of depth in 2D) each bodies[].prescribed_velocity entry (in body order)
         gave the material at the grid nodes it holds since the last reset: divided by the elapsed time, the mean
         force the grip exerts (the reaction a testing machine would measure)."""
         self._check_live()
-        if self.grip_impulse is None:
+        grips = self.extension("grips")
+        if grips is None:
             raise RuntimeError("the scene has no prescribed velocities (bodies[].prescribed_velocity)")
-        out = self.grip_impulse.to_numpy().reshape(-1, self.dim)
-        if reset:
-            self.grip_impulse.fill(0)
-        return out
+        return grips.impulse(reset)
 
     def max_speed(self) -> float:
         return _max_speed(self._read("v"))

@@ -2,10 +2,11 @@
 the step and in the one grid-solve chain: its uniform body acceleration moves a free body by exactly a t^2 / 2."""
 import numpy as np
 import pytest
+import taichi as ti
 
 import taichi_mpm as tm
 from taichi_mpm.step import extensions
-from taichi_mpm.step.extensions import Extension, ParticleTransfer
+from taichi_mpm.step.extensions import Extension, GridSolve, ParticleTransfer
 from conftest import make_cfg
 from plugins.uniform_push import UniformPush
 
@@ -42,8 +43,12 @@ def test_registered_extension_moves_a_free_body_by_half_a_t_squared(push):
     bal = sim.energy_balance()
     assert abs(bal["ratio"]) < 1e-9 and bal["work"] > 0
     c = ext.calls
-    assert (c["create"], c["grid_fields"], c["allocate"], c["build"], c["upload"]) == (1, 1, 1, 1, 1)
-    assert c["before_p2g"] == c["node_solve_active"] == c["after_g2p"] == steps
+    assert (c["create"], c["grid_fields"], c["allocate"], c["prepare"], c["build"], c["upload"]) == (1,) * 6
+    assert ext.wall_before_stencil   # prepare: the walls' condition exists, the stencil not yet
+    assert c["before_step"] == c["before_p2g"] == c["after_p2g"] == c["node_solve_active"] == c["after_g2p"] == steps
+    # before_step sees the step's start, its dt and the leapfrog lag (0 on the first step, then dt/2)
+    np.testing.assert_allclose(ext.clock, [(k * dt, dt, 0.0 if k == 0 else 0.5 * dt) for k in range(steps)],
+                               rtol=0, atol=1e-15)
     assert c["outputs"] == 2 and c["particles_set"] == 1   # particles() twice; the upload's particles set
 
 
@@ -89,3 +94,36 @@ def test_two_claims_on_a_single_contribution_are_refused():
     finally:
         extensions.unregister(_Claims)
     assert _Claims not in extensions.ORDER
+
+
+class _Rail(Extension):
+    """A boundary condition from outside the package: every node's x velocity is zero (a frictionless rail along
+    y), joined to the grid solve's chain after the walls and grips (GridSolve.condition)."""
+    name = "rail"
+
+    @classmethod
+    def create(cls, setup):
+        return cls()
+
+    def build(self, ctx):
+        @ti.func
+        def condition(I, vel, m, measure: ti.template()):
+            vel[0] = 0.0
+            return vel
+        ctx.grid_solve.append(GridSolve(condition=condition))
+
+
+def test_a_registered_condition_holds_every_node_of_the_chain():
+    """Gravity (3, -9.81) on a free block: on the rail the particles never move in x (x_p moves by dt sum w v_i,
+    every v_i,x = 0: exactly), and fall freely in y (leapfrog is exact for a uniform acceleration: round-off)."""
+    extensions.register(_Rail)
+    try:
+        sim = tm.Simulation(make_cfg(2, transfer="apic", boundaries="free", dt=1e-3, gravity=[3.0, -9.81]))
+        x0 = sim.particles()["x"]
+        for _ in range(10):
+            sim.step()
+        dx = sim.particles()["x"] - x0
+    finally:
+        extensions.unregister(_Rail)
+    assert np.all(dx[:, 0] == 0.0)
+    np.testing.assert_allclose(dx[:, 1], -0.5 * 9.81 * 0.01 ** 2, rtol=0, atol=1e-13)

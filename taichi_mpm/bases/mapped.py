@@ -85,7 +85,8 @@ class MappedGrid:
         self.normal.from_numpy(self.normals)
 
     def allocate_particles(self, n: int):
-        self.xi = ti.Vector.field(2, float, max(n, 1))
+        from ..layout import MAPPED_XI   # its declaration (budget counts the same)
+        self.xi = MAPPED_XI.allocate(max(n, 1))
 
     PARTICLE_FLOATS = 2    # xi_p, per particle (budget.py counts it)
 

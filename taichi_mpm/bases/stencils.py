@@ -343,11 +343,12 @@ def _dual_domain_fill(ctx: KernelContext, span: list):
     their own scalar grid; fill(base) is the smallest V_j / (geometric dual-domain volume) over the real nodes of a
     stencil starting at `base` (1 where every dual domain is full, 0 where a node has no material)."""
     from ..grid import Grid   # only ddmp allocates it
+    from ..layout import DDMP_VOLUMES   # its declaration (budget counts the same)
 
     dim, dx, basis, n_cells, lower = ctx.dim, ctx.dx, ctx.basis, ctx.n_cells, ctx.lower
     x, F, vol0 = ctx.x, ctx.F, ctx.vol0
     S = span[0]
-    grid = Grid(dim, ctx.grid.shape, ctx.grid.sparse, [])
+    grid = Grid(dim, ctx.grid.shape, ctx.grid.sparse, list(DDMP_VOLUMES.vectors))
     vol = grid.m
     cell = float(dx ** dim)
     inv_dx = 1.0 / dx

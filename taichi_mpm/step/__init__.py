@@ -6,12 +6,12 @@
     materials.py     the per-material dispatch (written once) and the material funcs: stress, energy, ...
     transfers.py     P2G, G2P, MUSL's momentum remap; the F update and the particle checks
     xpic.py          XPIC(m)'s grid passes (v*, order by order)
-    grid_update.py   gravity, walls and grips on the grid; tractions' forces, grip and wall velocities
+    grid_update.py   the grid solve: node velocities, gravity, the extensions' accelerations and conditions
     diagnostics.py   energies, momenta, body moments, stresses, volume ratios
     moments.py       the extension protocol: Extension and its moments, Setup, the contributions extensions make
                      to the kernels (ParticleTransfer, Degradation, GridSolve)
     extensions.py    the ordered list of extensions (taichi_mpm/extensions/: ddmp pre-pass, coloured scatter,
-                     mapped coordinates, F-bar, crack finder) and `register`
+                     mapped coordinates, F-bar, crack finder, tractions, walls, grips) and `register`
 
 `make_funcs` builds the funcs the extensions' kernel builders read from the context; `make_kernels` the solver's
 kernels, once the extensions have added their contributions to the context (their `build` moment).
@@ -25,7 +25,7 @@ from .affine import AffineFuncs, make_affine
 from .context import StepContext
 from .diagnostics import make_diagnostics
 from .features import Features
-from .grid_update import make_gravity_kick, make_grid_update, make_motion
+from .grid_update import make_gravity_kick, make_grid_update
 from .materials import MaterialFuncs, make_material_funcs
 from .transfers import make_add, make_external_force, make_g2p, make_p2g
 from .xpic import make_xpic
@@ -49,15 +49,14 @@ def make_funcs(ctx: StepContext) -> StepFuncs:
 
 
 def make_kernels(ctx: StepContext, funcs: StepFuncs) -> dict:
-    """name -> kernel: p2g, p2g_momentum, grid_update, grid_remap, g2p, apply_loads, set_motion,
-    flag_grip_nodes, energies, momenta, body_moments, cauchy_stress, volume_ratios."""
+    """name -> kernel: p2g, p2g_momentum, grid_update, grid_remap, grid_velocity, g2p, energies, momenta,
+    body_moments, cauchy_stress, volume_ratios (and XPIC's passes)."""
     af, mf = funcs.affine, funcs.materials
     external_force = make_external_force(ctx, mf)
     kernels = {}
     kernels.update(make_p2g(ctx, mf, af, external_force))
     kernels.update(make_grid_update(ctx))
     kernels.update(make_g2p(ctx, mf, af, external_force))
-    kernels.update(make_motion(ctx))
     kernels.update(make_diagnostics(ctx, mf, af))
     if ctx.feat.xpic:
         kernels.update(make_xpic(ctx, mf))

@@ -1,7 +1,7 @@
 """What the step's kernel builders receive: the shared kernel context (stencils.KernelContext: constants, particle
 and grid fields, the stencil) plus the fields only the solver's own kernels touch (material state, runtime
-parameters, loads and grips, accumulators, diagnostics sums) and the extensions' contributions. Built once by
-`Simulation._build_kernels`.
+parameters, the tractions' particle forces, accumulators, diagnostics sums) and the extensions' contributions.
+Built once by `Simulation._build_kernels`.
 
 Physics code only: no CLI, rendering or file I/O here.
 """
@@ -30,18 +30,7 @@ class StepContext(KernelContext):
     fail: Any = None                 # smallest solver slot * codes + cause of a failed particle
     vmax2: Any = None                # largest squared particle speed of the step
     fail_codes: int = 8
-    # tractions, grips, velocity walls (loads.py gives their time values)
-    load: Any = None
-    load_slot: Any = None
-    load_index: Any = None
-    load_force: Any = None
-    n_loads: int = 0
-    grip_slot: Any = None
-    grip_index: Any = None
-    grip_v: Any = None
-    grip_impulse: Any = None
-    grip_given: list = None          # per grip: which velocity components it prescribes (static)
-    wall_v: Any = None
+    load: Any = None                 # the per-particle external force (extensions/tractions.py writes it)
     # diagnostics
     diag: Any = None                 # sums.ChunkSums for energies and momenta
     moments: Any = None              # sums.ChunkSums per body (fracture check)

@@ -30,11 +30,10 @@ class Features:
     tractions: bool             # particle forces of bodies[].tractions
     grips: bool                 # bodies[].prescribed_velocity on the nodes the grip touches
     initial_stress: bool        # bodies[].stress, a stored stress added to the model's
-    moving_walls: bool          # domain.boundaries faces of type velocity
     plastic: bool               # a return mapping after the F update
 
     @classmethod
-    def of(cls, cfg, scene, materials: list, body_force: bool, moving_walls: bool) -> "Features":
+    def of(cls, cfg, scene, materials: list, body_force: bool) -> "Features":
         """The features of a scene: its config, particles (scene.Scene), material configs in slot order."""
         transfer = schemes.get(cfg.solver.transfer)   # its declaration (schemes/)
         viscosity = any(getattr(m, "viscosity", 0.0) > 0 for m in materials)
@@ -54,6 +53,5 @@ class Features:
             tractions=bool(scene.loads),
             grips=bool(scene.grips),
             initial_stress=scene.stress is not None,
-            moving_walls=moving_walls,
             plastic=any(MODELS[m.model].plastic for m in materials),
         )

@@ -11,11 +11,18 @@ The moments, in the order a simulation meets them (`Simulation`):
     grid_fields()            declare: node fields it adds to the solver's grid (vectors, scalars), before allocation
     allocate(setup)          its own fields, once the grid exists (setup.grid)
     bytes_per_particle()     declare: its memory per particle
+    prepare(ctx)             the step context exists, before the stencil and the material funcs are made: what those
+                             read (the walls' condition, ctx.wall, whose holding faces the B-spline stencil keeps
+                             particles inside of)
     build(ctx)               its kernels from the step context (step.StepContext), before the solver's own; this is
                              where it adds contributions the solver's kernels compile in (ctx.particle_transfer,
                              ctx.degradation, ctx.grid_solve)
     upload()                 the scene's initial values into its fields (after the solver's own)
+    before_step(t, dt, lag)  a step from time t by dt begins (lag: the leapfrog velocities' half step behind t):
+                             this step's values of time functions (tractions' ramps, grip and wall velocities)
     before_p2g()             after the grid is cleared, before the first P2G
+    after_p2g()              after a P2G scatter of mass and momentum, before the grid solve (grips mark their
+                             nodes)
     node_solve_active()      after P2G: whether its GridSolve.velocity acts this step (the grid solve's variant)
     after_g2p()              after the last G2P pass: new positions and F
     particles_set(names)     particle fields were set from outside (upload, set_particles, set_state): their names
@@ -23,7 +30,8 @@ The moments, in the order a simulation meets them (`Simulation`):
     get_state()              its part of a checkpoint; check_state(state) refuses a bad one before anything changes,
     set_state(state)         set_state restores it after the solver's own state
 
-`breaks_bodies`: bodies may separate by design (the numerical-fracture check is then off).
+`breaks_bodies`: bodies may separate by design (the numerical-fracture check is then off). `work_term`: what the
+work it does on the material is called in the energy balance's message (it adds that work to ctx.work slot 0).
 
 Physics code only: no CLI, rendering or file I/O here.
 """
@@ -55,6 +63,8 @@ class Setup:
     to_creation: Callable           # and back
     perm: Callable                  # () -> the solver slots' creation indices (set when particles are uploaded)
     coloured: bool = False          # P2G scatters by colours (scatter.BlockBins)
+    work: Any = None                # sums.Slots: slot 0 the external work, 1 viscous, 2 plastic dissipation
+    load: Any = None                # the per-particle external force P2G adds (layout's "load"), or None
     needs: Any = None               # layout.Needs: the fields the scene declares (layout.py)
     grid: Any = None                # grid.Grid, with every extension's grid_fields (allocate on)
     bins: Any = None                # scatter.BlockBins or None (allocate on)
@@ -70,6 +80,7 @@ class Extension:
     name = ""              # what Simulation.extension(name) finds it by
     p2g_passes = 1         # P2G runs once per pass, each over a part of the particles (the coloured scatter's colours)
     breaks_bodies = False  # bodies may separate by design: no numerical-fracture check
+    work_term = ""         # the name of the work it does in the energy balance's message ("" none)
 
     @classmethod
     def adds_in_thread_order(cls, cfg) -> bool:
@@ -88,13 +99,22 @@ class Extension:
     def bytes_per_particle(self) -> int:
         return 0
 
+    def prepare(self, ctx):
+        pass
+
     def build(self, ctx):
         pass
 
     def upload(self):
         pass
 
+    def before_step(self, t: float, dt: float, lag: float):
+        pass
+
     def before_p2g(self):
+        pass
+
+    def after_p2g(self):
         pass
 
     def node_solve_active(self) -> bool:
@@ -140,8 +160,11 @@ class Degradation:
 class GridSolve:
     """An extension's part of the grid solve (step.grid_update), the one chain every node goes through:
     node velocity from momentum (the solver's m^-1 p unless one extension gives `velocity`, compiled in on steps
-    where its node_solve_active() says so), gravity, the extensions' `accelerate` terms in list order, walls,
-    grips. Each field may be None."""
+    where its node_solve_active() says so), gravity, the extensions' `accelerate` terms in list order, then their
+    `condition`s in list order (walls, then grips). Each field may be None."""
     has_mass: Optional[Callable] = None     # (I, m) -> whether node I takes part (with `velocity`)
     velocity: Optional[Callable] = None     # (I, m, p) -> node velocity from momentum p (a tensor mass, say)
     accelerate: Optional[Callable] = None   # (I, vel, m, kick_before, kick_after) -> vel after a body acceleration
+    # (I, vel, m, measure: template) -> vel under a boundary condition; measure (the step's update, not MUSL's
+    # remap or USF's first pass): it may add its impulse m dv to its reaction sums and its work to ctx.work
+    condition: Optional[Callable] = None

@@ -37,6 +37,10 @@ class UniformPush(Extension):
         self.calls["bytes_per_particle"] += 1
         return 0
 
+    def prepare(self, ctx):
+        self.calls["prepare"] += 1
+        self.wall_before_stencil = ctx.wall is not None and ctx.stencil is None   # the walls prepared before it
+
     def build(self, ctx):
         self.calls["build"] += 1
         a, work = ti.Vector(self.a), ctx.work
@@ -51,8 +55,15 @@ class UniformPush(Extension):
     def upload(self):
         self.calls["upload"] += 1
 
+    def before_step(self, t, dt, lag):
+        self.calls["before_step"] += 1
+        self.clock = getattr(self, "clock", []) + [(t, dt, lag)]
+
     def before_p2g(self):
         self.calls["before_p2g"] += 1
+
+    def after_p2g(self):
+        self.calls["after_p2g"] += 1
 
     def node_solve_active(self):
         self.calls["node_solve_active"] += 1
