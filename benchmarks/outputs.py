@@ -1,5 +1,6 @@
 """What outputs cost a user (issue 31): the main demo (configs/sphere_impact.yaml) run by the CLI with its outputs
-(VTU, frames, movie) written by the writer thread, written inline (the solver's thread, as before), and off.
+(VTU, frames, movie) written by the writer thread, written inline (the solver's thread, as before), and off; and
+with VTU snapshots only (no frames), threaded and inline.
 
 Reports per mode: total wall time, first step (compile), stepping, total / (first step + stepping) (target <= 1.4
 with outputs on), the stepping rate (particle-steps/s: unchanged within noise between the modes), the run folder's
@@ -23,6 +24,8 @@ MODES = {  # --set overrides of each mode
     "thread": [],
     "inline": ["output.writer=inline"],
     "off": ["output.formats=[]", "output.checkpoint_every=1000000"],
+    "vtu": ["output.formats=[vtu]"],                              # snapshots and checkpoints, no frames
+    "vtu_inline": ["output.formats=[vtu]", "output.writer=inline"],
 }
 
 
@@ -53,7 +56,7 @@ def main(argv=None):
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--config", type=Path, default=REPO / "configs" / "sphere_impact.yaml")
     p.add_argument("--end-time", type=float, default=None, help="solver.end_time (default: the config's)")
-    p.add_argument("--modes", default="thread,inline,off", help="comma-separated: thread, inline, off")
+    p.add_argument("--modes", default=",".join(MODES), help="comma-separated, of: " + ", ".join(MODES))
     a = p.parse_args(argv)
     extra = [f"solver.end_time={a.end_time}"] if a.end_time else []
     if a.tiny:

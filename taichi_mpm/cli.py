@@ -299,7 +299,8 @@ class _StepClock:
                      f"{run.render_seconds:.1f} s, {run.render_seconds / run.frames_rendered:.2f} s per frame)")
         b = run.breakdown()
         where = "in the background" if run.writer.threaded else "inline"
-        text += f"; files written {where}: " + ", ".join(f"{k} {v:.1f} s" for k, v in b.items() if k != "waited")
+        text += f"; files written {where}: " + ", ".join(f"{k} {v:.1f} s" for k, v in b.items()
+                                                          if k != "waited" and not k.startswith("snapshot: "))
         return text + f"; the solver waited {b['waited']:.1f} s on the writer"
 
     def profile(self) -> str:
@@ -309,8 +310,14 @@ class _StepClock:
         stepping = (now - self.first[0] - (run.output_seconds - self.first[1])) if self.first else 0.0
         rows = [("total", now - self.t0), ("first step (compile)", first), ("stepping", stepping),
                 ("outputs in the solver's thread", run.output_seconds - self.out0)]
-        rows += [(f"  {k}" + (" (writer)" if k not in ("frames", "movie", "waited") else ""), v)
-                 for k, v in run.breakdown().items()]
+        where = "writer" if run.writer.threaded else "inline"
+        for k, v in run.breakdown().items():
+            if k.startswith("snapshot: "):
+                rows.append((f"      of which {k[10:]}", v))
+            elif k == "waited":
+                rows.append(("  the solver waited on the writer", v))
+            else:
+                rows.append((f"  {k}" + (f" ({where})" if k not in ("frames", "movie") else " (at the end)"), v))
         steps = self.sim.n_steps - self.steps0
         rate = self.sim.n * (steps - 1) / stepping if steps > 1 and stepping > 0 else 0.0
         head = f"profile (seconds; {steps} steps, {self.sim.n} particles, stepping {rate:.3g} particle-steps/s):"

@@ -3,6 +3,7 @@ thread; a real run process killed (SIGINT, SIGTERM) while the writer is busy los
 partial file, and --resume continues bit for bit; output.fields / only_fields / checkpoint_every / writer are
 checked with errors naming the key; snapshots of an f32 run hold f32 points."""
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -116,7 +117,12 @@ def test_f32_snapshots_hold_f32_points_and_only_fields_selects(tmp_path, capsys)
     assert sorted(back) == ["velocity", "von_mises", "x"] and back["x"].dtype == np.float32
     cfg["output"]["only_fields"] = False
     path.write_text(yaml.safe_dump(cfg))
-    assert main(["run", str(path), "--quiet", "--out", str(tmp_path / "o"), "--overwrite"]) == 0
+    capsys.readouterr()
+    assert main(["run", str(path), "--quiet", "--out", str(tmp_path / "o"), "--overwrite", "--profile"]) == 0
+    err = capsys.readouterr().err     # --profile: where the time went, one row per kind
+    for row in ("total", "first step (compile)", "stepping", "snapshot", "of which vtu",
+                "checkpoint", "diagnostics", "the solver waited on the writer"):
+        assert re.search(rf"^ +{re.escape(row)}(\s+\([a-z ]+\))? +\d+\.\d\d$", err, flags=re.M), (row, err)
     back = io.read_vtu(tmp_path / "o" / "particles_000000.vtu", 2)
     assert {"stress", "J", "body", "von_mises", "velocity"} <= set(back)   # the standard set, as before
 

@@ -210,6 +210,12 @@ class Run:
                 check_size(self.cfg.output.render.size)
             except ValueError as e:
                 raise ConfigError(str(e), key="output.render.size") from None
+            try:   # here: a mapped grid's geometry may use Taichi, which the writer thread never calls
+                from .render import grid_lines
+            except ImportError:
+                self._lines = None   # (the first output says the renderer is not available)
+            else:
+                self._lines = grid_lines(self.cfg)
         try:
             if os.path.lexists(self.out_dir) and not self.out_dir.is_dir():  # what the user gave: an input error
                 raise ConfigError(f"{self.out_dir} is a file, not a folder: give the run another output folder "
@@ -357,13 +363,13 @@ class Run:
             io.write_vtu(self.out_dir / f"{name}.vtu", p, self.fields, dtype=self.dtype, only=self.only_fields)
             self.entries_written.append((t, f"{name}.vtu"))
             io.write_pvd(self.out_dir / io.PVD_NAME, self.entries_written)
-            self.writer.seconds["vtu"] += time.perf_counter() - t0
+            self.writer.seconds["snapshot: vtu"] += time.perf_counter() - t0
         if "npz" in self.formats:
             io.write_npz(self.out_dir / f"{name}.npz", p, self.fields)
         if self._frames:
             t0 = time.perf_counter()
             self._render(p, t, index)
-            self.writer.seconds["frame records"] += time.perf_counter() - t0
+            self.writer.seconds["snapshot: frame records"] += time.perf_counter() - t0
 
     def _checkpoint_data(self) -> tuple[dict, dict]:
         """The state now (numpy copies) and the output counters that go with it."""
@@ -399,7 +405,7 @@ class Run:
         colour range and one camera for the whole sequence."""
         if self._renderer is None:
             try:
-                from .render import FrameRecorder, grid_lines
+                from .render import FrameRecorder
             except ImportError as e:
                 self.log(f"warning: no frames or movie: the renderer is not available ({e})")
                 self._frames = False
@@ -407,7 +413,7 @@ class Run:
             c = self.cfg
             try:
                 self._renderer = FrameRecorder(self.out_dir / "frames", c.output.render, c.dim, list(c.domain.lower),
-                                               list(c.domain.upper), title=c.name, lines=grid_lines(c))
+                                               list(c.domain.upper), title=c.name, lines=self._lines)
             except ValueError as e:  # an unknown camera
                 raise ConfigError(str(e), key="output.render.camera") from None
         try:
@@ -448,8 +454,9 @@ class Run:
         self.output_seconds += time.perf_counter() - t0
 
     def breakdown(self) -> dict:
-        """Seconds per output kind as the writer measured them (snapshot, of which vtu and frame records;
-        checkpoint, diagnostics, probes, frames, movie) and `waited`: the time the solver waited on the writer."""
+        """Seconds per output kind as the writer measured them (snapshot: derived fields and files, of which
+        "snapshot: vtu" and "snapshot: frame records"; checkpoint, diagnostics, probes; frames and movie, rendered
+        at the end) and `waited`: the time the solver waited on the writer."""
         out = {k: v for k, v in self.writer.seconds.items() if v > 0}
         out["waited"] = self.writer.wait_seconds
         return out
