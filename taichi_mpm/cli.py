@@ -102,6 +102,8 @@ def _add_config_options(p, run=True):
     if run:
         p.add_argument("--out", metavar="DIR", help="output directory (default: output.dir of the config)")
         p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+        p.add_argument("--profile", action="store_true",
+                       help="print where the time went: compile, stepping, each kind of output, waiting on the writer")
         again = p.add_mutually_exclusive_group()
         again.add_argument("--resume", action="store_true", help="continue from checkpoint.npz in the output directory")
         again.add_argument("--overwrite", action="store_true",
@@ -295,7 +297,31 @@ class _StepClock:
         if run.frames_rendered:
             text += (f" (of which rendering {run.frames_rendered} frames and the movie "
                      f"{run.render_seconds:.1f} s, {run.render_seconds / run.frames_rendered:.2f} s per frame)")
-        return text
+        b = run.breakdown()
+        where = "in the background" if run.writer.threaded else "inline"
+        text += f"; files written {where}: " + ", ".join(f"{k} {v:.1f} s" for k, v in b.items()
+                                                          if k != "waited" and not k.startswith("snapshot: "))
+        return text + f"; the solver waited {b['waited']:.1f} s on the writer"
+
+    def profile(self) -> str:
+        """--profile: the breakdown as a table (seconds; the background kinds overlap with stepping)."""
+        now, run = time.perf_counter(), self.run
+        first = (self.first[0] - self.t0 - (self.first[1] - self.out0)) if self.first else 0.0
+        stepping = (now - self.first[0] - (run.output_seconds - self.first[1])) if self.first else 0.0
+        rows = [("total", now - self.t0), ("first step (compile)", first), ("stepping", stepping),
+                ("outputs in the solver's thread", run.output_seconds - self.out0)]
+        where = "writer" if run.writer.threaded else "inline"
+        for k, v in run.breakdown().items():
+            if k.startswith("snapshot: "):
+                rows.append((f"      of which {k[10:]}", v))
+            elif k == "waited":
+                rows.append(("  the solver waited on the writer", v))
+            else:
+                rows.append((f"  {k}" + (f" ({where})" if k not in ("frames", "movie") else " (at the end)"), v))
+        steps = self.sim.n_steps - self.steps0
+        rate = self.sim.n * (steps - 1) / stepping if steps > 1 and stepping > 0 else 0.0
+        head = f"profile (seconds; {steps} steps, {self.sim.n} particles, stepping {rate:.3g} particle-steps/s):"
+        return "\n".join([head] + [f"  {name:<34} {v:8.2f}" for name, v in rows])
 
 
 def _run_config(cfg, args) -> int:
@@ -341,11 +367,14 @@ def _run(cfg, args) -> int:
         return EXIT_IO
     except InstabilityError as e:
         where = run.out_dir / "checkpoint.npz"
-        kept = f"the last good state (t={run.last_time:.6g}) is in {where}" if run.last_time is not None else ""
+        kept = (f"the last good state (t={run.checkpoint_time:.6g}) is in {where}" if run.checkpoint_time is not None
+                else "")
         _err(f"{e}\n  {kept}; outputs written so far are kept in {run.out_dir}")
         return EXIT_UNSTABLE
     if not args.quiet:
         print(f"done: {clock.summary()}; {run.index} outputs in {run.out_dir}", file=sys.stderr)
+    if getattr(args, "profile", False):
+        print(clock.profile(), file=sys.stderr)
     return EXIT_OK
 
 

@@ -553,6 +553,12 @@ class Output(Strict):
     every: PositiveFloat = 0.01
     formats: list[Literal["vtu", "npz", "png", "mp4", "gif"]] = ["vtu", "png"]
     fields: list[OutputField] = ["velocity", "stress"]
+    # false: a VTU holds the standard set (fields.ALWAYS) plus `fields`; true: the positions and `fields` only
+    only_fields: bool = False
+    # a checkpoint every this many outputs (and at the end and on a stop); 1: at every output, as before
+    checkpoint_every: Annotated[int, BeforeValidator(_no_bool), Field(ge=1)] = 10
+    # thread: files are written by a background thread while the solver steps; inline: by the solver's thread
+    writer: Literal["thread", "inline"] = "thread"
     render: Render = Render()
     probes: list[Probe] = []
     # seconds between probe samples (at the first step on or after each multiple); `step`: every step;

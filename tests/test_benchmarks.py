@@ -112,3 +112,11 @@ def test_crack_cost_benchmark_reports_ratio_and_kernels():
     rows = load("crack_cost").main(["--tiny", "--scenes", "blocks"])
     assert len(rows) == 1 and rows[0]["ratio"] > 0 and rows[0]["near_fraction"] > 0
     assert rows[0]["particle_normals_cpu_ms"] > 0
+
+
+@pytest.mark.slow  # five CLI runs of the main demo cut to 0.01 s
+def test_outputs_benchmark_reports_every_mode():
+    rows = load("outputs").main(["--tiny"])
+    assert [r["mode"] for r in rows] == ["thread", "inline", "off", "vtu", "vtu_inline"]
+    assert all(r["total_over_solver"] >= 1.0 and r["particle_steps_per_s"] > 0 and r["folder_mb"] > 0 for r in rows)
+    assert rows[0]["folder_mb"] > rows[2]["folder_mb"]     # snapshots and frames cost room; off writes none

@@ -242,12 +242,10 @@ def _failing(real, fail_at: int, err=errno.ENOSPC):
 def test_disk_full_mid_run_keeps_the_last_checkpoint_and_resume_finishes(tmp_path, capsys, monkeypatch):
     """Before: a traceback (exit 1). Now: one line naming the file and the cause, exit 4, the checkpoint of the last
     complete output valid, and --resume goes on from it to the same results as an uninterrupted run."""
-    import meshio
-
-    path = scene(tmp_path, end_time=0.06)
+    path = scene(tmp_path, end_time=0.06, checkpoint_every=1)   # a checkpoint at every output, as before
     assert run(capsys, "run", path, "--quiet", "--out", tmp_path / "full")[0] == 0
     out = tmp_path / "out"
-    monkeypatch.setattr(meshio, "write", _failing(meshio.write, 3))   # the third snapshot (t = 0.04)
+    monkeypatch.setattr(io, "vtu_bytes", _failing(io.vtu_bytes, 3))   # the third snapshot (t = 0.04)
     code, err = run(capsys, "run", path, "--quiet", "--out", out)
     assert code == EXIT_IO, err
     assert f"cannot write {out / 'particles_000002.vtu'}: No space left on device" in err
@@ -275,16 +273,16 @@ def test_disk_full_in_any_writer_mid_run_is_exit_4_and_the_checkpoint_stays_vali
     elif where == "probe row":
         import taichi_mpm.io.probes as probes
 
-        real = probes.Probes.sample
+        real = probes.Probes._write   # (where rows are written: the run's writer thread)
         calls = []
 
-        def sample(self, sim):
-            real(self, sim)
+        def write(self, rows):
+            real(self, rows)
             calls.append(1)
             if len(calls) == 5:
                 self._files["tip"].close()   # a closed file: the next row's write fails as on a full disk
                 self._files["tip"] = _Full(self._files["tip"])
-        monkeypatch.setattr(probes.Probes, "sample", sample)
+        monkeypatch.setattr(probes.Probes, "_write", write)
         name = out / "probes" / "tip.csv"
     else:
         real_append = io.open_append

@@ -299,9 +299,9 @@ def refuse_links(run_dir) -> None:
 
 
 
-def _pad3(a: np.ndarray) -> np.ndarray:
+def _pad3(a: np.ndarray, dtype=np.float64) -> np.ndarray:
     """(N, d) -> (N, 3) with zeros for the missing axes."""
-    a = np.asarray(a, dtype=np.float64).reshape(len(a), -1)
+    a = np.asarray(a, dtype=dtype).reshape(len(a), -1)
     return np.pad(a, ((0, 0), (0, 3 - a.shape[1])))
 
 
@@ -315,38 +315,87 @@ def derived_fields(p: dict, scene=None) -> dict:
     return out
 
 
-def point_data(p: dict, fields=()) -> dict:
-    """VTU point data of a particle dict: the ALWAYS set plus `fields` (config output.fields), each as the
-    registry computes it; vectors padded to 3 components, tensors written as full 3x3 (9 components)."""
+def snapshot_fields(fields=(), only: bool = False) -> list[str]:
+    """The fields a VTU snapshot holds (config output.fields and output.only_fields): the ALWAYS set plus
+    `fields`, or with `only` exactly `fields`."""
+    return list(dict.fromkeys(list(fields) if only else list(ALWAYS) + list(fields)))
+
+
+def point_data(p: dict, fields=(), dtype=np.float64, only: bool = False) -> dict:
+    """VTU point data of a particle dict: the ALWAYS set plus `fields` (config output.fields; with `only`, just
+    `fields`), each as the registry computes it; vectors padded to 3 components, tensors written as full 3x3
+    (9 components); floating values as `dtype` (float32 in an f32 run: the state's own precision)."""
     out = {}
-    for name in dict.fromkeys(list(ALWAYS) + list(fields)):
+    for name in snapshot_fields(fields, only):
         if not registry.available(p, name):
             continue  # e.g. damage without a crack section, C without APIC
         kind = registry.REGISTRY[name].kind
         a = np.asarray(registry.values(p, name))
         if kind == "tensor":
-            a = a.reshape(len(a), 9).astype(np.float64)
+            a = a.reshape(len(a), 9).astype(dtype)
         elif kind == "vector":
-            a = _pad3(a)
+            a = _pad3(a, dtype)
         elif kind == "label" or np.issubdtype(a.dtype, np.integer):
             a = a.astype(np.int32)
         else:
-            a = a.astype(np.float64)
+            a = a.astype(dtype)
         out[name] = a
     return out
 
 
 # ---------------------------------------------------------------- snapshots
-def write_vtu(path, p: dict, fields=()):
-    """One particle snapshot as a VTU of vertex cells (points padded to 3D)."""
-    import meshio
+_VTK_TYPES = {np.dtype(np.float32): "Float32", np.dtype(np.float64): "Float64", np.dtype(np.int32): "Int32",
+              np.dtype(np.int64): "Int64", np.dtype(np.uint8): "UInt8"}
+_BLOCK = 1 << 15   # uncompressed bytes per zlib block (what VTK and meshio use)
 
-    path = Path(path)
-    n = len(p["x"])
-    mesh = meshio.Mesh(_pad3(p["x"]), [("vertex", np.arange(n, dtype=np.int64).reshape(n, 1))],
-                       point_data=point_data(p, fields))
-    with atomic_path(path) as tmp:
-        meshio.write(tmp, mesh, file_format="vtu", binary=True)
+
+def _compressed(a: np.ndarray, level: int) -> bytes:
+    """One array in VTK's zlib block layout: UInt32 header (blocks, block size, last block size, compressed
+    sizes), then the blocks."""
+    import zlib
+
+    raw = np.ascontiguousarray(a).tobytes()
+    blocks = [zlib.compress(raw[i:i + _BLOCK], level) for i in range(0, len(raw), _BLOCK)] or [zlib.compress(b"")]
+    last = len(raw) - (len(blocks) - 1) * _BLOCK if raw else 0
+    header = np.array([len(blocks), _BLOCK, last] + [len(b) for b in blocks], dtype="<u4")
+    return header.tobytes() + b"".join(blocks)
+
+
+def vtu_bytes(points: np.ndarray, point_data: dict, level: int = 1) -> bytes:
+    """A VTU file (UnstructuredGrid of vertex cells) with raw appended, zlib-compressed arrays: what ParaView and
+    meshio read, without base64 (a third smaller) and written in one pass. Level 1: on float data the higher
+    levels gain almost nothing at several times the time."""
+    n = len(points)
+    arrays = [("Points", None, points)]
+    arrays += [(name, "P", a) for name, a in point_data.items()]
+    cells = [("connectivity", "C", np.arange(n, dtype=np.int32)), ("offsets", "C", np.arange(1, n + 1, dtype=np.int32)),
+             ("types", "C", np.ones(n, dtype=np.uint8))]   # VTK_VERTEX = 1
+    blobs, offset, tags = [], 0, {"Points": [], "P": [], "C": []}
+    for name, where, a in arrays + cells:
+        a = np.asarray(a)
+        a = a.astype(a.dtype.newbyteorder("<"), copy=False)
+        comps = a.shape[1] if a.ndim == 2 else 1
+        blob = _compressed(a, level)
+        tag = (f'<DataArray type="{_VTK_TYPES[a.dtype.newbyteorder("=")]}" Name="{name}"'
+               + (f' NumberOfComponents="{comps}"' if a.ndim == 2 else "") + f' format="appended" offset="{offset}"/>')
+        tags[where or "Points"].append(tag)
+        blobs.append(blob)
+        offset += len(blob)
+    head = ('<?xml version="1.0"?>\n'
+            '<VTKFile type="UnstructuredGrid" version="0.1" byte_order="LittleEndian" header_type="UInt32" '
+            'compressor="vtkZLibDataCompressor">\n<UnstructuredGrid>\n'
+            f'<Piece NumberOfPoints="{n}" NumberOfCells="{n}">\n'
+            '<Points>\n' + "\n".join(tags["Points"]) + '\n</Points>\n'
+            '<Cells>\n' + "\n".join(tags["C"]) + '\n</Cells>\n'
+            '<PointData>\n' + "\n".join(tags["P"]) + '\n</PointData>\n'
+            '</Piece>\n</UnstructuredGrid>\n<AppendedData encoding="raw">\n_')
+    return head.encode() + b"".join(blobs) + b"\n</AppendedData>\n</VTKFile>\n"
+
+
+def write_vtu(path, p: dict, fields=(), dtype=np.float64, only: bool = False):
+    """One particle snapshot as a VTU of vertex cells (points padded to 3D), floating values as `dtype`."""
+    with atomic_write(Path(path)) as f:
+        f.write(vtu_bytes(_pad3(p["x"], dtype), point_data(p, fields, dtype, only)))
 
 
 def read_vtu(path, dim: int | None = None) -> dict:

@@ -165,8 +165,10 @@ KINDS = {"point": PointProbe, "body": GroupProbe, "region": GroupProbe, "wall": 
 class Probes:
     """The probes of a run: `on_step(sim)` after every step, `on_output(sim)` at every output, `close()`."""
 
-    def __init__(self, sim, out_dir, resume: bool = False):
+    def __init__(self, sim, out_dir, resume: bool = False, submit=None):
         out = sim.cfg.output
+        # submit(fn, *args): how rows are written (the run's writer thread); default: at once
+        self._submit = submit or (lambda fn, *args: fn(*args))
         self.every = out.probe_every
         self.root = Path(out_dir)
         self.dir = self.root / PROBES_DIR
@@ -227,18 +229,29 @@ class Probes:
         impulse = sim.wall_impulse() if self._walls else None
         grip_impulse = sim.prescribed_impulse() if self._grips else None
         elapsed = sim.velocity_time - self._since
+        rows = []
         for name, probe in self.probes:
             values = probe.row(p, sim, grip_impulse if isinstance(probe, GripProbe) else impulse, elapsed)
-            f = self._files[name]
-            try:
-                csv.writer(f).writerow([repr(float(sim.time)), sim.n_steps] + [repr(float(v)) for v in values])
-                f.flush()
-            except OSError as e:  # disk full, file-size limit: the rows up to the checkpoint are kept for --resume
-                raise io.as_file_error(e, "write", self.dir / f"{name}.csv") from None
+            rows.append((name, [repr(float(sim.time)), sim.n_steps] + [repr(float(v)) for v in values]))
+        self._submit(self._write, rows)
         self._since, self._last_step = sim.velocity_time, sim.n_steps
         self._next = self._next_time(sim.time)
 
+    def _write(self, rows):
+        """One sample's rows, each flushed (in the run's writer thread)."""
+        for name, line in rows:
+            f = self._files[name]
+            try:
+                csv.writer(f).writerow(line)
+                f.flush()
+            except OSError as e:  # disk full, file-size limit: the rows up to the checkpoint are kept for --resume
+                raise io.as_file_error(e, "write", self.dir / f"{name}.csv") from None
+
     def close(self):
+        """Close the files after the rows handed over (through `submit`) are written."""
+        self._submit(self._close)
+
+    def _close(self):
         for f in self._files.values():
             try:
                 f.close()

@@ -6,10 +6,15 @@ one output (snapshot, diagnostics row, frame, checkpoint), so it works as `sim.r
 bit-for-bit resumption from checkpoint.npz.
 
 Outputs are written at the start and then at the times k * output.every (and at end_time): the next
-output time is the first such time after the current time. The checkpoint is rewritten at every
-output (and on a stop), so after a numerical failure the last good state is on disk. A resumed run
+output time is the first such time after the current time. The checkpoint is rewritten every
+output.checkpoint_every outputs, at the first and the last, on a stop (Ctrl-C, SIGTERM) and after a numerical
+failure (the state of the last output, held in memory until then), so the last good state is on disk. A resumed run
 takes the same steps as the uninterrupted one: the step loop below depends only on the state the
 checkpoint holds (positions, velocities, F, C, time, step count and the CFL speed estimate).
+
+The files are written by io.writer.Writer (output.writer: a thread while the solver steps, or inline): each output
+hands it numpy copies of what the files need, in order, and the writer is drained before a stop is reported and
+before the run returns. Called as an observer (outside execute) each output is drained at once.
 """
 from __future__ import annotations
 
@@ -25,7 +30,10 @@ import time
 from pathlib import Path
 from typing import Callable, Optional
 
+import numpy as np
+
 from . import files as io, probes
+from .writer import Writer
 from ..config import Config, ConfigError
 from ..errors import InstabilityError
 from ..solver import Simulation as _Simulation
@@ -174,14 +182,20 @@ class Run:
         self.formats = list(self.cfg.output.formats if formats is None else formats)
         self.every = float(every or self.cfg.output.every)
         self.fields = list(self.cfg.output.fields)
+        self.only_fields = bool(self.cfg.output.only_fields)
+        self.dtype = np.float32 if self.cfg.precision == "f32" else np.float64   # snapshot floats: the run's own
+        self.checkpoint_every = int(self.cfg.output.checkpoint_every)
         self.log = log or (lambda msg: print(msg, file=sys.stderr))
         self.index = 0           # number of the next output
         self.last_time = None    # time of the last output written
         self._rows = 0           # rows in diagnostics.csv
-        self.entries = []        # (time, file) of the VTU series
+        self.entries = []        # (time, file) of the VTU series (handed to the writer)
+        self.entries_written = []  # (the writer's) those whose VTU is on disk: what particles.pvd lists
         self.stop_requested = False
         self.stop_signal = None  # the signal that asked for the stop
         self.checkpoint_time = None  # time of the state checkpoint.npz holds (None: none written by this run yet)
+        self._held = None        # (state, meta) of the last output while its checkpoint is not written
+        self._executing = False  # in execute(): outputs are drained at its end, not one by one
         self.output_seconds = 0.0  # wall time spent writing outputs (the CLI's summary keeps it apart from stepping)
         self._renderer = None    # render.FrameRecorder: frames are rendered at the end of the run
         self.render_seconds = 0.0  # wall time of rendering frames and movies (part of output_seconds)
@@ -196,6 +210,12 @@ class Run:
                 check_size(self.cfg.output.render.size)
             except ValueError as e:
                 raise ConfigError(str(e), key="output.render.size") from None
+            try:   # here: a mapped grid's geometry may use Taichi, which the writer thread never calls
+                from .render import grid_lines
+            except ImportError:
+                self._lines = None   # (the first output says the renderer is not available)
+            else:
+                self._lines = grid_lines(self.cfg)
         try:
             if os.path.lexists(self.out_dir) and not self.out_dir.is_dir():  # what the user gave: an input error
                 raise ConfigError(f"{self.out_dir} is a file, not a folder: give the run another output folder "
@@ -206,6 +226,7 @@ class Run:
         except OSError as e:
             raise io.as_file_error(e, "create the output folder", self.out_dir) from None
         self.lock = FolderLock(self.out_dir)
+        self.writer = Writer(threaded=self.cfg.output.writer == "thread")
         try:
             io.refuse_links(self.out_dir)  # nothing is written, read or deleted through a link (docs/reliability.md)
             self._remove_temporaries()
@@ -217,8 +238,10 @@ class Run:
                 if used:  # a file where the folder goes: said now, not at the first output
                     io.ensure_folder(self.out_dir / folder, root=self.out_dir)
             io.write_config(self.out_dir / io.CONFIG_NAME, self.cfg)
-            self.probes = probes.Probes(sim, self.out_dir, resume=resume)  # probes/NAME.csv (output.probes)
+            self.probes = probes.Probes(sim, self.out_dir, resume=resume,  # probes/NAME.csv (output.probes)
+                                        submit=lambda fn, *a: self.writer.submit("probes", fn, *a))
         except BaseException:  # a refused resume or overwrite leaves the folder free at once
+            self.writer.close()
             self.lock.release()
             raise
 
@@ -300,6 +323,7 @@ class Run:
             self.log(f"note: output.every changed from {old_every:g} to {self.every:g} s on --resume: the outputs "
                      f"after t={self.sim.time:g} follow the new interval")
         self.entries = [e for e in io.read_pvd(self.out_dir / io.PVD_NAME)][: int(meta.get("n_vtu", 0))]
+        self.entries_written = list(self.entries)
         self.diagnostics = io.Diagnostics(self.out_dir / io.DIAGNOSTICS_NAME, self.sim.dim,
                                           keep=int(meta.get("n_rows", 0)))
         self._rows = int(meta.get("n_rows", 0))
@@ -307,40 +331,81 @@ class Run:
 
     # ------------------------------------------------------------ one output
     def __call__(self, sim=None):
-        """Write one output of the current state (observer for Simulation.run(on_output=...))."""
+        """Write one output of the current state (observer for Simulation.run(on_output=...)). What the files need
+        is read from the solver here (numpy copies: later steps cannot change them); the files are written by
+        the writer (a thread while the solver steps, output.writer)."""
         sim = self.sim if sim is None else sim
         t0 = time.perf_counter()
         name = io.SNAPSHOT.format(self.index)
         if "vtu" in self.formats or "npz" in self.formats or self._frames:
-            p = io.derived_fields(sim.particles(), sim.scene)
+            self.writer.submit("snapshot", self._write_snapshot, sim.particles(), name, sim.time, self.index)
             if "vtu" in self.formats:
-                io.write_vtu(self.out_dir / f"{name}.vtu", p, self.fields)
                 self.entries.append((sim.time, f"{name}.vtu"))
-                io.write_pvd(self.out_dir / io.PVD_NAME, self.entries)
-            if "npz" in self.formats:
-                io.write_npz(self.out_dir / f"{name}.npz", p, self.fields)
-            if self._frames:
-                self._render(p, sim.time)
-        self.diagnostics.append(io.diagnostics_row(sim))
+        self.writer.submit("diagnostics", self.diagnostics.append, io.diagnostics_row(sim))
         self.probes.on_output(sim)
         self._rows = self._rows + 1
         self.index += 1
         self.last_time = sim.time
-        self.checkpoint()
+        # the state of every output is held (a numerical failure writes the last one); the file is written every
+        # output.checkpoint_every outputs, at the first and the last
+        self._held = self._checkpoint_data()
+        if self.index == 1 or self.index % self.checkpoint_every == 0 or self.done or sim.at_step_limit:
+            self._save(*self._held)
+        if not self._executing:   # an observer of sim.run(on_output=...): the files are there when it returns
+            self.writer.drain()
         self.output_seconds += time.perf_counter() - t0
 
-    def checkpoint(self):
-        meta = dict(next_output=self.index, last_time=self.last_time, every=self.every, n_vtu=len(self.entries), n_rows=self._rows,
-                    config=io.config_dict(self.cfg))
-        io.save_checkpoint(self.out_dir / io.CHECKPOINT_NAME, self.sim.get_state(), meta)
-        self.checkpoint_time = self.sim.time
+    def _write_snapshot(self, particles: dict, name: str, t: float, index: int):
+        """(the writer) One output's files: VTU and its series entry, NPZ, the frame's record."""
+        p = io.derived_fields(particles, self.sim.scene)
+        if "vtu" in self.formats:
+            t0 = time.perf_counter()
+            io.write_vtu(self.out_dir / f"{name}.vtu", p, self.fields, dtype=self.dtype, only=self.only_fields)
+            self.entries_written.append((t, f"{name}.vtu"))
+            io.write_pvd(self.out_dir / io.PVD_NAME, self.entries_written)
+            self.writer.seconds["snapshot: vtu"] += time.perf_counter() - t0
+        if "npz" in self.formats:
+            io.write_npz(self.out_dir / f"{name}.npz", p, self.fields)
+        if self._frames:
+            t0 = time.perf_counter()
+            self._render(p, t, index)
+            self.writer.seconds["snapshot: frame records"] += time.perf_counter() - t0
 
-    def _render(self, p: dict, time: float):
+    def _checkpoint_data(self) -> tuple[dict, dict]:
+        """The state now (numpy copies) and the output counters that go with it."""
+        meta = dict(next_output=self.index, last_time=self.last_time, every=self.every, n_vtu=len(self.entries),
+                    n_rows=self._rows, config=io.config_dict(self.cfg))
+        return self.sim.get_state(), meta
+
+    def _save(self, state: dict, meta: dict):
+        """Hand the writer a checkpoint: it is written after every output handed over before it, so the files it
+        counts are on disk when it is."""
+        self.writer.submit("checkpoint", self._write_checkpoint, state, meta)
+        self._held = None
+
+    def _write_checkpoint(self, state: dict, meta: dict):
+        """(the writer) checkpoint.npz, replaced atomically; checkpoint_time says the state the file holds."""
+        io.save_checkpoint(self.out_dir / io.CHECKPOINT_NAME, state, meta)
+        self.checkpoint_time = float(state["time"])
+
+    def checkpoint(self):
+        """A checkpoint of the state now (a stop between two steps)."""
+        t0 = time.perf_counter()
+        self._save(*self._checkpoint_data())
+        self.output_seconds += time.perf_counter() - t0
+
+    def save_last_output(self):
+        """The checkpoint of the last output, when it is not written yet (after a numerical failure: the last good
+        state on disk, as with a checkpoint at every output)."""
+        if self._held is not None:
+            self._save(*self._held)
+
+    def _render(self, p: dict, time: float, index: int):
         """Keep this output's frame data; the frames are rendered at the end of the run (render_frames), with one
         colour range and one camera for the whole sequence."""
         if self._renderer is None:
             try:
-                from .render import FrameRecorder, grid_lines
+                from .render import FrameRecorder
             except ImportError as e:
                 self.log(f"warning: no frames or movie: the renderer is not available ({e})")
                 self._frames = False
@@ -348,26 +413,32 @@ class Run:
             c = self.cfg
             try:
                 self._renderer = FrameRecorder(self.out_dir / "frames", c.output.render, c.dim, list(c.domain.lower),
-                                               list(c.domain.upper), title=c.name, lines=grid_lines(c))
+                                               list(c.domain.upper), title=c.name, lines=self._lines)
             except ValueError as e:  # an unknown camera
                 raise ConfigError(str(e), key="output.render.camera") from None
         try:
-            self._renderer.record(p, time, self.index)
+            self._renderer.record(p, time, index)
         except ValueError as e:  # an unknown or absent colour field
             raise ConfigError(str(e), key="output.render.color_by") from None
 
     def render_frames(self):
-        """Render the recorded frames (frames/frame_NNNNNN.png); render_seconds and frames_rendered say what it cost."""
+        """Render the recorded frames (frames/frame_NNNNNN.png); render_seconds and frames_rendered say what it cost.
+        (In this thread, after the writer has drained: VTK draws only in the thread that made its window.)"""
+        self.writer.drain()
         if self._renderer is None:
             return
         t0 = time.perf_counter()
         self.frames_rendered += len(self._renderer.render_all())
         self.render_seconds += time.perf_counter() - t0
+        self.writer.seconds["frames"] += time.perf_counter() - t0
         self.output_seconds += time.perf_counter() - t0
 
     def finish(self):
         """After the last output: the frames and movies, when asked."""
+        t0 = time.perf_counter()
         self.probes.close()
+        self.writer.drain()
+        self.output_seconds += time.perf_counter() - t0
         self.render_frames()
         self._renderer = None
         movies = [f for f in ("mp4", "gif") if f in self.formats]
@@ -379,7 +450,16 @@ class Run:
         for fmt in movies:
             make_movie(self.out_dir / "frames", self.out_dir / f"movie.{fmt}", fps=20, root=self.out_dir)
         self.render_seconds += time.perf_counter() - t0
+        self.writer.seconds["movie"] += time.perf_counter() - t0
         self.output_seconds += time.perf_counter() - t0
+
+    def breakdown(self) -> dict:
+        """Seconds per output kind as the writer measured them (snapshot: derived fields and files, of which
+        "snapshot: vtu" and "snapshot: frame records"; checkpoint, diagnostics, probes; frames and movie, rendered
+        at the end) and `waited`: the time the solver waited on the writer."""
+        out = {k: v for k, v in self.writer.seconds.items() if v > 0}
+        out["waited"] = self.writer.wait_seconds
+        return out
 
     # ------------------------------------------------------------ the loop
     def next_time(self) -> float:
@@ -399,19 +479,37 @@ class Run:
         Ctrl-C or SIGTERM (when called from the main thread) finishes the current step, writes the checkpoint and
         raises Interrupted. InstabilityError propagates with the last good checkpoint left on disk; so does an
         io.FileError (disk full, file-size limit: the checkpoint is replaced only by a complete one)."""
+        self._executing = True
         try:
             try:
                 self._loop(on_step, handle_sigint)
             except InstabilityError:
-                try:
+                try:  # the outputs up to the failure first, then the report
+                    self.save_last_output()
                     self.render_frames()  # the frames up to the last good state show what went wrong
                 except Exception as e:  # the instability is the news; a failed picture must not hide it
                     self.log(f"warning: the frames could not be rendered ({type(e).__name__}: {e})")
                 raise
             self.finish()
         finally:
+            self._executing = False
+            self._close_writer()
             self.lock.release()  # also on Ctrl-C and instability: the folder is free for --resume
         return self
+
+    def _close_writer(self):
+        """Every job handed over is written before the run returns or reports a stop; a write that fails here is
+        raised unless another error is already on its way (then it is logged: that error is the news)."""
+        t0 = time.perf_counter()
+        in_flight = sys.exc_info()[1] is not None
+        try:
+            self.writer.close()
+        except Exception as e:
+            if not in_flight:
+                raise
+            self.log(f"warning: an output could not be written ({type(e).__name__}: {e})")
+        finally:
+            self.output_seconds += time.perf_counter() - t0
 
     def _handle_signals(self) -> dict:
         """Catch SIGINT and SIGTERM: the run stops after the current step. Returns {signal: handler before} for
@@ -435,6 +533,9 @@ class Run:
 
     def _stop(self):
         self.checkpoint()
+        t0 = time.perf_counter()
+        self.writer.drain()   # every output handed over is on disk before the stop is reported
+        self.output_seconds += time.perf_counter() - t0
         raise Interrupted(self, self.stop_signal or signal.SIGINT)
 
     def _loop(self, on_step, handle_sigint):

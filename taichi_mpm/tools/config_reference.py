@@ -202,7 +202,16 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "output.dir": ("", "run folder; {name} is replaced by the scene name"),
     "output.every": ("s", "simulated time between outputs"),
     "output.formats": ("", "vtu and npz snapshots, png frames, mp4 or gif movie"),
-    "output.fields": ("", "particle fields written besides the ones always written (see Output fields below)"),
+    "output.fields": ("", "particle fields written to each snapshot besides the standard set (see Output fields "
+                          "below; with output.only_fields, the only ones)"),
+    "output.only_fields": ("", "true: a VTU holds the positions and exactly output.fields; false: also the standard "
+                               "set (velocity, stress, von_mises, J, body, damage and material states when present)"),
+    "output.checkpoint_every": ("outputs", "checkpoint.npz is rewritten every this many outputs, at the first and "
+                                           "the last, on a stop (Ctrl-C, SIGTERM) and after a numerical failure "
+                                           "(the last output's state); 1: at every output"),
+    "output.writer": ("", "thread: snapshots, checkpoints, probe rows and frame records are written by a background "
+                          "thread while the solver steps (a queue of 8 jobs, about 3 outputs; the solver waits only when it is full); "
+                          "inline: by the solver's thread, as before. The same files either way"),
     "output.render": ("", "off-screen frames"),
     "output.render.color_by": ("", "colour field: speed, von_mises, J, body, damage, pressure, plastic_strain, Jp, "
                                    "vx, vy, vz, or a stress component sxx, syy, szz, sxy, ... (any scalar of Output "
@@ -479,15 +488,22 @@ def render() -> str:
             "A wall face is a wall type alone (`y_min: slip`) or a mapping with friction "
             "(`y_min: {type: slip, friction: 0.3}`); a frictionless face is written back as its plain string.", "",
             "## Output fields", "",
-            "Per-particle fields of the VTU and NPZ snapshots (`output.fields` adds to the ones always written), "
-            "also the colour fields of frames and the window (`taichi_mpm/fields.py`). VTU vectors have 3 components "
-            "(zero beyond dim), tensors 9 (the full 3x3 tensor, row-major); NPZ arrays are unpadded, with the stress "
-            "both as `stress` (N, d, d) and `stress3` (N, 3, 3).", "",
-            "| field | unit | kind | always written | meaning |", "| --- | --- | --- | --- | --- |"]
+            "Per-particle fields of the VTU and NPZ snapshots: the standard set (\"always written\") plus "
+            "`output.fields`, or with `output.only_fields: true` the positions and exactly `output.fields`; also the "
+            "colour fields of frames and the window (`taichi_mpm/fields.py`). VTU vectors have 3 components "
+            "(zero beyond dim), tensors 9 (the full 3x3 tensor, row-major), floating values in the run's precision "
+            "(float32 in an f32 run); NPZ arrays are unpadded, with the stress both as `stress` (N, d, d) and "
+            "`stress3` (N, 3, 3). The cost column is the VTU's uncompressed bytes per particle and snapshot in an f32 "
+            "(f64) run; the arrays are zlib-compressed, to about 0.7-0.9 of that for floats and almost nothing for "
+            "labels. Every VTU also holds the positions (12 (24) B) and the vertex cells (9 B, about 3 B "
+            "compressed).", "",
+            "| field | unit | kind | always written | VTU bytes a particle | meaning |",
+            "| --- | --- | --- | --- | --- | --- |"]
+    cost = {"scalar": "4 (8)", "vector": "12 (24)", "tensor": "36 (72)", "label": "4"}
     for name, f in fields.REGISTRY.items():
         present = name == "damage" or name in fields.STATES
         always = "yes" + (" (when present)" if present else "") if name in fields.ALWAYS else ""
-        out.append(f"| `{name}` | {_cell(f.unit)} | {f.kind} | {always} | {_cell(f.meaning)} |")
+        out.append(f"| `{name}` | {_cell(f.unit)} | {f.kind} | {always} | {cost[f.kind]} | {_cell(f.meaning)} |")
     out += ["", "## Probes", "", PROBES_DOC, "",
             "## diagnostics.csv", "",
             "One row per output time, columns in this order (" + ", ".join(io.diagnostics_columns(3)) + " in 3D; "
