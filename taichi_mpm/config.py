@@ -722,7 +722,7 @@ class Config(Strict):
         if scheme.separating and s.update != "usl":
             raise _Located("solver.update", f"transfer {s.transfer} moves particles with its velocity update: usl "
                                             f"only (the update is {s.update})")
-        if (scheme.moment_gradient or scheme.extended or scheme.separating) and self.crack is not None:
+        if (scheme.moment_gradient or scheme.extended or scheme.separating or scheme.taylor) and self.crack is not None:
             raise _Located("solver.transfer", f"{s.transfer} cannot be combined with the crack finder (section "
                                               "'crack'): its modified transfers are PIC, FLIP or APIC's")
 

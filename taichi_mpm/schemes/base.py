@@ -27,6 +27,9 @@ class Scheme:
     # the force and the velocity gradient through the affine moment matrix, w D_p^-1 (x_i - x_p), instead of
     # grad w (MLS-MPM; schemes/gradient.py)
     moment_gradient: bool = False
+    # TPIC: the affine part is the particle's velocity gradient sum v_i grad w^T (a Taylor expansion about x_p)
+    # for every basis, not B_p D_p^-1 (multilinear weights use the gradient anyway: Stencil.apic_gradient)
+    taylor: bool = False
 
 
 SCHEMES: dict[str, Scheme] = {}

@@ -18,11 +18,17 @@ class AffineFuncs:
     velocity_gradient: Callable   # @ti.func (p) -> grad v of the last step
 
 
+def gradient_affine(ctx) -> bool:
+    """The affine C_p is the velocity gradient sum v_i grad w^T, stored as is: TPIC (schemes/tpic.py) on every
+    basis, APIC on multilinear weights (where it equals B_p D_p^-1)."""
+    return ctx.feat.taylor or ctx.basis.apic_gradient
+
+
 def make_affine(ctx) -> AffineFuncs:
     """ctx: step.StepContext with its stencil."""
     dim, C, sten = ctx.dim, ctx.C, ctx.stencil
     apic = ctx.feat.apic
-    store_B = apic and not ctx.basis.apic_gradient
+    store_B = apic and not gradient_affine(ctx)
 
     @ti.func
     def affine(p, st):

@@ -15,7 +15,8 @@ from ..materials import MODELS
 
 @dataclass(frozen=True)
 class Features:
-    apic: bool                  # an affine transfer (apic, mls): the C field holds APIC's B_p or C_p
+    apic: bool                  # an affine transfer (apic, mls, asflip, tpic): the C field holds B_p or C_p
+    taylor: bool                # solver.transfer tpic: the affine C_p is the velocity gradient sum v_i grad w^T
     flip: bool                  # flip, xpic, asflip: the grid keeps v before forces (v_old)
     xpic: bool                  # solver.transfer xpic: v_p = S (v_L - v + v*), v* on three grid vectors more
     asflip: bool                # solver.transfer asflip: APIC plus a FLIP part and the position correction
@@ -39,6 +40,7 @@ class Features:
         viscosity = any(getattr(m, "viscosity", 0.0) > 0 for m in materials)
         return cls(
             apic=transfer.affine,
+            taylor=transfer.taylor,
             flip=transfer.keeps_old_grid,
             mls=transfer.moment_gradient,
             xpic=transfer.extended,

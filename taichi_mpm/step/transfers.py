@@ -12,6 +12,7 @@ import taichi as ti
 
 from ..bases.stencils import make_corner_check, make_wall_hold
 from ..schemes.gradient import make_gradient
+from .affine import gradient_affine
 
 FLUID_J_MIN = 0.2           # a weakly compressible fluid squeezed below this volume ratio has collapsed
 DEFORM_F, DEFORM_X = 2, 3   # g2p's deform for one half of the update (USF: F before the forces, x after them)
@@ -218,7 +219,7 @@ def make_position_update(ctx):
 
 def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
-    dim, basis = ctx.dim, ctx.basis
+    dim = ctx.dim
     x, v, F, C = ctx.x, ctx.v, ctx.F, ctx.C
     sten, pt = ctx.stencil, ctx.particle_transfer
     outer, inner = sten.outer, sten.inner
@@ -227,7 +228,7 @@ def make_g2p(ctx, mf, af, external_force):
     flip, apic, taken, has_C = f.flip, f.apic, pt is not None, C is not None
     xpic, v_star = f.xpic, ctx.grid.vec.get("xpic_sum")   # XPIC's v* (step/xpic.py)
     transfer_velocity, new_position = make_velocity_update(ctx), make_position_update(ctx)
-    apic_gradient = basis.apic_gradient
+    apic_gradient = gradient_affine(ctx)   # C_p = sum v_i grad w^T: TPIC, or APIC on multilinear weights
     works = ctx.body_acc is not None or f.tractions
     project_here = f.plastic and not ctx.project_after_g2p   # with F-bar: after its average (project_all)
     work, fail, vmax2, n_codes = ctx.work, ctx.fail, ctx.vmax2, ctx.fail_codes

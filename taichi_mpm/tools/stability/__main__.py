@@ -21,6 +21,7 @@ def main(argv=None):
     c.add_argument("--hi", type=float, default=1.5)
     c.add_argument("--tol", type=float, default=0.05)
     c.add_argument("--energy-limit", type=float, default=1.1)
+    c.add_argument("--update", choices=("usl", "musl", "usf"), help="solver.update of every trial (default: usl)")
     c.add_argument("--jobs", type=int, default=1)
     c.add_argument("--out", help="write the table (markdown) and trials (JSON) with this path stem")
     m = sub.add_parser("map", help="picture of a stability study's results.csv")
@@ -35,7 +36,8 @@ def main(argv=None):
     spec = json.loads(args.spec)
     bases = args.bases.split(",") if args.bases else None
     rows = cfl_table(bases, args.transfers.split(","), spec, jobs=args.jobs, lo=args.lo, hi=args.hi,
-                     tol=args.tol, energy_limit=args.energy_limit, log=lambda m: print(m, flush=True))
+                     tol=args.tol, energy_limit=args.energy_limit, log=lambda m: print(m, flush=True),
+                     extra={"solver.update": args.update} if args.update else None)
     md = cfl_markdown(rows, spec)
     print(md)
     if args.out:
