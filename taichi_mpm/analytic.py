@@ -50,12 +50,13 @@ def _norms(err: np.ndarray) -> dict:
 
 
 def _base_config(name, dim, lower, upper, dx, bodies, materials, end_time, *, basis=bases.DEFAULT,
-                 transfer="flip", flip_blend=1.0, cfl=0.4, boundaries=None, precision="f64"):
+                 transfer="flip", flip_blend=1.0, cfl=0.4, boundaries=None, precision="f64", **solver):
     return dict(
         name=name, dim=dim, precision=precision, arch="cpu",
         domain=dict(lower=list(map(float, lower)), upper=list(map(float, upper)), dx=float(dx),
                     boundaries=boundaries or {"default": "slip"}),
-        solver=dict(basis=basis, transfer=transfer, flip_blend=flip_blend, cfl=cfl, end_time=float(end_time)),
+        solver=dict(basis=basis, transfer=transfer, flip_blend=flip_blend, cfl=cfl, end_time=float(end_time),
+                    **solver),   # other solver keys as given (solver.quadrature)
         materials=materials, bodies=bodies,
         output=dict(formats=[]),
     )

@@ -325,6 +325,10 @@ class Solver(Strict):
     xpic_order: Annotated[int, BeforeValidator(_no_bool), Field(ge=1, le=8)] = 2
     asflip: Asflip = Asflip()
     gimp_domain: Literal["uniform", "deforming"] = "uniform"
+    # the B-splines' particle quadrature: point (weights and gradients at the particle) or domain (the particle's
+    # knot span averaged over its domain of the initial spacing: cubic keeps second order at sticky walls;
+    # docs/accuracy.md, "Cubic B-splines at sticky walls")
+    quadrature: Literal["point", "domain"] = "point"
     cpdi: Cpdi = Cpdi()
     cfl: PositiveFloat = 0.4
     dt: Optional[PositiveFloat] = None
@@ -730,7 +734,7 @@ class Config(Strict):
         """Settings given that nothing would read: an error at validation rather than a run that ignores them."""
         s = self.solver
         # (a default value written out, as Config.to_dict does, is no setting: only other values are refused)
-        for key, default in (("cpdi", Cpdi()), ("gimp_domain", "uniform")):
+        for key, default in (("cpdi", Cpdi()), ("gimp_domain", "uniform"), ("quadrature", "point")):
             readers = [n for n in bases.names() if key in bases.get(n).options]
             if getattr(s, key) != default and s.basis not in readers:
                 raise _Located(f"solver.{key}", f"is read by solver.basis {bases.listed(readers)} only (the basis is "
@@ -789,6 +793,9 @@ class Config(Strict):
                                          f"{self.solver.basis}")
         if self.domain.knots is not None:
             raise _Located("domain.knots", "give either domain.knots or domain.map (the map has its own knots)")
+        if self.solver.quadrature != "point":
+            raise _Located("solver.quadrature", "domain quadrature averages the B-splines of the box grid (or of "
+                                                "domain.knots); a mapped grid's rational basis takes point only")
         if self.crack is not None:
             raise _Located("domain.map", "domain.map cannot be combined with the crack finder (section 'crack'): its "
                                          "SPH reach, cell list and crack normals assume the Cartesian grid; remove "

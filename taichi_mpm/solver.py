@@ -26,7 +26,7 @@ from . import budget, states   # states: the API's refusals (states.py)
 from .budget import VISCOUS_DIFFUSION  # noqa: F401 (the dt rule's constant, shared with the estimate)
 from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
 from .bases import registry as bases
-from .bases.shape_functions import make_basis
+from .bases.shape_functions import domain_averaged, make_basis
 from .bases.knots import grid_knots, smallest_span
 from .bases.mapped import MappedGrid
 from .bases.stencils import make_stencil
@@ -96,6 +96,8 @@ class Simulation:
         self._id = init_taichi(self.backend, c.precision, c.solver.deterministic,
                                c.solver.deterministic and thread_independent(c, body_force is not None))
         self.basis = make_basis(c.solver.basis, grid_knots(c))   # domain.knots: per-axis knot vectors
+        if c.solver.quadrature == "domain":
+            self.basis = domain_averaged(self.basis)
         self.basis.materialize()
         self.h_cfl = smallest_span(c)   # dx, or the shortest knot span of domain.knots
         self.mapped = MappedGrid(c) if c.domain.map is not None else None   # domain.map: a curvilinear grid

@@ -35,7 +35,8 @@ class Spec:
     fbar: bool = True           # takes solver.volumetric fbar
     fbar_linear_grid: bool = False  # F-bar averages on the linear grid, one degree below the velocity space
     particle_domains: bool = False  # each particle has a domain whose half-width comes from its spacing
-    options: tuple = ()         # the solver keys read by this basis only (solver.gimp_domain, solver.cpdi)
+    options: tuple = ()         # the solver keys read by this basis only (solver.gimp_domain, solver.cpdi,
+                                # solver.quadrature: the B-splines' shape_functions.Basis.averaged_1d)
     prepass_grid: bool = False  # a scalar grid filled before P2G each step (ddmp's nodal volumes), in thread order
     cfl_factor: float = 1.0     # the dt rule's step is cfl_factor x solver.cfl x (the CFL step)
     accuracy: Optional[int] = None  # rank in the tools' sweeps (advise, the GUI's switch, the CFL table); None: unswept
@@ -115,13 +116,13 @@ _DDMP_CRACK = ("two interface blocks pulled apart kept only 0.185 of their 0.2 m
 
 BUILT_IN = tuple(register(s).name for s in (
     Spec("linear", "linear B-splines (hat functions)", _SF + "make_bspline_basis", 1, 2, "bspline",
-         knots=True, accuracy=1, inversion_hint=_LINEAR_INVERSION),
+         knots=True, options=("quadrature",), accuracy=1, inversion_hint=_LINEAR_INVERSION),
     Spec("gimp", "uGIMP, the linear hats averaged over particle domains of the initial spacing", _SF + "make_gimp",
          1, 3, "ghost", particle_domains=True, options=("gimp_domain",), accuracy=2),
     Spec("quadratic", "quadratic B-splines on open knot vectors", _SF + "make_bspline_basis", 2, 3, "bspline",
-         knots=True, map=True, fbar_linear_grid=True, accuracy=3),
+         knots=True, options=("quadrature",), map=True, fbar_linear_grid=True, accuracy=3),
     Spec("cubic", "cubic B-splines on open knot vectors", _SF + "make_bspline_basis", 3, 4, "bspline",
-         knots=True, fbar_linear_grid=True, accuracy=4),
+         knots=True, options=("quadrature",), fbar_linear_grid=True, accuracy=4),
     Spec("cpdi", "CPDI1, the linear hats sampled at the corners of each particle's deformed domain", _SF + "make_cpdi",
          1, 3, "bspline", stencil_kind="corners", particle_domains=True, options=("cpdi",),
          inversion_hint="the particle's CPDI domain (half-edges F r0) inverted: det F <= 0; fix: lower solver.cfl"),

@@ -53,6 +53,10 @@ class Basis:
     smooth_1d: Optional[Callable] = None   # ddmp: @ti.func (u, n cells) -> (smoothed w, smoothed dw, blend)
     axes: Optional[tuple] = None           # domain.knots: one Basis per axis (its own knot vector), else None
     knots: Any = None                      # a knot-vector axis: its KnotData (grid-unit knots and their fields)
+    # B-splines: weights_1d of solver.quadrature domain (the span's functions averaged over the particle's domain,
+    # lp its half-width); `domain_averaged` swaps it in
+    averaged_1d: Optional[Callable] = None
+    domain_quadrature: bool = False        # weights_1d is averaged_1d: the stencil passes each particle's lp
 
     @property
     def spec(self) -> registry.Spec:
@@ -114,6 +118,36 @@ def cox_de_boor(p: int, knot: Callable):
     return evaluate
 
 
+def span_average(evaluate):
+    """solver.quadrature domain: (u, c, n, l) -> (S, dS), the polynomial pieces of knot span c (`evaluate(u, c, n)`,
+    the Cox-de Boor recursion, which is a polynomial in u for a fixed span) averaged over the particle's domain
+    [u - l, u + l]:
+        S  = (N(u - l) + 4 N(u) + N(u + l)) / 6        (Simpson: the exact average of a cubic)
+        dS = (N(u + l) - N(u - l)) / (2 l)              (the exact average of N')
+    The span stays the particle's own, so the stencil keeps its p + 1 nodes; sums over the span's functions keep
+    partition of unity (sum S = 1, sum dS = 0) and linear reproduction (sum g_i S_i = u). With particle domains that
+    tile the body, sum_p V_p dS_i(x_p) is then exact for the span polynomials under a constant stress (the particle
+    quadrature of a cubic's quadratic N' is not next to a wall: docs/accuracy.md, "Cubic B-splines at sticky
+    walls"). Linear: the identity; quadratic: dS = N', S = N + l^2 N'' / 6."""
+
+    @traced.traced
+    def average(u, c, n, l):
+        N, _ = evaluate(u, c, n)
+        lo, _ = evaluate(traced.local(u - l), c, n)
+        hi, _ = evaluate(traced.local(u + l), c, n)
+        return (lo + 4.0 * N + hi) / 6.0, (hi - lo) / (2.0 * l)
+
+    return average
+
+
+def domain_averaged(basis: Basis) -> Basis:
+    """The basis with solver.quadrature domain: its (and its axes') weights averaged over each particle's domain."""
+    if basis.averaged_1d is None:
+        raise ValueError(f"basis {basis.name} has no domain-averaged weights (solver.quadrature domain)")
+    axes = None if basis.axes is None else tuple(domain_averaged(b) for b in basis.axes)
+    return replace(basis, weights_1d=basis.averaged_1d, axes=axes, domain_quadrature=True)
+
+
 @traced.traced
 def _cell(u, n):
     """The cell (knot span of a uniform clamped vector) holding u, clamped to 0..n-1."""
@@ -143,7 +177,15 @@ def make_bspline(p: int, name: str) -> Basis:
         N, dN = recursion(ti.cast(u, float), c, n)       # values and derivatives of nodes c..c+p
         return c, N, dN
 
-    return Basis(name, p + 1, 0, p == 1, lambda n: n + p, coord, coord_py, weights_1d)
+    average = span_average(recursion)
+
+    @traced.traced
+    def averaged_1d(u, n, lp):
+        c = traced.local(_cell(u, n))
+        N, dN = average(ti.cast(u, float), c, n, ti.cast(lp, float))
+        return c, N, dN
+
+    return Basis(name, p + 1, 0, p == 1, lambda n: n + p, coord, coord_py, weights_1d, averaged_1d=averaged_1d)
 
 
 def make_gimp(spec: registry.Spec, knots=None) -> Basis:
@@ -305,9 +347,18 @@ def make_knot_bspline(p: int, name: str, t: np.ndarray) -> Basis:
         N, dN = recursion(uu, c, n)   # values and derivatives of control points c-p..c
         return c - p, N, dN
 
+    average = span_average(recursion)
+
+    @ti.func
+    def averaged_1d(u, n: ti.template(), lp):
+        uu = ti.cast(u, float)
+        c = span(uu)
+        N, dN = average(uu, c, n, ti.cast(lp, float))
+        return c - p, N, dN
+
     g = data.g
     return Basis(name, p + 1, 0, p == 1, lambda n: n_ctrl, coord, lambda i, n: float(g[i]), weights_1d,
-                 knots=data)
+                 knots=data, averaged_1d=averaged_1d)
 
 
 def make_bspline_basis(spec: registry.Spec, knots=None) -> Basis:

@@ -218,6 +218,7 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     axes = [basis.axis(a) for a in range(dim)]   # per-axis 1D bases (knot vectors of domain.knots)
     x, F = ctx.x, ctx.F
     domain_weights, gimp_deforming = basis.spec.particle_domains, ctx.gimp_deforming   # uGIMP: lp per particle
+    averaged = basis.domain_quadrature
     smooth = basis.smooth_1d is not None   # ddmp
     half_width = _domain_half_width(ctx)
     holds = wall_holds(ctx)   # B-splines: per axis and side, transfer from at least WALL_LAYER r0 inside
@@ -254,6 +255,8 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
                 if holds[a][1]:
                     uw = ti.min(uw, n_cells[a] - depth)
             lp = 0.0
+            if averaged:
+                lp = half_width(p)   # solver.quadrature domain: the B-spline span averaged over the domain
             if domain_weights:
                 lp = half_width(p)
                 if gimp_deforming:

@@ -102,6 +102,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.flip_blend": ("1", "FLIP fraction of the velocity update when transfer is flip (1: pure FLIP)"),
     "solver.gimp_domain": ("", "GIMP particle half-width: uniform (fixed) or deforming (stretched with F_aa only; "
                                "superseded by basis cpdi, which follows the full F)"),
+    "solver.quadrature": ("", "particle quadrature of the B-spline bases (linear, quadratic, cubic): point (weights "
+                              "and gradients at the particle) or domain (the particle's knot span averaged over "
+                              "its domain of the initial spacing; cubic keeps second order at sticky walls with 2 "
+                              "particles per cell, docs/accuracy.md)"),
     "solver.cfl": ("1", "adaptive time step: the smallest of cfl dx / (wave speed + max speed), cfl sqrt(dx / max "
                         "acceleration) for gravity and body forces, cfl rho dx^2 / (2 d mu) for viscosity"),
     "solver.dt": ("s", "fixed time step instead of the CFL rule; null: adaptive"),
