@@ -674,12 +674,9 @@ class Config(Strict):
         for j, r in enumerate(b.damage_regions):
             _check_shape(f"{key}.damage_regions.{j}.shape", r.shape, d)
         _check_loads(key, b, d)
-        if self.crack is not None and b.prescribed_velocity:
-            raise _Located(f"{key}.prescribed_velocity", "prescribed velocities are not available with a crack "
-                                                         "section (the crack finder has its own grid update)")
 
     def _check_velocity_walls(self):
-        """A velocity wall's vector has the scene's dimension; not with the crack finder."""
+        """A velocity wall's vector has the scene's dimension."""
         for a in range(self.dim):
             for side in (0, 1):
                 face = FACES[2 * a + side]
@@ -689,9 +686,6 @@ class Config(Strict):
                 named = getattr(self.domain.boundaries, face) is not None
                 fkey = f"domain.boundaries.{face if named else 'default'}.velocity"
                 _need_len(fkey, vel, self.dim)
-                if self.crack is not None:
-                    raise _Located(fkey, "velocity walls are not available with a crack section (the crack finder "
-                                         "has its own grid update)")
 
     def _check_crack_combinations(self):
         """Options the crack finder cannot be combined with."""
@@ -967,9 +961,6 @@ class Config(Strict):
             if p.face is not None and "xyz".index(p.face[0]) >= d:
                 raise _Located(f"{key}.face", f"no face {p.face} in {d}D (faces: {', '.join(FACES[:2 * d])})")
             self._check_probe_reach(key, p)
-        if any(p.type == "wall" for p in self.output.probes) and self.crack is not None:
-            raise _Located("output.probes", "wall probes are not available with a crack section (the crack finder "
-                                            "has its own grid update)")
 
     def _check_probe_reach(self, key, p):
         """A point probe inside the domain; a region probe that meets some body's box (a region beside every body
