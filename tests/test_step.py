@@ -7,7 +7,7 @@ import pytest
 
 import taichi_mpm as tm
 from taichi_mpm.step import Features
-from taichi_mpm.step.extensions import ColouredScatter, DualDomainFill, Extension, VolumeAverage
+from taichi_mpm.step.extensions import ColouredScatter, DualDomainFill, Extension, VolumeAverage, Walls
 from conftest import make_cfg
 
 
@@ -45,8 +45,8 @@ def test_extensions_of_a_scene_and_their_moments():
     """ddmp with F-bar on the CPU: the nodal-volume pre-pass, the coloured scatter, F-bar; their memory is in
     bytes_per_particle. An extension added to the list takes part in every moment, in order."""
     sim = tm.Simulation(make_cfg(2, basis="ddmp", volumetric="fbar", scatter="coloured"))
-    assert [type(e) for e in sim.extensions] == [DualDomainFill, ColouredScatter, VolumeAverage]
-    assert [e.name for e in sim.extensions] == ["ddmp", "scatter", "fbar"] and sim.extension("crack") is None
+    assert [type(e) for e in sim.extensions] == [DualDomainFill, ColouredScatter, VolumeAverage, Walls]
+    assert [e.name for e in sim.extensions] == ["ddmp", "scatter", "fbar", "walls"] and sim.extension("crack") is None
     assert sim.extensions[1].p2g_passes == 4 and sim._p2g_passes == 4
     before = sim.bytes_per_particle
     assert before == sim._bytes_per_particle()
