@@ -3,7 +3,7 @@ ordered list of what plugs in. The solver creates the extensions of a scene from
 their moments in that order; it knows none of them by name.
 
 The list: the ddmp pre-pass (nodal volumes), the coloured scatter's binning, the mapped grid's parametric
-coordinates (before F-bar: its average reads the mapped stencil), F-bar's volume average, the crack finder. A new
+coordinates (before F-bar: its average reads the mapped stencil), F-bar's volume average, the crack finder, multi-field contact. A new
 extension is one module with an `Extension` subclass whose `create(setup)` returns it (or None where the scene
 does not use it), added here or, from outside the package (a plug-in, a test), by `register` (docs/architecture.md,
 "Adding a step extension").
@@ -11,18 +11,19 @@ does not use it), added here or, from outside the package (a plug-in, a test), b
 Physics code only: no CLI, rendering or file I/O here.
 """
 from ..extensions.coloured_scatter import ColouredScatter
+from ..extensions.contact import MultiField
 from ..extensions.crack import CrackFinder
 from ..extensions.ddmp_fill import DualDomainFill
 from ..extensions.fbar_average import VolumeAverage
 from ..extensions.mapped_coordinates import MappedCoordinates
-from .moments import Degradation, Extension, GridSolve, ParticleTransfer, Setup
+from .moments import Degradation, Extension, GridSolve, NodeFields, ParticleTransfer, Setup
 
 __all__ = ["ColouredScatter", "CrackFinder", "Degradation", "DualDomainFill", "Extension", "GridSolve",
-           "MappedCoordinates", "ORDER", "ParticleTransfer", "Setup", "VolumeAverage", "create", "register",
+           "MappedCoordinates", "MultiField", "NodeFields", "ORDER", "ParticleTransfer", "Setup", "VolumeAverage", "create", "register",
            "unregister"]
 
 # Extension classes, in the order their moments run
-ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, VolumeAverage, CrackFinder]
+ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, VolumeAverage, CrackFinder, MultiField]
 
 
 def register(cls: type, before: type = None) -> type:

@@ -1,7 +1,7 @@
 """The grid update between the transfers, one chain every extension takes part in (step.moments.GridSolve): node
 velocities from momenta (an extension may give its own: the crack finder's tensor node mass), gravity over the
 leapfrog kick, the extensions' accelerations, wall conditions (grid.make_wall_condition) and grips
-(bodies[].prescribed_velocity), MUSL's remap under the same conditions; and the kernels that set this step's loads
+(bodies[].prescribed_velocity), then the extensions' own node fields (multi-field contact's body fields), MUSL's remap under the same conditions; and the kernels that set this step's loads
 and motions (tractions' particle forces, grip and velocity-wall velocities; loads.py evaluates their time
 functions).
 
@@ -97,6 +97,7 @@ def make_grid_update(ctx):
     grip_condition = make_grip_condition(ctx)
     has_mass, node_velocity = make_node_solve(ctx)
     accelerations = make_accelerations(ctx)
+    own_fields = [g.node_fields for g in ctx.grid_solve if g.node_fields is not None]
 
     @ti.kernel
     def grid_update(kick_before: float, kick_after: float, special: ti.template()):
@@ -110,6 +111,8 @@ def make_grid_update(ctx):
                 gv[I] = grip_condition(I, vel, m, measure=True)
                 if ti.static(flip):
                     gv_old[I] = node_velocity(I, m, gv_old[I], special)
+                for k in ti.static(range(len(own_fields))):   # the extensions' own node fields (multi-field contact)
+                    own_fields[k](I, kick_before, kick_after)
 
     @ti.func
     def velocities(g: ti.template(), special: ti.template()):
