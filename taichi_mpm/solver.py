@@ -570,7 +570,7 @@ class Simulation:
         growth = E(t) + dissipated - E(ref) - work, with E = kinetic + potential (strain + gravity), work the
         external work (body forces, tractions, grips and velocity walls), dissipated the viscous and plastic
         dissipation (the plastic work of the return mappings) and what extensions removed (multi-field contact:
-        `friction` and the normal correction's `contact`, also given apart under those names); scale = largest kinetic + strain energy seen.
+        its `friction`, also given apart under that name); scale = largest kinetic + strain energy seen.
         Leapfrog's velocities lag the positions by half a step, so the kinetic energy (of time t - dt/2) is
         paired with the mean potential of the last two states, t - dt and t, where the solver measured both
         (every checked step, the last step of advance_to): paired with the potential of t alone, a body rising

@@ -1,9 +1,9 @@
 """The grid update between the transfers, one chain every extension takes part in (step.moments.GridSolve): node
 velocities from momenta (an extension may give its own: the crack finder's tensor node mass), gravity over the
 leapfrog kick, the extensions' accelerations, wall conditions (grid.make_wall_condition) and grips
-(bodies[].prescribed_velocity), then the extensions' own node fields (multi-field contact's body fields), MUSL's remap under the same conditions; and the kernels that set this step's loads
-and motions (tractions' particle forces, grip and velocity-wall velocities; loads.py evaluates their time
-functions).
+(bodies[].prescribed_velocity), then the extensions' own node fields (multi-field contact's body fields), MUSL's
+remap under the same conditions; and the kernels that set this step's loads and motions (tractions' particle
+forces, grip and velocity-wall velocities; loads.py evaluates their time functions).
 
 Physics code only: no CLI, rendering or file I/O here.
 """

@@ -1,7 +1,7 @@
 """The extension protocol: the named moments of a step, what an extension is handed at creation (`Setup`) and what
 it may contribute to the step's kernels through the step context (`ParticleTransfer`, `Degradation`,
-`NodeFields`, `GridSolve`). The solver calls every extension's moments in the order of step.extensions' list and knows none of
-them by name; a moment an extension does not override does nothing.
+`NodeFields`, `GridSolve`). The solver calls every extension's moments in the order of step.extensions' list and
+knows none of them by name; a moment an extension does not override does nothing.
 
 The moments, in the order a simulation meets them (`Simulation`):
 

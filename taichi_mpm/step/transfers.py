@@ -223,14 +223,39 @@ def make_position_update(ctx):
     return position
 
 
+def make_node_reads(ctx):
+    """The node values G2P reads for particle p: (v_i, FLIP's v_old_i, the velocity of grad v given v_i): the
+    grid's (MUSL's grad v from the remapped v2), or an extension's NodeFields (multi-field contact: the
+    particle's own body field; usl only, so grad v takes v_i)."""
+    gv, gv_old, vgrad, nf = ctx.gv, ctx.gv_old, ctx.vgrad, ctx.node_fields
+    if nf is not None:
+        @ti.func
+        def own_grad(p, I, vi):
+            return vi
+        return nf.velocity, nf.velocity_old, own_grad
+
+    @ti.func
+    def velocity(p, I):
+        return gv[I]
+
+    @ti.func
+    def velocity_old(p, I):
+        return gv_old[I]
+
+    @ti.func
+    def gradient_velocity(p, I, vi):
+        return vgrad[I]
+    return velocity, velocity_old, gradient_velocity
+
+
 def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
     dim, basis = ctx.dim, ctx.basis
     x, v, F, C = ctx.x, ctx.v, ctx.F, ctx.C
-    sten, pt, nf = ctx.stencil, ctx.particle_transfer, ctx.node_fields
+    sten, pt = ctx.stencil, ctx.particle_transfer
     outer, inner = sten.outer, sten.inner
-    own = nf is not None
-    gv, gv_old, vgrad = ctx.gv, ctx.gv_old, ctx.vgrad   # MUSL takes grad v from the remapped velocities
+    read_v, read_old, read_grad = make_node_reads(ctx)
+    gv_old = ctx.gv_old
     f = ctx.feat
     flip, apic, taken, has_C = f.flip, f.apic, pt is not None, C is not None
     xpic, v_star = f.xpic, ctx.grid.vec.get("xpic_sum")   # XPIC's v* (step/xpic.py)
@@ -254,22 +279,16 @@ def make_g2p(ctx, mf, af, external_force):
         for o in ti.grouped(ti.ndrange(*outer)):
           for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
             I, w, gw, r = sten.node(st, o + inner[k])
-            vi = gv[I]
-            if ti.static(own):   # the particle's own node field (multi-field contact)
-                vi = nf.velocity(p, I)
+            vi = read_v(p, I)
             v_pic += w * vi
             if ti.static(velocity and xpic):
                 dv += w * (v_star[I] - gv_old[I])
-            elif ti.static(velocity and flip and own):
-                dv += w * (vi - nf.velocity_old(p, I))
             elif ti.static(velocity and flip):
-                dv += w * (vi - gv_old[I])
+                dv += w * (vi - read_old(p, I))
             if ti.static(velocity and apic and not apic_gradient):
                 B += w * vi.outer_product(r)
-            if ti.static(_moves_F(deform) and own):   # (usl only: its velocities are the gradient's)
-                G += grad.term(M, vi, w, gw, r)
-            elif ti.static(_moves_F(deform)):
-                G += grad.term(M, vgrad[I], w, gw, r)
+            if ti.static(_moves_F(deform)):
+                G += grad.term(M, read_grad(p, I, vi), w, gw, r)
             elif ti.static(apic and apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
                 G += vi.outer_product(gw)
         return v_pic, dv, B, grad.finish(M, G)
