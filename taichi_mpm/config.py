@@ -367,6 +367,17 @@ class Crack(Strict):
     normal_refresh: Annotated[float, Field(ge=0, le=0.5)] = 0.01
 
 
+class Contact(Strict):
+    """Contact between bodies by a method of its own (docs/contact.md); the crack finder keeps its `crack:` section."""
+    # multi_field: one velocity field per body or group of bodies (Bardenhagen et al. 2000)
+    method: Literal["multi_field"] = "multi_field"
+    # Coulomb friction coefficient between the fields (every pair alike)
+    friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
+    # groups of bodies (names or indices) sharing one velocity field; a body in no group gets a field of its own;
+    # null: every body its own field
+    bodies: Optional[list[Annotated[list[Union[int, str]], Field(min_length=1)]]] = None
+
+
 # one material: the schema of its model, picked by `model` (the registry in taichi_mpm/materials/)
 AnyMaterial = material_models.schema()
 MODEL_NAMES = material_models.names()
@@ -587,6 +598,7 @@ class Config(Strict):
     domain: Domain
     solver: Solver
     crack: Optional[Crack] = None
+    contact: Optional[Contact] = None
     materials: dict[str, AnyMaterial]  # type: ignore[valid-type]  # the registered models' union, built at import
     bodies: Annotated[list[Body], Field(min_length=1)]
     output: Output = Output()
@@ -617,6 +629,7 @@ class Config(Strict):
             self._check_body(i, b)
         self._check_velocity_walls()
         self._check_crack_combinations()
+        self._check_contact()
         self._check_transfer()
         self._check_unused_settings()
         if self.solver.cpdi.variant == "cpdi2":   # (solver.cpdi is refused above unless the basis reads it)
@@ -696,6 +709,63 @@ class Config(Strict):
         if self.crack is not None and why is not None:
             raise _Located("crack", f"the crack finder does not support basis {self.solver.basis}: {why}; use "
                                     f"{bases.listed(bases.names(crack=None))} with a crack section")
+
+    def contact_fields(self) -> list[int]:
+        """Per body (config order): its velocity field under contact.bodies (a body in no group: one of its own)."""
+        groups = (self.contact.bodies or []) if self.contact is not None else []
+        names = {b.name: i for i, b in enumerate(self.bodies) if b.name}
+        out: list = [None] * len(self.bodies)
+        for k, group in enumerate(groups):
+            for entry in group:
+                out[entry if isinstance(entry, int) else names[entry]] = k
+        extra = len(groups)
+        for i, f in enumerate(out):
+            if f is None:
+                out[i], extra = extra, extra + 1
+        return out
+
+    def _check_contact(self):
+        """contact: its groups name bodies once each, at least two fields, and options the method works with."""
+        c = self.contact
+        if c is None:
+            return
+        if self.crack is not None:
+            raise _Located("contact", "a contact section cannot be combined with a crack section: both separate "
+                                      "bodies (the crack finder inside one velocity field, multi_field with one "
+                                      "field per body); keep one (docs/contact.md)")
+        names = {b.name: i for i, b in enumerate(self.bodies) if b.name}
+        seen = {}
+        for k, group in enumerate(c.bodies or []):
+            for j, entry in enumerate(group):
+                key = f"contact.bodies.{k}.{j}"
+                if isinstance(entry, bool):
+                    raise _Located(key, "a body name or index, not a boolean")
+                if isinstance(entry, int) and not 0 <= entry < len(self.bodies):
+                    raise _Located(key, f"no body {entry} (the scene has {len(self.bodies)}, numbered from 0)")
+                if isinstance(entry, str) and entry not in names:
+                    raise _Located(key, f"unknown body '{entry}' (named bodies: {', '.join(names) or 'none'})")
+                i = entry if isinstance(entry, int) else names[entry]
+                if i in seen:
+                    raise _Located(key, f"body {i} is in group {seen[i]} already: a body has one velocity field")
+                seen[i] = k
+        if len(set(self.contact_fields())) < 2:
+            raise _Located("contact.bodies", "multi_field contact needs at least two velocity fields (two bodies, "
+                                             "or two groups)")
+        s = self.solver
+        if s.update != "usl":
+            raise _Located("solver.update", f"{s.update} cannot be combined with multi_field contact (section "
+                                            "'contact'): its fields are solved in the one grid update of usl")
+        if transfer_schemes.get(s.transfer).extended:
+            raise _Located("solver.transfer", f"{s.transfer} cannot be combined with multi_field contact: its "
+                                              "passes work on the one grid velocity")
+        if s.volumetric == "fbar":
+            raise _Located("solver.volumetric", "fbar cannot be combined with multi_field contact: its average "
+                                                "would mix the volume changes of bodies in contact")
+        if self.domain.map is not None:
+            raise _Located("domain.map", "domain.map cannot be combined with multi_field contact (not built yet)")
+        if any(p.type == "wall" for p in self.output.probes):
+            raise _Located("output.probes", "wall probes are not available with multi_field contact: they measure "
+                                            "the centre-of-mass field, not the bodies' fields the walls act on")
 
     def _check_transfer(self):
         """The transfer works with the basis (its declaration in schemes/ tests the basis') and the crack finder."""

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from . import materials as material_models
 from . import schemes as transfer_schemes
 from .bases import registry as bases
+from .extensions.contact.fields import ContactNeeds
 from .extensions.crack.fields import NODE_CACHE as CRACK_NODE_CACHE, CrackNeeds
 from .field_decl import FieldDecl, GridDecl, allocate, nbytes  # noqa: F401 (allocate, nbytes: the layout's API)
 
@@ -41,6 +42,7 @@ class Needs:
     ddmp: bool                  # nodal volumes on a grid of their own
     coloured: bool              # the coloured scatter's bins (scatter.BlockBins)
     crack: CrackNeeds | None
+    contact: ContactNeeds | None = None   # multi-field contact's node fields (its velocity fields)
 
     @classmethod
     def of_simulation(cls, sim, feat, coloured: bool) -> "Needs":
@@ -53,7 +55,8 @@ class Needs:
                    n_state=material_models.state_size(sim._materials, sim.dim), flip=feat.flip,
                    transfer_vectors=transfer_schemes.get(c.solver.transfer).grid_vectors, musl=feat.musl,
                    grips=feat.grips, mapped=sim.mapped is not None, **_common(c, coloured),
-                   crack=CrackNeeds.of(c, sim._materials, sim.basis) if c.crack is not None else None)
+                   crack=CrackNeeds.of(c, sim._materials, sim.basis) if c.crack is not None else None,
+                   contact=ContactNeeds.of(c) if c.contact is not None else None)
 
     @classmethod
     def of_config(cls, cfg, body_force: bool, coloured: bool, basis) -> "Needs":
@@ -70,7 +73,8 @@ class Needs:
                    tractions=any(b.tractions for b in cfg.bodies), n_state=material_models.state_size(mats, cfg.dim),
                    flip=scheme.keeps_old_grid, transfer_vectors=scheme.grid_vectors, musl=s.update == "musl",
                    grips=any(b.prescribed_velocity for b in cfg.bodies), mapped=cfg.domain.map is not None,
-                   **_common(cfg, coloured), crack=CrackNeeds.of(cfg, mats, basis) if cfg.crack is not None else None)
+                   **_common(cfg, coloured), crack=CrackNeeds.of(cfg, mats, basis) if cfg.crack is not None else None,
+                   contact=ContactNeeds.of(cfg) if cfg.contact is not None else None)
 
 
 def _common(cfg, coloured: bool) -> dict:
@@ -142,6 +146,8 @@ def main_grid(n: Needs) -> GridDecl:
     scalars: tuple[str, ...] = ()
     if n.crack is not None:   # the crack finder's node fields: few particles touch them
         apart, scalars = tuple(n.crack.grid_vectors), tuple(n.crack.grid_scalars)
+    if n.contact is not None:   # multi-field contact's body fields: mass, momentum, mass gradient (FLIP: v_old)
+        apart, scalars = apart + tuple(n.contact.grid_vectors), scalars + tuple(n.contact.grid_scalars)
     # the coloured scatter's count and start per block (in the block's pointer cell)
     return GridDecl("grid", vec, apart, scalars, block_ints=2 if n.coloured else 0)
 

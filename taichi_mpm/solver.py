@@ -483,7 +483,16 @@ class Simulation:
         e, w = self._energy_parts()
         floor = self._energy_floor(e[3])
         return dict(total=e[0] + e[1] + e[2], work=w[0], dissipated=w[1] + w[2], scale=max(e[5], floor),
-                    floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time)
+                    floor=floor, due=self.n_steps + ENERGY_CHECK_EVERY, steps=self.n_steps, time=self.time,
+                    extensions=self._extension_dissipation())
+
+    def _extension_dissipation(self) -> dict:
+        """The energy the extensions removed since the start, by name (multi-field contact: friction, contact)."""
+        out = {}
+        for e in self.extensions:
+            for name, value in e.dissipation().items():
+                out[name] = out.get(name, 0.0) + value
+        return out
 
     def _energy_floor(self, potential_scale: float) -> float:
         """Round-off scale of the balance: below it a 'growth' is precision noise, not physics."""
@@ -499,7 +508,8 @@ class Simulation:
         """The energy balance since its reference time (first step, or the last set_particles/set_state):
         growth = E(t) + dissipated - E(ref) - work, with E = kinetic + potential (strain + gravity), work the
         external work (body forces, tractions, grips and velocity walls), dissipated the viscous and plastic
-        dissipation (the plastic work of the return mappings); scale = largest kinetic + strain energy seen.
+        dissipation (the plastic work of the return mappings) and what extensions removed (multi-field contact:
+        its `friction`, also given apart under that name); scale = largest kinetic + strain energy seen.
         Leapfrog's velocities lag the positions by half a step, so the kinetic energy (of time t - dt/2) is
         paired with the mean potential of the last two states, t - dt and t, where the solver measured both
         (every checked step, the last step of advance_to): paired with the potential of t alone, a body rising
@@ -513,10 +523,12 @@ class Simulation:
             potential = 0.5 * (potential + self._potentials[self.n_steps - 1])
         total = e[0] + potential
         work, dissipated = w[0] - ref["work"], w[1] + w[2] - ref["dissipated"]
+        own = {name: value - ref["extensions"].get(name, 0.0) for name, value in self._extension_dissipation().items()}
+        dissipated += sum(own.values())
         scale = max(ref["scale"], e[5])
         growth = total + dissipated - ref["total"] - work
         return dict(growth=growth, ratio=growth / scale, scale=scale, work=work, dissipated=dissipated,
-                    total=total, initial=ref["total"])
+                    total=total, initial=ref["total"], **own)
 
     def _check_energy_balance(self):
         """An explicit step past its stability limit can grow energy without any NaN or inverted particle."""

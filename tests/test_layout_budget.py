@@ -193,6 +193,13 @@ def _mapped(sparse):
     return data
 
 
+def _contact(data, **contact):
+    """Multi-field contact: its fields per velocity field in the grid (FLIP: v_old too)."""
+    data = _two_bodies(data)
+    data["contact"] = dict(method="multi_field", **contact)
+    return data
+
+
 def _dense(data):
     data["domain"]["sparse"] = False
     return data
@@ -227,6 +234,10 @@ CASES = {
     "2d asflip": lambda: make_cfg(2, transfer="asflip"),
     "2d mls cubic": lambda: make_cfg(2, basis="cubic", transfer="mls"),
     "2d mls gimp usf": lambda: make_cfg(2, basis="gimp", transfer="mls", update="usf"),
+    # multi-field contact (issue 27): two fields, with friction; FLIP's v_old per field; dense 3D
+    "2d multi_field contact": lambda: _contact(make_cfg(2, dx=0.05), friction=0.3),
+    "2d multi_field flip": lambda: _contact(make_cfg(2, transfer="flip", dx=0.05)),
+    "3d multi_field dense f32": lambda: _contact(_dense(make_cfg(3, precision="f32", dx=0.1))),
 }
 BODY_FORCE = {"2d body force": lambda: make_cfg(2)}
 

@@ -37,6 +37,10 @@ class Grips(Extension):
         self.reaction = ti.Vector.field(d, ti.f64, len(grips))
         self._values_time = None   # when the grip velocities were last uploaded
 
+    def prepare(self, ctx):
+        # what other extensions' own node solves read (multi-field contact holds each body's grips)
+        ctx.extra["grip_given"], ctx.extra["grip_v"] = self.given, self.velocity
+
     def build(self, ctx):
         ctx.grid_solve.append(GridSolve(condition=self._condition(ctx)))
         self._flag_nodes = self._flag_kernel(ctx)

@@ -41,10 +41,11 @@ class StepContext(KernelContext):
     project_after_g2p: bool = False  # an extension runs the return mappings after G2P (F-bar's average)
     particle_transfer: Optional[Any] = None   # step.moments.ParticleTransfer: one extension's, or None
     degradation: Optional[Any] = None         # step.moments.Degradation, or None
+    node_fields: Optional[Any] = None         # step.moments.NodeFields, or None
     grid_solve: list = field(default_factory=list)   # step.moments.GridSolve parts, in the extensions' order
 
     def contribute(self, name: str, value):
-        """Set a contribution only one extension may make (particle_transfer, degradation)."""
+        """Set a contribution only one extension may make (particle_transfer, degradation, node_fields)."""
         if getattr(self, name) is not None:
             raise ValueError(f"two extensions contribute {name}: only one may")
         setattr(self, name, value)

@@ -3,15 +3,16 @@ ordered list of what plugs in. The solver creates the extensions of a scene from
 their moments in that order; it knows none of them by name.
 
 The list: the ddmp pre-pass (nodal volumes), the coloured scatter's binning, the mapped grid's parametric
-coordinates (before F-bar: its average reads the mapped stencil), F-bar's volume average, the crack finder, the
-tractions, the walls and the grips (their conditions close the grid solve's chain in that order). A new
-extension is one module with an `Extension` subclass whose `create(setup)` returns it (or None where the scene
-does not use it), added here or, from outside the package (a plug-in, a test), by `register` (docs/architecture.md,
-"Adding a step extension").
+coordinates (before F-bar: its average reads the mapped stencil), F-bar's volume average, the crack finder,
+multi-field contact, the tractions, the walls and the grips (their conditions close the grid solve's chain in that
+order). A new extension is one module with an `Extension` subclass whose `create(setup)` returns it (or None where
+the scene does not use it), added here or, from outside the package (a plug-in, a test), by `register`
+(docs/architecture.md, "Adding a step extension").
 
 Physics code only: no CLI, rendering or file I/O here.
 """
 from ..extensions.coloured_scatter import ColouredScatter
+from ..extensions.contact import MultiField
 from ..extensions.crack import CrackFinder
 from ..extensions.ddmp_fill import DualDomainFill
 from ..extensions.fbar_average import VolumeAverage
@@ -19,15 +20,15 @@ from ..extensions.grips import Grips
 from ..extensions.mapped_coordinates import MappedCoordinates
 from ..extensions.tractions import Tractions
 from ..extensions.walls import Walls
-from .moments import Degradation, Extension, GridSolve, ParticleTransfer, Setup
+from .moments import Degradation, Extension, GridSolve, NodeFields, ParticleTransfer, Setup
 
 __all__ = ["ColouredScatter", "CrackFinder", "Degradation", "DualDomainFill", "Extension", "GridSolve", "Grips",
-           "MappedCoordinates", "ORDER", "ParticleTransfer", "Setup", "Tractions", "VolumeAverage", "Walls", "create",
-           "register", "unregister"]
+           "MappedCoordinates", "MultiField", "NodeFields", "ORDER", "ParticleTransfer", "Setup", "Tractions",
+           "VolumeAverage", "Walls", "create", "register", "unregister"]
 
 # Extension classes, in the order their moments run
-ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, VolumeAverage, CrackFinder, Tractions, Walls,
-                     Grips]
+ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, VolumeAverage, CrackFinder, MultiField,
+                     Tractions, Walls, Grips]
 
 
 def register(cls: type, before: type = None) -> type:

@@ -1,7 +1,8 @@
 """The grid update between the transfers, one chain every extension takes part in (step.moments.GridSolve): node
 velocities from momenta (an extension may give its own: the crack finder's tensor node mass), gravity over the
 leapfrog kick, the extensions' accelerations, then their boundary conditions (the walls', extensions/walls.py,
-then the grips', extensions/grips.py); MUSL's remap and USF's first pass under the same conditions.
+then the grips', extensions/grips.py), then the extensions' own node fields (multi-field contact's body fields);
+MUSL's remap and USF's first pass under the same conditions.
 
 Physics code only: no CLI, rendering or file I/O here.
 """
@@ -82,6 +83,7 @@ def make_grid_update(ctx):
     conditions = make_conditions(ctx)
     has_mass, node_velocity = make_node_solve(ctx)
     accelerations = make_accelerations(ctx)
+    own_fields = [g.node_fields for g in ctx.grid_solve if g.node_fields is not None]
 
     @ti.kernel
     def grid_update(kick_before: float, kick_after: float, special: ti.template()):
@@ -94,6 +96,8 @@ def make_grid_update(ctx):
                 gv[I] = conditions(I, vel, m, True)   # measured: reactions and work
                 if ti.static(flip):
                     gv_old[I] = node_velocity(I, m, gv_old[I], special)
+                for k in ti.static(range(len(own_fields))):   # the extensions' own node fields (multi-field contact)
+                    own_fields[k](I, kick_before, kick_after)
 
     @ti.func
     def velocities(g: ti.template(), special: ti.template()):

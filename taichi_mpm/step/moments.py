@@ -1,7 +1,7 @@
 """The extension protocol: the named moments of a step, what an extension is handed at creation (`Setup`) and what
 it may contribute to the step's kernels through the step context (`ParticleTransfer`, `Degradation`,
-`GridSolve`). The solver calls every extension's moments in the order of step.extensions' list and knows none of
-them by name; a moment an extension does not override does nothing.
+`NodeFields`, `GridSolve`). The solver calls every extension's moments in the order of step.extensions' list and
+knows none of them by name; a moment an extension does not override does nothing.
 
 The moments, in the order a simulation meets them (`Simulation`):
 
@@ -16,7 +16,7 @@ The moments, in the order a simulation meets them (`Simulation`):
                              particles inside of)
     build(ctx)               its kernels from the step context (step.StepContext), before the solver's own; this is
                              where it adds contributions the solver's kernels compile in (ctx.particle_transfer,
-                             ctx.degradation, ctx.grid_solve)
+                             ctx.degradation, ctx.node_fields, ctx.grid_solve)
     upload()                 the scene's initial values into its fields (after the solver's own)
     before_step(t, dt, lag)  a step from time t by dt begins (lag: the leapfrog velocities' half step behind t):
                              this step's values of time functions (tractions' ramps, grip and wall velocities)
@@ -27,6 +27,7 @@ The moments, in the order a simulation meets them (`Simulation`):
     after_g2p()              after the last G2P pass: new positions and F
     particles_set(names)     particle fields were set from outside (upload, set_particles, set_state): their names
     outputs()                per-particle arrays particles() adds (creation order)
+    dissipation()            energy it removed since the start, by name (J): the energy balance counts it
     get_state()              its part of a checkpoint; check_state(state) refuses a bad one before anything changes,
     set_state(state)         set_state restores it after the solver's own state
 
@@ -129,6 +130,9 @@ class Extension:
     def outputs(self) -> dict:
         return {}
 
+    def dissipation(self) -> dict:
+        return {}
+
     def get_state(self) -> dict:
         return {}
 
@@ -157,14 +161,27 @@ class Degradation:
 
 
 @dataclass(frozen=True)
+class NodeFields:
+    """Node fields of an extension's own that every particle's standard transfer also writes (P2G) and reads
+    instead of the grid's velocity (G2P): multi-field contact's velocity field per body. The grid's own fields
+    still get every particle's mass and momentum (the centre-of-mass field)."""
+    scatter: Callable        # (p, I, w, gw, mp, momentum, momentum_old): P2G's node contribution of particle p
+    velocity: Callable       # (p, I) -> the node velocity G2P gives particle p (v_i, and grad v from it)
+    velocity_old: Callable   # (p, I) -> FLIP's v_old_i for particle p
+
+
+@dataclass(frozen=True)
 class GridSolve:
     """An extension's part of the grid solve (step.grid_update), the one chain every node goes through:
     node velocity from momentum (the solver's m^-1 p unless one extension gives `velocity`, compiled in on steps
     where its node_solve_active() says so), gravity, the extensions' `accelerate` terms in list order, then their
-    `condition`s in list order (walls, then grips). Each field may be None."""
+    `condition`s in list order (walls, then grips); then the extensions' `node_fields` (their own fields at the
+    node, in list order). Each field may be None."""
     has_mass: Optional[Callable] = None     # (I, m) -> whether node I takes part (with `velocity`)
     velocity: Optional[Callable] = None     # (I, m, p) -> node velocity from momentum p (a tensor mass, say)
     accelerate: Optional[Callable] = None   # (I, vel, m, kick_before, kick_after) -> vel after a body acceleration
     # (I, vel, m, measure: template) -> vel under a boundary condition; measure (the step's update, not MUSL's
     # remap or USF's first pass): it may add its impulse m dv to its reaction sums and its work to ctx.work
     condition: Optional[Callable] = None
+    node_fields: Optional[Callable] = None  # (I, kick_before, kick_after): its own node fields' solve at node I,
+    #                                         after the grid's chain (multi-field contact)

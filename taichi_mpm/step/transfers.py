@@ -1,6 +1,8 @@
 """The transfers between particles and grid: P2G (mass, momentum, force impulse), G2P (velocity by PIC, FLIP or
 APIC; positions, F, checks) and MUSL's second P2G of the updated momentum. An extension's
-ParticleTransfer (step.moments; the crack finder's, near a discontinuity) takes the particles it names over.
+ParticleTransfer (step.moments; the crack finder's, near a discontinuity) takes the particles it names over; its
+NodeFields (multi-field contact's body fields) get each particle's node contributions too and give G2P its
+velocities.
 
 The stencil loop: `for o in ti.grouped(ti.ndrange(*outer))` then `for k in ti.static(range(len(inner)))` with
 off = o + inner[k]; solver.unroll chooses the split (stencils._loops; costs in docs/performance.md).
@@ -72,7 +74,8 @@ def make_p2g(ctx, mf, af, external_force):
     outer, inner = sten.outer, sten.inner
     gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
     flip, viscosity, taken, degraded = ctx.feat.flip, ctx.feat.viscosity, pt is not None, dg is not None
-    asflip = ctx.feat.asflip
+    asflip, nf = ctx.feat.asflip, ctx.node_fields
+    own = nf is not None
     density, kirchhoff, viscous_power = mf.density, mf.kirchhoff, mf.viscous_power
     affine, node_momentum = af.affine, af.node_momentum
     grad = make_gradient(sten, ctx.feat.mls)   # grad w, or MLS-MPM's w D_p^-1 r
@@ -102,11 +105,15 @@ def make_p2g(ctx, mf, af, external_force):
                 I, w, gw, r = sten.node(st, o + inner[k])
                 add(gm, I, w * mp)
                 mom = node_momentum(vp, Ap, r)
-                add(gv, I, w * mp * mom + kick * (stress @ grad.force(M, w, gw, r) + w * force_density))
+                value = w * mp * mom + kick * (stress @ grad.force(M, w, gw, r) + w * force_density)
+                add(gv, I, value)
+                old = w * mp * vp
                 if ti.static(flip and asflip):   # ASFLIP's v_old: the grid velocity before forces, affine part too
-                    add(gv_old, I, w * mp * mom)
-                elif ti.static(flip):
-                    add(gv_old, I, w * mp * vp)
+                    old = w * mp * mom
+                if ti.static(flip):
+                    add(gv_old, I, old)
+                if ti.static(own):   # an extension's node fields (multi-field contact: the particle's body field)
+                    nf.scatter(p, I, w, gw, mp, value, old)
 
     @ti.func
     def p2g_momentum_particle(p, unused):
@@ -217,13 +224,39 @@ def make_position_update(ctx):
     return position
 
 
+def make_node_reads(ctx):
+    """The node values G2P reads for particle p: (v_i, FLIP's v_old_i, the velocity of grad v given v_i): the
+    grid's (MUSL's grad v from the remapped v2), or an extension's NodeFields (multi-field contact: the
+    particle's own body field; usl only, so grad v takes v_i)."""
+    gv, gv_old, vgrad, nf = ctx.gv, ctx.gv_old, ctx.vgrad, ctx.node_fields
+    if nf is not None:
+        @ti.func
+        def own_grad(p, I, vi):
+            return vi
+        return nf.velocity, nf.velocity_old, own_grad
+
+    @ti.func
+    def velocity(p, I):
+        return gv[I]
+
+    @ti.func
+    def velocity_old(p, I):
+        return gv_old[I]
+
+    @ti.func
+    def gradient_velocity(p, I, vi):
+        return vgrad[I]
+    return velocity, velocity_old, gradient_velocity
+
+
 def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
     dim = ctx.dim
     x, v, F, C = ctx.x, ctx.v, ctx.F, ctx.C
     sten, pt = ctx.stencil, ctx.particle_transfer
     outer, inner = sten.outer, sten.inner
-    gv, gv_old, vgrad = ctx.gv, ctx.gv_old, ctx.vgrad   # MUSL takes grad v from the remapped velocities
+    read_v, read_old, read_grad = make_node_reads(ctx)
+    gv_old = ctx.gv_old
     f = ctx.feat
     flip, apic, taken, has_C = f.flip, f.apic, pt is not None, C is not None
     xpic, v_star = f.xpic, ctx.grid.vec.get("xpic_sum")   # XPIC's v* (step/xpic.py)
@@ -247,16 +280,16 @@ def make_g2p(ctx, mf, af, external_force):
         for o in ti.grouped(ti.ndrange(*outer)):
           for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
             I, w, gw, r = sten.node(st, o + inner[k])
-            vi = gv[I]
+            vi = read_v(p, I)
             v_pic += w * vi
             if ti.static(velocity and xpic):
                 dv += w * (v_star[I] - gv_old[I])
             elif ti.static(velocity and flip):
-                dv += w * (vi - gv_old[I])
+                dv += w * (vi - read_old(p, I))
             if ti.static(velocity and apic and not apic_gradient):
                 B += w * vi.outer_product(r)
             if ti.static(_moves_F(deform)):
-                G += grad.term(M, vgrad[I], w, gw, r)
+                G += grad.term(M, read_grad(p, I, vi), w, gw, r)
             elif ti.static(apic and apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
                 G += vi.outer_product(gw)
         return v_pic, dv, B, grad.finish(M, G)

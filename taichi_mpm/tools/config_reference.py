@@ -129,6 +129,12 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                  "thread unless every sum of the scene has one order on any threads: coloured "
                                  "scatter without ddmp, fbar, crack, loads, grips, velocity walls, wall probes, "
                                  "viscosity or plasticity); GPUs: float atomics stay unordered"),
+    "contact": ("", "contact between bodies by a method of its own (docs/contact.md); absent or null: off, nothing "
+                    "allocated; not with a crack section"),
+    "contact.method": ("", "multi_field: one velocity field per body or group (Bardenhagen et al. 2000)"),
+    "contact.friction": ("1", "Coulomb coefficient between the fields (>= 0)"),
+    "contact.bodies": ("", "groups of bodies (names or indices) sharing one field; a body in no group gets its own; "
+                           "null: every body its own field"),
     "crack": ("", "crack finder (damage gradients, opposite-side flags); absent or null: off, nothing compiled"),
     "crack.threshold": ("1", "epsilon_thresh: a node is across the crack from a particle when n_p . n_node < -threshold"),
     "crack.kernel_radius": ("1", "SPH support radius, in initial particle spacings"),

@@ -1,0 +1,169 @@
+"""Multi-velocity-field contact (config section `contact: {method: multi_field}`, docs/contact.md): one velocity
+field per body, Bardenhagen et al. 2000's correction with Coulomb friction (friction.friction_loss).
+
+Measured against independent references: elastic rebound and momentum conservation of Sulsky's two disks, the
+welding of touching bodies in one field, a block on an inclined MPM body (the slope rotated into gravity, so the
+interface stays on the grid; the lower body gripped) sliding at g (sin t - mu cos t) or resting, and the friction's
+dissipation against the particles' own loss of mechanical energy. (Not here yet: the 3D block, measured 5 % slow,
+and the rolling disk, which failed its 3 %: docs/contact.md, "Open".)"""
+import copy
+
+import numpy as np
+import pytest
+import yaml
+
+import taichi_mpm as tm
+from taichi_mpm.config import load_config
+from conftest import fast_subset, make_cfg
+
+G = 9.81
+
+
+def _disks(contact: bool, dx=0.04, transfer="apic", basis="quadratic"):
+    with open("configs/colliding_disks.yaml") as f:
+        d = yaml.safe_load(f)
+    d.update(precision="f64", arch="cpu", output={"dir": "unused"})
+    d["domain"]["dx"] = dx
+    d["solver"].update(transfer=transfer, basis=basis)
+    if contact:
+        d["contact"] = {"method": "multi_field"}
+    return d
+
+
+def _body_velocity(sim, b):
+    p, m = sim.particles(), sim.scene.mass
+    sel = sim.scene.body == b
+    return (p["v"][sel] * m[sel, None]).sum(0) / m[sel].sum()
+
+
+def test_colliding_disks_rebound_with_momentum_conserved():
+    """Sulsky's disks (0.1, 0.1) and (-0.1, -0.1) m/s: after the impact each moves back at nearly its speed (an
+    elastic collision reverses it exactly; the 15 % allowed is what the grid's dissipation at dx = r/5 costs:
+    measured 0.0888 of 0.1 here, 0.092 at dx = r/10), and the field correction conserves momentum to round-off."""
+    sim = tm.Simulation(_disks(True))
+    sim.advance_to(3.0)
+    mass = sim.scene.mass.sum()
+    for b, sign in ((0, -1.0), (1, 1.0)):
+        v = _body_velocity(sim, b)
+        assert np.all(sign * v > 0.085), v   # reversed, within 15 % of the elastic 0.1
+    # the total momentum starts at 0: round-off of f64 sums over ~600 particles and 250 steps
+    assert np.abs(sim.momentum()["linear"]).max() < 1e-12 * mass * 0.1
+    lo, hi = sim.particles()["x"][sim.scene.body == 0], sim.particles()["x"][sim.scene.body == 1]
+    gap = np.min(np.linalg.norm(lo[:, None, :] - hi[None, :, :], axis=2))
+    assert gap > 0.1   # apart: a disk's particle spacing is 0.02
+
+
+@pytest.mark.parametrize("basis", fast_subset(["linear", "gimp", "quadratic"], fast=["quadratic"]))
+def test_touching_blocks_weld_in_one_field_and_part_in_two(basis):
+    """Two blocks side by side, moving apart at 0.1 m/s each. Sharing one velocity field they share the nodes
+    between them and stay welded (their mean velocities come together: the single-field method's tension
+    across bodies); with a field each they part at once, keeping their velocities (0.5 %: nothing acts on them)."""
+    cfg = make_cfg(2, basis=basis, transfer="pic", dx=0.05, E=1e4, lower=[0.2, 0.3], upper=[0.5, 0.6],
+                   velocity=[-0.1, 0.0], end_time=0.3)
+    cfg["bodies"].append(dict(name="right", shape=dict(type="box", lower=[0.5, 0.3], upper=[0.8, 0.6]),
+                              material="m", velocity=[0.1, 0.0]))
+    rel = {}
+    for contact in (False, True):
+        c = copy.deepcopy(cfg)
+        if contact:
+            c["contact"] = {"method": "multi_field"}
+        sim = tm.Simulation(c)
+        sim.advance_to(0.3)
+        rel[contact] = _body_velocity(sim, 1)[0] - _body_velocity(sim, 0)[0]
+    assert rel[False] < 0.1          # welded (their relative velocity was 0.2 at the start)
+    assert rel[True] == pytest.approx(0.2, rel=0.005)
+
+
+def _incline(angle_deg, mu, basis="quadratic", dim=2, T=0.25, **solver):
+    """A 0.2 x 0.1 block (neo-Hookean) resting on a gripped 1 m long MPM body, gravity at angle t to the normal."""
+    a = np.radians(angle_deg)
+    extra = [0.0] * (dim - 2)
+    cfg = make_cfg(dim, basis=basis, transfer="pic", dx=0.05, model="neo_hookean", E=2.0e5, nu=0.3,
+                   lower=[0.1, 0.1] + extra, upper=[0.3, 0.2] + [0.1] * (dim - 2), end_time=T,
+                   gravity=[G * np.sin(a), -G * np.cos(a)] + extra, **solver)
+    cfg["domain"].update(upper=[1.0, 0.3] + [0.1] * (dim - 2))
+    cfg["bodies"][0]["name"] = "slider"
+    cfg["bodies"].insert(0, dict(name="base", shape=dict(type="box", lower=[0.0] * dim,
+                                                         upper=[1.0, 0.1] + [0.1] * (dim - 2)),
+                                 material="m", prescribed_velocity=[dict(velocity=[0.0] * dim)]))
+    cfg["contact"] = dict(method="multi_field", friction=mu)
+    sim = tm.Simulation(cfg)
+    slider = sim.scene.body == 1
+    m = sim.scene.mass[slider]
+    x0 = (sim.scene.x[slider, 0] * m).sum() / m.sum()
+    t, v, x = [], [], []
+    while sim.time < T - 1e-12:
+        sim.step(min(sim.stable_dt(), T - sim.time))
+        p = sim.particles()
+        t.append(sim.time)
+        v.append((p["v"][slider, 0] * m).sum() / m.sum())
+        x.append((p["x"][slider, 0] * m).sum() / m.sum() - x0)
+    return np.array(t), np.array(v), np.array(x), sim
+
+
+@pytest.mark.parametrize("basis,dim", [("quadratic", 2), pytest.param("gimp", 2, marks=pytest.mark.slow)])
+def test_block_slides_down_an_inclined_body_at_the_coulomb_acceleration(basis, dim):
+    """tan 30 = 0.58 > mu = 0.3: a = g (sin t - mu cos t) within 2 % (measured 0.01 % in 2D quadratic and gimp);
+    the friction's dissipation closes the energy balance: what the particles lost beyond it is under 1 % of it
+    (measured 0.24 %: the friction's work counted at the slip it leaves; the test would fail by 100 % if the
+    friction's work were missing, or by the impact part if the normal correction were counted)."""
+    t, v, x, sim = _incline(30, 0.3, basis, dim)
+    late = t > 0.05
+    accel = np.polyfit(t[late], v[late], 1)[0]
+    a = np.radians(30)
+    assert accel == pytest.approx(G * (np.sin(a) - 0.3 * np.cos(a)), rel=0.02)
+    bal = sim.energy_balance()
+    assert bal["friction"] > 0
+    assert abs(bal["growth"]) < 0.01 * bal["friction"]
+    # and the friction's work is mu N d (the block's normal force times its slide) within 1 %
+    mass = sim.scene.mass[sim.scene.body == 1].sum()
+    assert bal["friction"] == pytest.approx(0.3 * mass * G * np.cos(a) * x[-1], rel=0.01)
+
+
+def test_block_rests_on_an_inclined_body_below_the_friction_angle():
+    """tan 20 = 0.36 < mu = 0.5: the block stays; its drift stays under 1e-3 of g t^2 / 2 (measured 3.7e-4 of it:
+    the block's elastic shear under the slope's pull)."""
+    T = 0.25
+    t, v, x, sim = _incline(20, 0.5, T=T)
+    assert np.max(np.abs(x)) < 1e-3 * 0.5 * G * T ** 2
+    assert sim.energy_balance()["friction"] < 1e-3 * 0.5 * sim.scene.mass[sim.scene.body == 1].sum() * (G * T) ** 2
+
+
+def test_contact_section_errors_name_the_key():
+    base = _disks(True)
+    cases = [
+        (dict(crack={}), "contact"),
+        (dict(contact={"method": "multi_field", "friction": -0.1}), "contact.friction"),
+        (dict(contact={"method": "penalty"}), "contact.method"),
+        (dict(contact={"bodies": [["lower_disk", "upper_disk"]]}), "contact.bodies"),
+        (dict(contact={"bodies": [["lower_disk"], ["lower_disk"]]}), "contact.bodies.1.0"),
+        (dict(contact={"bodies": [["nobody"]]}), "contact.bodies.0.0"),
+        (dict(contact={"bodies": [[5]]}), "contact.bodies.0.0"),
+    ]
+    for change, key in cases:
+        d = copy.deepcopy(base)
+        d.update(change)
+        with pytest.raises(tm.ConfigError) as e:
+            load_config(d)
+        assert e.value.key == key, (change, e.value)
+    for key, value, where in [("update", "musl", "solver.update"), ("transfer", "xpic", "solver.transfer"),
+                              ("volumetric", "fbar", "solver.volumetric")]:
+        d = copy.deepcopy(base)
+        d["solver"][key] = value
+        with pytest.raises(tm.ConfigError) as e:
+            load_config(d)
+        assert e.value.key == where
+    # groups: bodies in one group share a field; a body in no group gets its own
+    d = copy.deepcopy(base)
+    d["bodies"].append(dict(d["bodies"][0], name="third", shape={"type": "sphere", "center": [0.8, 0.2],
+                                                                 "radius": 0.1}, velocity=[0, 0]))
+    d["contact"] = {"bodies": [["upper_disk", 0]]}
+    assert load_config(d).contact_fields() == [0, 0, 1]
+    d["contact"] = {"friction": 0.2}
+    assert load_config(d).contact_fields() == [0, 1, 2]
+
+
+def test_scene_without_contact_allocates_nothing_of_it():
+    sim = tm.Simulation(_disks(False))
+    assert sim.extension("contact") is None
+    assert not any(name.startswith("contact_") for name in [*sim.grid.vec, *sim.grid.scalar])
