@@ -196,17 +196,16 @@ def make_wall_hold(ctx: KernelContext):
     @ti.func
     def keep_inside(p, x_old, x_new):
         res = x_new
-        if ti.static(active):
+        if ti.static(active):   # selects, not branches: branches here cost g2p a tenth of a second to compile
             depth = WALL_LAYER * half_width(p)
-            u_old = (x_old - lower) * inv_dx
-            u_new = (x_new - lower) * inv_dx
             for a in ti.static(range(dim)):
+                u_old = (x_old[a] - lower[a]) * inv_dx
+                u_new = (x_new[a] - lower[a]) * inv_dx
                 if ti.static(holds[a][0]):
-                    if u_old[a] < depth and u_new[a] < 0.0:
-                        res[a] = lower[a]
+                    res[a] = ti.select((u_old < depth) & (u_new < 0.0), lower[a], res[a])
                 if ti.static(holds[a][1]):
-                    if u_old[a] > n_cells[a] - depth and u_new[a] > n_cells[a]:
-                        res[a] = lower[a] + n_cells[a] * dx
+                    res[a] = ti.select((u_old > n_cells[a] - depth) & (u_new > n_cells[a]),
+                                       lower[a] + n_cells[a] * dx, res[a])
         return res
     return keep_inside
 

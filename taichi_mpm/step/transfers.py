@@ -243,9 +243,14 @@ def make_node_reads(ctx):
     def velocity_old(p, I):
         return gv_old[I]
 
+    same = not ctx.feat.musl   # USL and USF: grad v of the same velocities, v_i itself (no second load)
+
     @ti.func
     def gradient_velocity(p, I, vi):
-        return vgrad[I]
+        res = vi
+        if ti.static(not same):
+            res = vgrad[I]
+        return res
     return velocity, velocity_old, gradient_velocity
 
 
