@@ -1,8 +1,11 @@
 """The crack finder with the rest of the sandbox (issue 27): grips (bodies[].prescribed_velocity), velocity walls and
 wall probes act after its node solve in the grid solve's one chain (step.grid_update), as at every node."""
+import warnings
+
 import numpy as np
 
 import taichi_mpm as tm
+from taichi_mpm.config import ConfigWarning
 
 F_T, H, NOTCH = 500.0, 0.2, 0.05      # tensile strength (Pa), bar height and notch depth (m)
 
@@ -56,3 +59,64 @@ def test_notched_bar_pulled_by_grips_cracks_through():
     assert len(rows) == 16 and len(broken) >= 15 and set(broken) <= set(rows)   # measured: 15
     halves = X[:, 0] > 0.5
     assert p["v"][halves, 0].mean() > 0.005 and p["v"][~halves, 0].mean() < -0.005   # the halves move apart
+
+
+# ---------------------------------------------------------------- an X-shaped pre-crack
+X_CENTRE = np.array([0.5, 0.5])
+X_HALF_ARMS = (45.0, 135.0, 225.0, -45.0)   # directions (degrees) of the four half-arms from the crossing
+
+
+def x_plate(crack=True, dx=0.025, half=0.12):
+    """A plate [0.2, 0.8]^2 (E 10 kPa, c = 3.2 m/s) with two crossing damaged bands, +-45 deg, 0.24 long, half a
+    cell wide: an X-shaped pre-crack."""
+    mat = dict(model="neo_hookean", E=1.0e4, nu=0.3, density=1000)
+    arms = [dict(shape=dict(type="box", lower=[0.5 - half, 0.5 - dx / 4], upper=[0.5 + half, 0.5 + dx / 4],
+                            rotation=angle)) for angle in (45.0, -45.0)]
+    cfg = dict(name="x_crack", dim=2, precision="f64", arch="cpu",
+               domain=dict(lower=[0, 0], upper=[1, 1], dx=dx, boundaries=dict(default="free")),
+               solver=dict(basis="quadratic", transfer="apic", cfl=0.4, end_time=1.0),
+               materials=dict(m=mat),
+               bodies=[dict(name="plate", shape=dict(type="box", lower=[0.2, 0.2], upper=[0.8, 0.8]), material="m",
+                            damage_regions=arms)])
+    if crack:
+        cfg["crack"] = {}
+    return cfg
+
+
+def _x_arms(crack):
+    """Per half-arm, at 0.06 from the crossing: the opening (normal displacement of the particles 0.008-0.03 on one
+    side minus the other's) and the mean normal stress there, once a uniform expansion v = 0.05 (x - c) has
+    loaded the plate for 0.075 s (the uncracked plate's tension is then at its peak, ~64 Pa)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConfigWarning)   # the plain run ignores the damage bands (warned)
+        sim = tm.Simulation(tm.load_config(x_plate(crack)))
+    X = sim.scene.x.copy()
+    sim.set_particles(v=0.05 * (X - X_CENTRE))
+    sim.advance(0.075)
+    p = sim.particles()
+    out = []
+    for angle in X_HALF_ARMS:
+        a = np.radians(angle)
+        t = np.array([np.cos(a), np.sin(a)])
+        n = np.array([-t[1], t[0]])
+        along, across = (X - X_CENTRE) @ t, (X - X_CENTRE) @ n
+        mid = np.abs(along - 0.06) < 0.015
+        side = mid & (np.abs(across) > 0.008) & (np.abs(across) < 0.03)
+        u = (p["x"] - X) @ n
+        opening = u[side & (across > 0)].mean() - u[side & (across < 0)].mean()
+        out.append((opening, np.einsum("i,pij,j->p", n, p["stress"][side], n).mean()))
+    return np.array(out)
+
+
+def test_x_shaped_precrack_opens_along_both_arms():
+    """The crack finder with two crossing cracks: the particle normals of the damage field at the crossing and along
+    both arms. Measured: the four half-arms open by 8.13e-4 to 8.44e-4 m against 1.19e-4 m for the same particle
+    pairs in the uncracked plate (7x), and carry 7.1-9.7 Pa of normal stress against its 63.8 Pa. Asserted: each
+    half-arm opens more than 4x the uncracked stretch (a finder that missed one arm would leave that arm at 1x) and
+    carries less than a quarter of the uncracked stress; the four agree within 10 % of their mean (the X is
+    symmetric under the 90 deg rotation; the particle lattice only approximately: 4 % spread measured)."""
+    plain, cracked = _x_arms(False), _x_arms(True)
+    assert np.ptp(plain[:, 0]) < 1e-9 and plain[0, 1] > 50.0     # the uncracked plate: uniform tension
+    assert (cracked[:, 0] > 4.0 * plain[:, 0]).all(), cracked
+    assert (np.abs(cracked[:, 1]) < 0.25 * plain[:, 1]).all(), cracked
+    assert np.ptp(cracked[:, 0]) < 0.10 * cracked[:, 0].mean(), cracked
