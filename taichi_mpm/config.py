@@ -702,9 +702,6 @@ class Config(Strict):
 
     def _check_crack_combinations(self):
         """Options the crack finder cannot be combined with."""
-        if self.crack is not None and self.solver.volumetric == "fbar":
-            raise _Located("solver.volumetric", "fbar cannot be combined with the crack finder (section 'crack'): "
-                                                "its modified shape functions are not averaged; use standard")
         why = bases.get(self.solver.basis).crack
         if self.crack is not None and why is not None:
             raise _Located("crack", f"the crack finder does not support basis {self.solver.basis}: {why}; use "

@@ -42,6 +42,7 @@ SOLVER_CASES = {
         make_cfg(3, transfer="flip", update="musl", basis="gimp", precision="f32", dx=0.1),
         {"second_body": dict(ppc=3, model="fixed_corotated")}),
     "2d crack with a damage law": (make_cfg(2, dx=0.05), {"crack": True}),
+    "2d crack with F-bar": (make_cfg(2, dx=0.05, volumetric="fbar"), {"crack": True}),
     "3d two pointer levels": (make_cfg(3, extent=16.0, dx=0.125, lower=[1.0] * 3, upper=[1.5] * 3), {}),
 }
 

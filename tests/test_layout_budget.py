@@ -149,8 +149,8 @@ def _two_bodies(data, ppc=3, model="fixed_corotated", **material):
     return data
 
 
-def _crack(refresh):
-    data = make_cfg(2, dx=0.05)
+def _crack(refresh, **solver):
+    data = make_cfg(2, dx=0.05, **solver)
     data["crack"] = dict(normal_refresh=refresh)
     data["materials"]["m"]["tensile_strength"] = 100.0
     return data
@@ -220,6 +220,7 @@ CASES = {
     "2d fbar linear dense": lambda: _dense(make_cfg(2, basis="linear", volumetric="fbar", dx=0.05)),
     "2d crack, normals each step": lambda: _crack(0.0),
     "2d crack, kept normals": lambda: _crack(0.01),
+    "2d crack with F-bar": lambda: _crack(0.01, volumetric="fbar"),
     "2d domain.map sparse": lambda: _mapped(True),
     "2d domain.map dense": lambda: _mapped(False),
     "2d domain.knots": _knots,

@@ -72,6 +72,19 @@ class FBar:
         lower, inv_dx = ctx.lower, 1.0 / ctx.dx
         last_cell = ti.Vector([n - 1 for n in sim.n_cells])
         corners = [tuple((k >> a) & 1 for a in range(dim)) for k in range(2 ** dim)]
+        near = ctx.particle_transfer   # the crack finder's: its particles near a discontinuity keep their own dJ
+        some_kept = near is not None
+
+        @ti.func
+        def averaged(p):
+            """Whether the particle takes part in the average. One the crack finder takes (near a crack or a body
+            interface, its stencil reaching across) would mix the two sides' volume changes: it keeps its own, and
+            the others' averages hold only particles of their own side (those are 1.5 cells or more from the
+            discontinuity, their average's reach one cell)."""
+            res = True
+            if ti.static(some_kept):
+                res = not near.takes(p)
+            return res
 
         @ti.func
         def tent(p, c: ti.template()):
@@ -90,6 +103,8 @@ class FBar:
         @ti.kernel
         def scatter():
             for p in x:
+                if not averaged(p):
+                    continue
                 Vn = vol0[p] * J_start[p]
                 new = vol0[p] * F[p].determinant()
                 if ti.static(linear):
@@ -108,6 +123,9 @@ class FBar:
         @ti.kernel
         def gather():
             for p in x:
+                if not averaged(p):
+                    J_start[p] = F[p].determinant()
+                    continue
                 dJbar = 0.0
                 if ti.static(linear):
                     for c in ti.static(corners):

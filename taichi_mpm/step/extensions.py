@@ -3,11 +3,12 @@ ordered list of what plugs in. The solver creates the extensions of a scene from
 their moments in that order; it knows none of them by name.
 
 The list: the ddmp pre-pass (nodal volumes), the coloured scatter's binning, the mapped grid's parametric
-coordinates (before F-bar: its average reads the mapped stencil), F-bar's volume average, the crack finder,
-multi-field contact, the tractions, the walls and the grips (their conditions close the grid solve's chain in that
-order). A new extension is one module with an `Extension` subclass whose `create(setup)` returns it (or None where
-the scene does not use it), added here or, from outside the package (a plug-in, a test), by `register`
-(docs/architecture.md, "Adding a step extension").
+coordinates (before F-bar: its average reads the mapped stencil), the crack finder (before F-bar: the average
+leaves out the particles the finder takes), F-bar's volume average, multi-field contact, the tractions, the
+walls and the grips (their conditions close the grid solve's chain in that order). A new extension is one module
+with an `Extension` subclass whose `create(setup)` returns it (or None where the scene does not use it), added
+here or, from outside the package (a plug-in, a test), by `register` (docs/architecture.md, "Adding a step
+extension").
 
 Physics code only: no CLI, rendering or file I/O here.
 """
@@ -27,7 +28,7 @@ __all__ = ["ColouredScatter", "CrackFinder", "Degradation", "DualDomainFill", "E
            "VolumeAverage", "Walls", "create", "register", "unregister"]
 
 # Extension classes, in the order their moments run
-ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, VolumeAverage, CrackFinder, MultiField,
+ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, CrackFinder, VolumeAverage, MultiField,
                      Tractions, Walls, Grips]
 
 
