@@ -857,10 +857,6 @@ class Config(Strict):
         if self.solver.quadrature != "point":
             raise _Located("solver.quadrature", "domain quadrature averages the B-splines of the box grid (or of "
                                                 "domain.knots); a mapped grid's rational basis takes point only")
-        if self.crack is not None:
-            raise _Located("domain.map", "domain.map cannot be combined with the crack finder (section 'crack'): its "
-                                         "SPH reach, cell list and crack normals assume the Cartesian grid; remove "
-                                         "one of the two")
         if m.type == "nurbs":
             self._check_nurbs_map(m)
         else:

@@ -3,6 +3,7 @@ wall probes act after its node solve in the grid solve's one chain (step.grid_up
 import warnings
 
 import numpy as np
+import pytest
 
 import taichi_mpm as tm
 from taichi_mpm.config import ConfigWarning
@@ -220,3 +221,52 @@ def test_fbar_with_a_crack_opens_and_closes_at_nu_049():
         else:
             assert 0.85 < cracked / plain < 1.05, (cracked, plain)
     assert abs(plain) < 0.8 * abs(_pushed_bar(False, 0.05, "standard"))
+
+
+# ---------------------------------------------------------------- a crack on the annulus map
+def cracked_ring(crack=True):
+    """A ring r 0.55-0.95 on an annulus map (96 x 8 cells), a damaged radial band at angle 0 (0.025 wide)."""
+    band = dict(shape=dict(type="box", lower=[0.5, -0.0125], upper=[1.0, 0.0125]))
+    cfg = dict(name="cracked_ring", dim=2, precision="f64", arch="cpu",
+               domain=dict(lower=[-1.1, -1.1], upper=[1.1, 1.1], dx=0.05, boundaries=dict(default="free"),
+                           map=dict(type="annulus", inner_radius=0.5, outer_radius=1.0, angle=360.0,
+                                    cells=[96, 8])),
+               solver=dict(basis="quadratic", transfer="apic", cfl=0.4, end_time=1.0),
+               materials=dict(m=dict(model="neo_hookean", E=1.0e4, nu=0.3, density=1000)),
+               bodies=[dict(name="ring", shape=dict(type="ring", center=[0.0, 0.0], inner_radius=0.55,
+                                                    outer_radius=0.95), material="m", damage_regions=[band])])
+    if crack:
+        cfg["crack"] = {}
+    return cfg
+
+
+def _expanded_ring(crack):
+    """After 0.3 s of a uniform expansion v = 0.05 x: the mean hoop stress within 0.02-0.15 rad of the band, the
+    same opposite it, and the angular gap between the particles just above and just below the band."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConfigWarning)
+        sim = tm.Simulation(tm.load_config(cracked_ring(crack)))
+    X = sim.scene.x.copy()
+    sim.set_particles(v=0.05 * X)
+    sim.advance(0.3)
+    p = sim.particles()
+    th = np.arctan2(X[:, 1], X[:, 0])
+    hoop_dir = np.stack([-np.sin(th), np.cos(th)], 1)
+    hoop = np.einsum("pi,pij,pj->p", hoop_dir, p["stress"], hoop_dir)
+    now = np.arctan2(p["x"][:, 1], p["x"][:, 0])
+    near, far = (np.abs(th) > 0.02) & (np.abs(th) < 0.15), np.abs(np.abs(th) - np.pi) < 0.15
+    gap = now[(th > 0.02) & (th < 0.1)].min() - now[(th < -0.02) & (th > -0.1)].max()
+    return hoop[near].mean(), hoop[far].mean(), gap
+
+
+def test_crack_on_the_annulus_map_opens():
+    """The crack finder on a mapped grid (its node normals at the map's control points): a radial crack in an
+    expanding ring opens. Measured at 0.3 s: hoop stress beside the crack 8.3 Pa against 128.0 uncracked, the
+    same opposite it (128.5 in both: the unloading wave has not got there), the gap 0.0621 rad against 0.0409
+    (the band's own width, unchanged without the finder). Asserted: < 0.15 of the uncracked stress beside the
+    crack, the far side within 1 %, the gap opened by more than 0.015 rad and the uncracked one by < 1e-3."""
+    plain, cracked = _expanded_ring(False), _expanded_ring(True)
+    assert plain[0] > 100.0
+    assert cracked[0] < 0.15 * plain[0], (cracked, plain)
+    assert cracked[1] == pytest.approx(plain[1], rel=0.01)
+    assert cracked[2] > plain[2] + 0.015 and abs(plain[2] - 0.0409) < 1e-3, (cracked, plain)

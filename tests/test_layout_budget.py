@@ -223,6 +223,7 @@ CASES = {
     "2d crack with F-bar": lambda: _crack(0.01, volumetric="fbar"),
     "2d domain.map sparse": lambda: _mapped(True),
     "2d domain.map dense": lambda: _mapped(False),
+    "2d domain.map with a crack": lambda: _mapped(True) | {"crack": {}},
     "2d domain.knots": _knots,
     "2d von_mises": lambda: _plastic("von_mises", yield_stress=1e4, hardening=2e5),
     "2d drucker_prager and snow": lambda: _two_bodies(_plastic("drucker_prager", friction_angle=30.0),

@@ -13,13 +13,34 @@ class NodeCache(NamedTuple):
     write: Callable   # kernel (idx, nrm, flag, k)
 
 
+def node_position(ctx):
+    """@ti.func (I) -> node I's position: on the box, the basis's node coordinate per axis; on a mapped grid
+    (domain.map), its control point."""
+    dim, basis, lower, dx, n_cells_grid = ctx.fields.dim, ctx.solver.basis, ctx.lower, ctx.view.dx, ctx.view.n_cells
+    mapped = ctx.solver.extra.get("mapped") if basis.kind == "mapped" else None
+    on_map = mapped is not None
+    ctrl = mapped.map.ctrl if on_map else None
+
+    @ti.func
+    def position(I):
+        y = ti.Vector.zero(float, dim)
+        if ti.static(on_map):
+            y = ctrl[I]
+        else:
+            for a in ti.static(range(dim)):
+                y[a] = lower[a] + basis.coord(I[a], n_cells_grid[a]) * dx
+        return y
+    return position
+
+
 def node_normals_func(ctx, sph):
     """The func node_normals() (classify calls it)."""
-    f, dim, basis, lower, dx = ctx.fields, ctx.fields.dim, ctx.solver.basis, ctx.lower, ctx.view.dx
-    n_cells_grid, radius, dthr, gthr, cached = ctx.view.n_cells, ctx.radius, ctx.dthr, ctx.gthr, f.cached
+    f, dim = ctx.fields, ctx.fields.dim
+    radius, dthr, gthr, cached = ctx.radius, ctx.dthr, ctx.gthr, f.cached
     node_mark, node_n = ctx.view.grid.scalar["crack_mark"], ctx.view.grid.vec["crack_n"]
     cache_m, cache_n = (f.node_cache.m, f.node_cache.vec["n"]) if cached else (None, None)
     damage_field = sph.damage_field
+    position = node_position(ctx)
 
     @ti.func
     def node_normals():
@@ -33,10 +54,7 @@ def node_normals_func(ctx, sph):
                     if known:
                         nn, on = cache_n[I], cache_m[I] > 1.5
                 if not known:
-                    y = ti.Vector.zero(float, dim)
-                    for a in ti.static(range(dim)):
-                        y[a] = lower[a] + basis.coord(I[a], n_cells_grid[a]) * dx
-                    val, g = damage_field(y)
+                    val, g = damage_field(position(I))
                     gn = g.norm() * radius
                     if gn > 1e-6:
                         nn = g / g.norm()
