@@ -828,9 +828,6 @@ class Config(Strict):
         if not bases.get(self.solver.basis).knots:
             raise _Located("domain.knots", f"knot vectors need a B-spline basis ({bases.listed(bases.names(knots=True))}"
                                            f"), not solver.basis {self.solver.basis}")
-        if self.crack is not None:
-            raise _Located("domain.knots", "knot vectors are not available with a crack section (its SPH reach and "
-                                           "cell list assume the uniform grid)")
         p = bases.get(self.solver.basis).degree
         for a, axis in enumerate("xyz"):
             t = getattr(self.domain.knots, axis)

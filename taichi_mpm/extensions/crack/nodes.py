@@ -14,12 +14,13 @@ class NodeCache(NamedTuple):
 
 
 def node_position(ctx):
-    """@ti.func (I) -> node I's position: on the box, the basis's node coordinate per axis; on a mapped grid
-    (domain.map), its control point."""
+    """@ti.func (I) -> node I's position: on the box, each axis's node coordinate (its knot vector's Greville
+    abscissa with domain.knots); on a mapped grid (domain.map), its control point."""
     dim, basis, lower, dx, n_cells_grid = ctx.fields.dim, ctx.solver.basis, ctx.lower, ctx.view.dx, ctx.view.n_cells
     mapped = ctx.solver.extra.get("mapped") if basis.kind == "mapped" else None
     on_map = mapped is not None
     ctrl = mapped.map.ctrl if on_map else None
+    coords = [basis.axis(a).coord for a in range(dim)] if not on_map else None
 
     @ti.func
     def position(I):
@@ -28,7 +29,7 @@ def node_position(ctx):
             y = ctrl[I]
         else:
             for a in ti.static(range(dim)):
-                y[a] = lower[a] + basis.coord(I[a], n_cells_grid[a]) * dx
+                y[a] = lower[a] + coords[a](I[a], n_cells_grid[a]) * dx
         return y
     return position
 
