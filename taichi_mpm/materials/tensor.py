@@ -187,13 +187,14 @@ def hencky_elasticity(mu: float, lam: float, dim: int, held: int):
 # ---------------------------------------------------------------- damage law (crack growth, crack.py)
 @ti.func
 def sym_eig(A):
-    """Eigenvalues and eigenvectors (columns) of a symmetric 2x2 or 3x3 matrix by cyclic Jacobi rotations
+    """Eigenvalues and eigenvectors (columns) of a symmetric 1x1, 2x2 or 3x3 matrix by cyclic Jacobi rotations
     (ti.sym_eig in Taichi 1.7 returns NaN for some diagonal 2x2 matrices)."""
     n = ti.static(A.n)
     V = ti.Matrix.identity(float, n)
     M = A
-    for _ in range(1 if n == 2 else 8):
-        for pq in ti.static([(0, 1), (0, 2), (1, 2)] if n == 3 else [(0, 1)]):
+    pairs = ti.static({1: [], 2: [(0, 1)], 3: [(0, 1), (0, 2), (1, 2)]}[n])
+    for _ in range(1 if n < 3 else 8):
+        for pq in ti.static(pairs):
             i, j = ti.static(pq[0], pq[1])
             if M[i, j] != 0:
                 theta = (M[j, j] - M[i, i]) / (2.0 * M[i, j])

@@ -101,8 +101,6 @@ class CrackFields:
     """The SPH support and cell list's geometry, the damage laws, and the fields the finder's kernels share."""
 
     def __init__(self, view, cc):
-        if view.dim == 1:
-            raise ConfigError("the crack finder needs dim 2 or 3", key="crack")
         d, n = view.dim, view.n
         self.dim = d
         self.spacing = float(np.min(view.spacing))
