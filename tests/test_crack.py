@@ -190,14 +190,15 @@ def test_two_blocks_separate_with_crack_finder():
     assert gaps[-1] > 0.1
 
 
-@pytest.mark.slow
-def test_3d_threshold_0_leaks_momentum_at_the_contact_face_edges():
-    """The known limitation of docs/crack_finder.md ("The threshold"), kept measured: with threshold 0 the nodes
-    at the edges of the contact face stay shared and the 3D blocks keep only 0.167 m/s of 0.2 (17 % leak).
-    Fails if the leak vanished (then the docs and the demos' threshold -0.6 need revisiting) or grew."""
-    sim, p, b, gaps, t, smax = _pull(blocks_cfg(3, crack=True, threshold=0.0), steps=30)
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
+def test_threshold_0_keeps_the_blocks_apart_at_the_contact_face_edges(dim):
+    """The nodes at the edges of the contact face lie outside both blocks, with normals out of the free surface,
+    which both blocks' edge particles kept at threshold 0 (they leaked momentum: 0.193 m/s of 0.2 kept in 2D,
+    0.167 in 3D). Each such node now belongs to one interface body (its owner, classify), and the other's particles
+    count it across: measured 0.2000 m/s in 2D and 3D. Asserted within 2 % (the leak was 3.5 % and 17 %)."""
+    sim, p, b, gaps, t, smax = _pull(blocks_cfg(dim, crack=True, threshold=0.0), steps=30)
     va, vb = p["v"][b == 0, 0].mean(), p["v"][b == 1, 0].mean()
-    assert 0.15 < vb < 0.19 and 0.15 < -va < 0.19, (va, vb)
+    assert abs(va + 0.2) < 0.02 * 0.2 and abs(vb - 0.2) < 0.02 * 0.2, (va, vb)
 
 
 @pytest.mark.slow
@@ -380,16 +381,19 @@ def _slow_pull(refresh, steps, state=None, state_at=None):
 def test_normals_kept_between_steps_stay_close_to_every_step_ones():
     """crack.normal_refresh (default 0.01): the SPH normals are recomputed once a particle has moved 0.5 % of the
     support radius. Over 60 steps of a slow pull that is 9 times (measured); the normals then differ from the
-    every-step ones by what that motion turns them (measured 1.4e-3, bound 1e-2 = the relative motion allowed, 1 %
-    of r, over r), no particle changes state, and positions differ by 6e-6 (bound 1e-3 of a cell: the normals only
-    tilt the split of a near particle's momentum by that much)."""
+    every-step ones by what that motion turns them (measured 5.9e-3, bound 1e-2 = the relative motion allowed, 1 %
+    of r, over r), and positions differ by 0 (bound 1e-3 of a cell: the normals only tilt the split of a near
+    particle's momentum by that much). Since the nodes have owners the two blocks are apart from the first step and
+    move unstressed, so the contact test of the particles near their free surfaces compares a trial traction of
+    rounding size with 0: 19 of 288 states differ between the runs (none before owners, when the edges leaked and
+    stressed the blocks) without moving anything; bound 10 %."""
     _, exact, _ = _slow_pull(0.0, 60)
     sim, kept, _ = _slow_pull(0.01, 60)
     assert exact["refreshes"] is None and 2 <= kept["refreshes"] <= 20
     # refreshes recompute the normals near the interface only: the blocks' other particles moved as a whole
     assert sim.n < sim.extension("crack").recomputed[None] < sim.n * (1 + kept["refreshes"]) / 2
     assert np.abs(kept["normal"] - exact["normal"]).max() < 1e-2
-    np.testing.assert_array_equal(kept["state"], exact["state"])
+    assert (kept["state"] != exact["state"]).mean() < 0.1
     assert np.abs(kept["x"] - exact["x"]).max() < 1e-3 * 0.05
 
 

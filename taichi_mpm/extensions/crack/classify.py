@@ -4,6 +4,7 @@ discontinuity (the mask), the sums of the kept weights and gradients of both fam
 import taichi as ti
 
 from .constants import CONTACT, MODIFIED, S_FLOOR, STANDARD
+from .nodes import node_owner_funcs
 
 
 def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
@@ -14,7 +15,9 @@ def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
         ctx.view.x, f.normal, f.state, f.mask, f.sums, f.gsum, f.cent, f.contacts)
     node_mark, node_n = ctx.view.grid.scalar["crack_mark"], ctx.view.grid.vec["crack_n"]
     mask_t, apic, thr, contact = f.mask_t, f.apic, ctx.thr, ctx.contact
-    reuse_masks = f.cached and sten.origin is not None   # tensor stencils: the origin fixes the stencil's nodes
+    # tensor stencils: the origin fixes the stencil's nodes; a node's owner (below) follows the particles each step
+    reuse_masks = f.cached and sten.origin is not None and not f.sides
+    claim_nodes, owned_by_another = node_owner_funcs(ctx)
     s_cache, mask_at, mask_epoch = (f.s_cache, f.mask_at, f.mask_epoch) if f.cached else (None,) * 3
     grid_shape = list(ctx.view.grid.shape)
     band_normals, sort_normals = normals.band_normals, contact_test.sort_normals
@@ -62,7 +65,7 @@ def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
                     if known:
                         across = (m_known & bit) != 0
                     else:
-                        across = node_mark[I] > 1.5 or n.dot(node_n[I]) < -thr
+                        across = node_mark[I] > 1.5 or n.dot(node_n[I]) < -thr or owned_by_another(p, I)
                     if across:
                         m |= bit
                         Sx += w
@@ -100,10 +103,11 @@ def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
     @ti.kernel
     def classify(epoch: ti.i32, pool: ti.types.ndarray(dtype=ti.i32, ndim=1)):
         """Steps 4-6 after the particle normals, one launch (each loop still runs in parallel, in turn): band
-        middles, the normals in cell order (contact searches), node normals, masks and contact."""
+        middles, the normals in cell order (contact searches), node normals and owners, masks and contact."""
         band_normals()
         sort_normals()
         node_normals()
+        claim_nodes()
         particle_masks(epoch, pool)
 
     return classify

@@ -16,11 +16,23 @@ from ...schemes import get as transfer_scheme
 from .constants import ALL, CELL_SPLIT, MAX_CELLS
 
 
-def grid_fields(dim: int) -> tuple[list[str], list[str]]:
+def grid_fields(dim: int, sides: int = 0) -> tuple[list[str], list[str]]:
     """The crack finder's fields in the solver's grid (cleared with it each step): vectors (the rows of the
     anisotropic node mass A_i, the node normal) and scalars (the node's mark: 1 in a near particle's stencil,
-    2 on the discontinuity)."""
-    return [f"A{a}" for a in range(dim)] + ["crack_n"], ["crack_mark"]
+    2 on the discontinuity; with two or more interface bodies, the largest weight an interface body's particle
+    has at the node and that body, its owner)."""
+    owners = ["crack_wmax", "crack_owner"] if sides else []
+    return [f"A{a}" for a in range(dim)] + ["crack_n"], ["crack_mark"] + owners
+
+
+def interface_sides(bodies) -> list[int]:
+    """Per body of the config, its side among the interface bodies (0, 1, ...; -1 for others); all -1 unless
+    two or more bodies are interface bodies (one alone has no other body to be told apart from)."""
+    flags = [bool(getattr(b, "interface", False)) for b in bodies]
+    if sum(flags) < 2:
+        return [-1] * len(flags)
+    order = iter(range(len(flags)))
+    return [next(order) if f else -1 for f in flags]
 
 
 # the node normals kept between refreshes: a sparse grid of their own, whatever domain.sparse says
@@ -42,6 +54,7 @@ class CrackNeeds:
     stencil_nodes: int
     contact: bool          # crack.contact_in_compression: normals in cell order, contact lists
     kept_normals: bool     # crack.normal_refresh > 0
+    sides: int = 0         # interface bodies when two or more: each node's owner tells them apart (classify)
 
     @classmethod
     def of(cls, cfg, materials, basis) -> "CrackNeeds":
@@ -49,15 +62,15 @@ class CrackNeeds:
         # an affine transfer's centroid field (config allows apic only of the affine ones with a crack section)
         return cls(dim=cfg.dim, apic=transfer_scheme(cfg.solver.transfer).affine, has_law=has_damage_law(materials),
                    stencil_nodes=basis.contributions(cfg.dim), contact=bool(cc.contact_in_compression),
-                   kept_normals=cc.normal_refresh > 0)
+                   kept_normals=cc.normal_refresh > 0, sides=max(interface_sides(cfg.bodies)) + 1)
 
     @property
     def grid_vectors(self) -> list[str]:
-        return grid_fields(self.dim)[0]
+        return grid_fields(self.dim, self.sides)[0]
 
     @property
     def grid_scalars(self) -> list[str]:
-        return grid_fields(self.dim)[1]
+        return grid_fields(self.dim, self.sides)[1]
 
     def mask_type(self) -> str:
         return "u64" if self.stencil_nodes > 32 else "u32"   # bit k: stencil node k lies across the discontinuity
@@ -68,7 +81,8 @@ class CrackNeeds:
                 + ([FieldDecl("kappa", "real")] if self.has_law else [])
                 + [FieldDecl("normal", "real", (d,)), FieldDecl("state", "i32"), FieldDecl("mask", self.mask_type()),
                    FieldDecl("sums", "real", (2,)), FieldDecl("gsum", "real", (2, d))]
-                + ([FieldDecl("cent", "real", (2, d), "apic")] if self.apic else []))
+                + ([FieldDecl("cent", "real", (2, d), "apic")] if self.apic else [])
+                + ([FieldDecl("side", "i32", (), "two or more interface bodies")] if self.sides else []))
 
     def cell_order_fields(self, d: int) -> list[FieldDecl]:
         """Per particle: its cell, the cell order, positions, SPH weights (and normals) in cell order."""
@@ -120,7 +134,9 @@ class CrackFields:
         self.n_nodes = view.basis.contributions(d)       # contributions per particle (stencils.py)
         self.apic = view.apic
         self.needs = CrackNeeds(dim=d, apic=view.apic, has_law=self.has_law, stencil_nodes=self.n_nodes,
-                                contact=bool(cc.contact_in_compression), kept_normals=cc.normal_refresh > 0)
+                                contact=bool(cc.contact_in_compression), kept_normals=cc.normal_refresh > 0,
+                                sides=int(view.side.max(initial=-1)) + 1)
+        self.sides = self.needs.sides
         self._particle_fields(d, n, cc)
         self._cell_list(d, n, cc)
         # normals kept between steps (crack.normal_refresh). Once a particle has moved half the skin since the last
@@ -138,6 +154,7 @@ class CrackFields:
             setattr(self, name, f)                      # d_p, D_p = max(d_p, I_p), I_p, kappa, n_p, ...
         self.kappa = getattr(self, "kappa", None)
         self.cent = getattr(self, "cent", None)         # rows: sum_i N~ (x_i - x_p), APIC only
+        self.side = getattr(self, "side", None)         # the particle's interface body (-1: none), sides only
         self.contacts = ti.field(ti.i32, ())            # particles in contact this step (CONTACT)
         self.mask_t = ti.u64 if self.needs.mask_type() == "u64" else ti.u32
 

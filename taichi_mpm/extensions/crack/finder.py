@@ -6,6 +6,8 @@ solve's node solve on steps with contact (GridSolve)."""
 
 import numpy as np
 
+from ...field_decl import nbytes
+
 from .cells import bin_cells_kernel, cell_list_funcs
 from .classify import classify_kernel
 from .constants import ALL, KEEP
@@ -13,7 +15,7 @@ from .contact import contact_test_funcs
 from .contact_lists import ContactPool, contact_list_kernel
 from .context import crack_context
 from .damage import damage_funcs
-from .fields import CrackFields, particle_bytes
+from .fields import CrackFields
 from .inspection import partition_check_kernel
 from .nodes import node_cache_kernels, node_normals_func
 from .normals import particle_normal_funcs
@@ -108,12 +110,14 @@ class CrackFinder(Extension):
 
     def bytes_per_particle(self) -> int:
         f = self.fields
-        return particle_bytes(self.dim, self.view.precision, f.apic, f.has_law, f.n_nodes, self.cc)
+        return nbytes(f.needs.particle_fields(self.dim), self.view.precision)
 
     def upload(self):
         f, view = self.fields, self.view
         f.d.from_numpy(view.to_solver(view.damage).astype(np.float64))
         f.iface.from_numpy(view.to_solver(view.interface).astype(np.float32))
+        if f.side is not None:
+            f.side.from_numpy(view.to_solver(view.side).astype(np.int32))
         if f.kappa is not None:
             f.kappa.fill(0)
 

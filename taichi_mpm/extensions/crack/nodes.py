@@ -69,6 +69,48 @@ def node_normals_func(ctx, sph):
     return node_normals
 
 
+def node_owner_funcs(ctx):
+    """(claim_nodes, owned_by_another(p, I)): with two or more interface bodies, each marked node's owner, and
+    whether a node belongs to another interface body than particle p's (no-ops otherwise)."""
+    f, sten, node_mark = ctx.fields, ctx.solver.stencil, ctx.view.grid.scalar["crack_mark"]
+    x, sides, side = ctx.view.x, f.sides, f.side
+    wmax, owner = (ctx.view.grid.scalar["crack_wmax"], ctx.view.grid.scalar["crack_owner"]) if sides else (None,) * 2
+
+    @ti.func
+    def claim_nodes():
+        """With two or more interface bodies, each marked node's owner: the side (+1) of the interface particle
+        with the largest weight there (ties: the larger side, so that the result is the same in every thread
+        order). A node between two bodies' surfaces then belongs to one of them; the other's particles count it
+        across whatever the normals say, which the edges of a contact face need: there the nodes outside both
+        bodies have normals out of the free surface, which neither body's particles face away from."""
+        if ti.static(sides):
+            for p in x:
+                if side[p] >= 0:
+                    sd = sten.at(p)
+                    for o in ti.grouped(ti.ndrange(*sten.outer)):
+                      for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split)
+                        I, w, gw, r = sten.node(sd, o + sten.inner[k])
+                        if node_mark[I] > 0:
+                            ti.atomic_max(wmax[I], w)
+            for p in x:
+                if side[p] >= 0:
+                    sd = sten.at(p)
+                    for o in ti.grouped(ti.ndrange(*sten.outer)):
+                      for k in ti.static(range(len(sten.inner))):  # noqa: E111
+                        I, w, gw, r = sten.node(sd, o + sten.inner[k])
+                        if node_mark[I] > 0 and w == wmax[I]:
+                            ti.atomic_max(owner[I], ti.cast(side[p] + 1, float))
+
+    @ti.func
+    def owned_by_another(p, I):
+        res = False
+        if ti.static(sides):
+            res = side[p] >= 0 and owner[I] > 0 and owner[I] != side[p] + 1
+        return res
+
+    return claim_nodes, owned_by_another
+
+
 def node_cache_kernels(ctx) -> NodeCache:
     f, dim, cached = ctx.fields, ctx.fields.dim, ctx.fields.cached
     cache_m, cache_n, cache_fill = ((f.node_cache.m, f.node_cache.vec["n"], f.node_cache_fill)

@@ -7,6 +7,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .fields import interface_sides
+
 
 @dataclass(frozen=True)
 class SimView:
@@ -21,6 +23,7 @@ class SimView:
     spacing: np.ndarray             # the scene's particle spacing
     damage: np.ndarray              # the scene's initial damage and interface flags, creation order
     interface: np.ndarray
+    side: np.ndarray                # per particle, its body's side among interface bodies (fields.interface_sides)
     basis: Any                      # basis.Basis
     materials: list                 # the scene's materials (config), by material index
     apic: bool
@@ -39,8 +42,9 @@ class SimView:
 def view_of(setup) -> SimView:
     """The view of an allocated setup (step.moments.Setup, its grid set)."""
     s, f = setup, setup.feat
+    side = np.asarray(interface_sides(s.cfg.bodies), dtype=np.int32)[s.scene.body]
     return SimView(dim=s.dim, n=s.n, dx=s.dx, lower=s.lower, upper=s.upper, n_cells=s.n_cells, crack=s.cfg.crack,
                    precision=s.precision, spacing=s.scene.spacing, damage=s.scene.damage,
-                   interface=s.scene.interface, basis=s.basis, materials=s.materials, apic=f.apic, flip=f.flip,
-                   musl=f.musl, grid=s.grid, x=s.x, v=s.v, F=s.F, vol0=s.vol0, to_solver=s.to_solver,
+                   interface=s.scene.interface, side=side, basis=s.basis, materials=s.materials, apic=f.apic,
+                   flip=f.flip, musl=f.musl, grid=s.grid, x=s.x, v=s.v, F=s.F, vol0=s.vol0, to_solver=s.to_solver,
                    to_creation=s.to_creation, perm=s.perm)
