@@ -317,7 +317,9 @@ class _StepClock:
             elif k == "waited":
                 rows.append(("  the solver waited on the writer", v))
             else:
-                rows.append((f"  {k}" + (f" ({where})" if k not in ("frames", "movie") else " (at the end)"), v))
+                suffix = (" (at the end)" if k in ("frames", "movie") else "" if k.endswith("stepping)")
+                          else f" ({where})")
+                rows.append((f"  {k}{suffix}", v))
         steps = self.sim.n_steps - self.steps0
         rate = self.sim.n * (steps - 1) / stepping if steps > 1 and stepping > 0 else 0.0
         head = f"profile (seconds; {steps} steps, {self.sim.n} particles, stepping {rate:.3g} particle-steps/s):"
