@@ -354,6 +354,8 @@ class Run:
             self._save(*self._held)
         if not self._executing:   # an observer of sim.run(on_output=...): the files are there when it returns
             self.writer.drain()
+            if self._live:
+                self._renderer.drain()
         self.output_seconds += time.perf_counter() - t0
 
     def _write_snapshot(self, particles: dict, name: str, t: float, index: int):
