@@ -294,7 +294,10 @@ class _StepClock:
         rate = f"{sim.n * (steps - 1) / stepping:.3g} particle-steps/s" if steps > 1 and stepping > 0 else "-"
         text += (f"): first step (JIT compile) {first:.1f} s, stepping {stepping:.1f} s at {rate}, "
                  f"outputs {run.output_seconds - self.out0:.1f} s")
-        if run.frames_rendered:
+        if run.frames_rendered and run.frames_while_stepping:   # on the frame worker: beside the solver
+            text += (f" ({run.frames_rendered} frames and the movie drawn while stepping in "
+                     f"{run.render_seconds:.1f} s, {run.render_seconds / run.frames_rendered:.2f} s per frame)")
+        elif run.frames_rendered:
             text += (f" (of which rendering {run.frames_rendered} frames and the movie "
                      f"{run.render_seconds:.1f} s, {run.render_seconds / run.frames_rendered:.2f} s per frame)")
         b = run.breakdown()

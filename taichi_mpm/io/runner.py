@@ -201,6 +201,7 @@ class Run:
         self.render_seconds = 0.0  # wall time of rendering frames and movies (part of output_seconds)
         self.frames_rendered = 0
         self._movie_done = False  # movie.mp4 was fed by the frame worker during the run
+        self.frames_while_stepping = False  # the frames were drawn by the frame worker (io/live_frames.py)
         self._frames = any(f in self.formats for f in ("png", "mp4", "gif"))
         if resume and overwrite:
             raise ConfigError("--resume continues a run's results and --overwrite replaces them: give one")
@@ -459,6 +460,7 @@ class Run:
         if self._renderer is None or not self._live:
             return
         live, self._renderer = self._renderer, None
+        self.frames_while_stepping = True
         t0 = time.perf_counter()
         try:
             live.close(complete)
