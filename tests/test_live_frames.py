@@ -65,22 +65,24 @@ def test_png_is_lossless_and_read_back(tmp_path):
     np.testing.assert_array_equal(imageio.imread(tmp_path / "a.png"), img)
 
 
-def two_d_run(clim=(0.0, 1.2)):
+def two_d_run(clim=(0.0, 1.2), writer="thread"):
     cfg = make_cfg(2, velocity=[0.0, -1.0], end_time=0.06)
     cfg["solver"]["gravity"] = [0.0, -9.81]
-    cfg["output"] = {"every": 0.02, "formats": ["png", "mp4"],
+    cfg["output"] = {"every": 0.02, "formats": ["png", "mp4"], "writer": writer,
                      "render": {"color_by": "speed", "size": [160, 120], "clim": list(clim)}}
     return tm.Simulation(tm.load_config(cfg))
 
 
-def test_run_draws_its_frames_while_stepping_as_the_end_of_run_path_would(tmp_path, monkeypatch):
-    """A 2D run with clim: frames drawn during the run (no frame records written), the movie fed as they come;
-    the same run forced onto the end-of-run path gives the same frames."""
+@pytest.mark.parametrize("writer", ["thread", "inline"])
+def test_run_draws_its_frames_while_stepping_as_the_end_of_run_path_would(tmp_path, monkeypatch, writer):
+    """A 2D run with clim: frames drawn during the run (no frame records written), the movie fed as they come
+    (output.writer inline: in the solver's thread); the same run forced onto the end-of-run path gives the same
+    frames."""
     from taichi_mpm.io.runner import Run
 
     monkeypatch.setattr(render.FrameRecorder, "record", lambda *a: pytest.fail("a frame record was written"))
-    live = Run(two_d_run(), tmp_path / "live").execute()
-    assert live._movie_done and live.frames_rendered == 4
+    live = Run(two_d_run(writer=writer), tmp_path / "live").execute()
+    assert live._movie_done and live.frames_rendered == 4 and live.frames_while_stepping
     monkeypatch.undo()
     monkeypatch.setattr(render, "known_in_advance", lambda *a: False)
     Run(two_d_run(), tmp_path / "end").execute()
@@ -136,3 +138,21 @@ def test_framing_errors_name_the_key(framing):
         tm.load_config(cfg)
     cfg["output"] = {"render": {"framing": "domain", "clim": [0, 1]}}
     assert render.known_in_advance(tm.load_config(cfg).output.render, 3)
+
+
+def test_a_numerical_failure_leaves_every_frame_before_it_and_no_movie(tmp_path):
+    """A run that blows up (dt far above the stable step): the frames of every output before the failure are on
+    disk when InstabilityError is raised; no movie and no temporary."""
+    from taichi_mpm.errors import InstabilityError
+    from taichi_mpm.io.runner import Run
+
+    cfg = make_cfg(2, velocity=[0.5, -1.0], lower=[0.3, 0.1], upper=[0.6, 0.4], end_time=2.0, dt=0.2)
+    cfg["output"] = {"every": 0.2, "formats": ["png", "mp4"],
+                     "render": {"color_by": "speed", "size": [96, 72], "clim": [0.0, 2.0]}}
+    run = Run(tm.Simulation(tm.load_config(cfg)), tmp_path / "boom")
+    with pytest.raises(InstabilityError):
+        run.execute()
+    frames = sorted(p.name for p in (tmp_path / "boom" / "frames").iterdir())
+    assert run.index >= 1 and frames == [f"frame_{k:06d}.png" for k in range(run.index)]
+    assert not (tmp_path / "boom" / "movie.mp4").exists()
+    assert not [p for p in (tmp_path / "boom").rglob("*") if ".tmp" in p.name]
