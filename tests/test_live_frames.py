@@ -128,6 +128,11 @@ def test_a_stop_finishes_the_queued_frames_and_leaves_no_partial_file(tmp_path, 
         assert pixels(tmp_path / "cut" / "frames" / f).shape == (120, 160, 3)
     assert not (tmp_path / "cut" / "movie.mp4").exists()
     assert not [p for p in (tmp_path / "cut").rglob("*") if ".tmp" in p.name]
+    monkeypatch.undo()   # resumed: the later frames drawn as they come, the movie joined from every PNG at the end
+    resumed = Run(two_d_run(), tmp_path / "cut", resume=True).execute()
+    assert not resumed._movie_done
+    assert sorted(p.name for p in (tmp_path / "cut" / "frames").iterdir()) == [f"frame_{k:06d}.png" for k in range(4)]
+    assert len(imageio.mimread(tmp_path / "cut" / "movie.mp4")) == 4
 
 
 @pytest.mark.parametrize("framing", ["sky", [[0, 0, 0], [1, 1]], [[0, 1, 0], [1, 0.5, 1]]])
