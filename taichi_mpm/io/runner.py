@@ -496,7 +496,7 @@ class Run:
     def breakdown(self) -> dict:
         """Seconds per output kind as the writer measured them (snapshot: derived fields and files, of which
         "snapshot: vtu" and "snapshot: frame records"; checkpoint, diagnostics, probes; frames and movie, rendered
-        at the end) and `waited`: the time the solver waited on the writer."""
+        at the end, or "frames (while stepping)" and "movie (while stepping)" on the frame worker) and `waited`: the time the solver waited on the writer."""
         out = {k: v for k, v in self.writer.seconds.items() if v > 0}
         out["waited"] = self.writer.wait_seconds
         return out
