@@ -1,12 +1,15 @@
 """What outputs cost a user (issue 31): the main demo (configs/sphere_impact.yaml) run by the CLI with its outputs
-(VTU, frames, movie) written by the writer thread, written inline (the solver's thread, as before), and off; and
-with VTU snapshots only (no frames), threaded and inline.
+(VTU, frames, movie): frames drawn while the solver steps on their own worker thread (`live`: the demo's clim and
+framing fix the colour range and the camera in advance), the same frames drawn at the end of the run (`end`:
+output.render.framing=run, the path of runs whose range or camera is known only at the end), everything written
+inline (the solver's thread), outputs off, and VTU snapshots only (no frames), threaded and inline.
 
 Reports per mode: total wall time, first step (compile), stepping, total / (first step + stepping) (target <= 1.4
-with outputs on), the stepping rate (particle-steps/s: unchanged within noise between the modes), the run folder's
-size, the per-kind breakdown of `--profile` and the load average (a shared machine: read the figures with it).
+with outputs on), the stepping rate (particle-steps/s: lower when frames are drawn beside the solver on a loaded
+machine), the run folder's size, the per-kind breakdown of `--profile` and the load average (a shared machine:
+read the figures with it). `--rounds N` runs the modes N rounds, interleaved, so that a change of load shows.
 
-    PYTHONPATH=. python benchmarks/outputs.py                  # the whole demo, 3 modes
+    PYTHONPATH=. python benchmarks/outputs.py                  # the whole demo: live, end, off, vtu
     PYTHONPATH=. python benchmarks/outputs.py --end-time 0.1   # a shorter run with the same outputs per step
 """
 import os
@@ -21,7 +24,8 @@ from common import parser, report
 
 REPO = Path(__file__).resolve().parents[1]
 MODES = {  # --set overrides of each mode
-    "thread": [],
+    "live": [],                                                   # frames while stepping (the demo's config)
+    "end": ["output.render.framing=run"],                         # frames at the end of the run
     "inline": ["output.writer=inline"],
     "off": ["output.formats=[]", "output.checkpoint_every=1000000"],
     "vtu": ["output.formats=[vtu]"],                              # snapshots and checkpoints, no frames
@@ -56,7 +60,8 @@ def main(argv=None):
     p = parser(__doc__.splitlines()[0])
     p.add_argument("--config", type=Path, default=REPO / "configs" / "sphere_impact.yaml")
     p.add_argument("--end-time", type=float, default=None, help="solver.end_time (default: the config's)")
-    p.add_argument("--modes", default=",".join(MODES), help="comma-separated, of: " + ", ".join(MODES))
+    p.add_argument("--modes", default="live,end,off,vtu", help="comma-separated, of: " + ", ".join(MODES))
+    p.add_argument("--rounds", type=int, default=1, help="rounds of all the modes, interleaved")
     a = p.parse_args(argv)
     extra = [f"solver.end_time={a.end_time}"] if a.end_time else []
     if a.tiny:
@@ -64,8 +69,9 @@ def main(argv=None):
     rows = []
     tmp = Path(tempfile.mkdtemp(prefix="outputs_bench_"))
     try:
-        for mode in a.modes.split(","):
-            rows.append(run_mode(a.config, mode, tmp / mode, extra))
+        for _ in range(max(1, a.rounds)):
+            for mode in a.modes.split(","):
+                rows.append(run_mode(a.config, mode, tmp / mode, extra))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     core = ["mode", "total_s", "first_step_s", "stepping_s", "particle_steps_per_s", "total_over_solver", "folder_mb",

@@ -294,7 +294,10 @@ class _StepClock:
         rate = f"{sim.n * (steps - 1) / stepping:.3g} particle-steps/s" if steps > 1 and stepping > 0 else "-"
         text += (f"): first step (JIT compile) {first:.1f} s, stepping {stepping:.1f} s at {rate}, "
                  f"outputs {run.output_seconds - self.out0:.1f} s")
-        if run.frames_rendered:
+        if run.frames_rendered and run.frames_while_stepping:   # on the frame worker: beside the solver
+            text += (f" ({run.frames_rendered} frames and the movie drawn while stepping in "
+                     f"{run.render_seconds:.1f} s, {run.render_seconds / run.frames_rendered:.2f} s per frame)")
+        elif run.frames_rendered:
             text += (f" (of which rendering {run.frames_rendered} frames and the movie "
                      f"{run.render_seconds:.1f} s, {run.render_seconds / run.frames_rendered:.2f} s per frame)")
         b = run.breakdown()
@@ -317,7 +320,9 @@ class _StepClock:
             elif k == "waited":
                 rows.append(("  the solver waited on the writer", v))
             else:
-                rows.append((f"  {k}" + (f" ({where})" if k not in ("frames", "movie") else " (at the end)"), v))
+                suffix = (" (at the end)" if k in ("frames", "movie") else "" if k.endswith("stepping)")
+                          else f" ({where})")
+                rows.append((f"  {k}{suffix}", v))
         steps = self.sim.n_steps - self.steps0
         rate = self.sim.n * (steps - 1) / stepping if steps > 1 and stepping > 0 else 0.0
         head = f"profile (seconds; {steps} steps, {self.sim.n} particles, stepping {rate:.3g} particle-steps/s):"

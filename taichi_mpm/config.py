@@ -483,6 +483,9 @@ class Render(Strict):
     clim: Optional[Vec] = None
     scale: Literal["linear", "log"] = "linear"
     percentiles: list[float] = [1.0, 99.0]
+    # what a 3D camera frames: run (the bodies over the whole run: frames rendered at the end), domain, or a box
+    # [[x, y, z], [x, y, z]]; domain or a box (with clim, or a label field) lets frames render while the solver steps
+    framing: Union[str, list[Vec]] = "run"
 
     @model_validator(mode="after")
     def _lengths(self):
@@ -510,6 +513,11 @@ class Render(Strict):
             raise _Located("clim", "must be [min, max] with min < max")
         if self.clim is not None and self.scale == "log" and self.clim[0] <= 0:
             raise _Located("clim", "a log scale needs clim [min, max] with 0 < min")
+        f = self.framing
+        if f not in ("run", "domain") and (isinstance(f, str) or len(f) != 2 or any(len(c) != 3 for c in f)
+                                       or not all(a < b for a, b in zip(*f))):
+            raise _Located("framing", f"must be run, domain or a box [[x, y, z], [x, y, z]] (lower, upper) with "
+                                      f"lower < upper on every axis, got {f}")
         p = self.percentiles
         if len(p) != 2 or not 0 <= p[0] < p[1] <= 100:
             raise _Located("percentiles", f"must be [low, high] with 0 <= low < high <= 100, got {p}")

@@ -9,6 +9,7 @@ from .. import fields as registry
 VELOCITY = ("vx", "vy", "vz")
 ALIASES = {"velocity": "speed", "velocity_x": "vx", "velocity_y": "vy", "velocity_z": "vz", "mises": "von_mises",
            "stress": "von_mises"}
+CATEGORICAL = ("body", "material", "interface")   # label fields: one colour per integer value
 CAMERAS = ("iso", "xy", "xz", "yz", "front", "side", "top")  # 3D views; 2D and 1D frames are always seen along z
 
 
@@ -40,4 +41,13 @@ def options(render_cfg) -> dict:
                 camera=rc.get("camera") or "iso", point_size=rc.get("point_size"),
                 cmap=rc.get("colormap") or "viridis", clim=list(rc["clim"]) if rc.get("clim") else None,
                 scale=rc.get("scale") or "linear",
-                percentiles=tuple(rc.get("percentiles") or colour_range.DEFAULT_PERCENTILES))
+                percentiles=tuple(rc.get("percentiles") or colour_range.DEFAULT_PERCENTILES),
+                framing=rc.get("framing") or "run")
+
+
+def known_in_advance(render_cfg, dim: int) -> bool:
+    """Whether a run's frames can be drawn as its outputs come: the colour range is fixed before the run (`clim`,
+    or a label field: one colour per body) and so is the camera (2D and 1D: the domain; 3D: `framing` domain or a
+    box). Otherwise they are drawn at the end, over the range and bounds of the whole run."""
+    o = options(render_cfg)
+    return bool(o["clim"] or o["color_by"] in CATEGORICAL) and (int(dim) < 3 or o["framing"] != "run")

@@ -200,6 +200,8 @@ class Run:
         self._renderer = None    # render.FrameRecorder: frames are rendered at the end of the run
         self.render_seconds = 0.0  # wall time of rendering frames and movies (part of output_seconds)
         self.frames_rendered = 0
+        self._movie_done = False  # movie.mp4 was fed by the frame worker during the run
+        self.frames_while_stepping = False  # the frames were drawn by the frame worker (io/live_frames.py)
         self._frames = any(f in self.formats for f in ("png", "mp4", "gif"))
         if resume and overwrite:
             raise ConfigError("--resume continues a run's results and --overwrite replaces them: give one")
@@ -353,6 +355,8 @@ class Run:
             self._save(*self._held)
         if not self._executing:   # an observer of sim.run(on_output=...): the files are there when it returns
             self.writer.drain()
+            if self._live:
+                self._renderer.drain()
         self.output_seconds += time.perf_counter() - t0
 
     def _write_snapshot(self, particles: dict, name: str, t: float, index: int):
@@ -401,19 +405,27 @@ class Run:
             self._save(*self._held)
 
     def _render(self, p: dict, time: float, index: int):
-        """Keep this output's frame data; the frames are rendered at the end of the run (render_frames), with one
-        colour range and one camera for the whole sequence."""
+        """This output's frame: drawn now on the frame worker when its colour range and camera are fixed in advance
+        (io/live_frames.py), else its data kept and the frames rendered at the end of the run (render_frames),
+        with one colour range and one camera for the whole sequence."""
         if self._renderer is None:
             try:
-                from .render import FrameRecorder
+                from .render import FrameRecorder, known_in_advance
+                from .live_frames import LiveFrames
             except ImportError as e:
                 self.log(f"warning: no frames or movie: the renderer is not available ({e})")
                 self._frames = False
                 return
             c = self.cfg
+            args = (self.out_dir / "frames", c.output.render, c.dim, list(c.domain.lower), list(c.domain.upper))
             try:
-                self._renderer = FrameRecorder(self.out_dir / "frames", c.output.render, c.dim, list(c.domain.lower),
-                                               list(c.domain.upper), title=c.name, lines=self._lines)
+                if "png" in self.formats and known_in_advance(c.output.render, c.dim):
+                    # the movie is fed frame by frame only from the first output (a resumed run joins the PNGs)
+                    movie = self.out_dir / "movie.mp4" if "mp4" in self.formats and index == 0 else None
+                    self._renderer = LiveFrames(*args, title=c.name, lines=self._lines, movie=movie,
+                                                threaded=self.writer.threaded)
+                else:
+                    self._renderer = FrameRecorder(*args, title=c.name, lines=self._lines)
             except ValueError as e:  # an unknown camera
                 raise ConfigError(str(e), key="output.render.camera") from None
         try:
@@ -428,10 +440,37 @@ class Run:
         if self._renderer is None:
             return
         t0 = time.perf_counter()
+        if self._live:   # drawn while the solver stepped: only the queued frames are left
+            self._renderer.drain()
+            self.output_seconds += time.perf_counter() - t0
+            return
         self.frames_rendered += len(self._renderer.render_all())
         self.render_seconds += time.perf_counter() - t0
         self.writer.seconds["frames"] += time.perf_counter() - t0
         self.output_seconds += time.perf_counter() - t0
+
+    @property
+    def _live(self) -> bool:
+        from .live_frames import LiveFrames
+
+        return isinstance(self._renderer, LiveFrames)
+
+    def _close_frames(self, complete: bool):
+        """End the frame worker (its queued frames written first); complete: the movie it fed is kept."""
+        if self._renderer is None or not self._live:
+            return
+        live, self._renderer = self._renderer, None
+        self.frames_while_stepping = True
+        t0 = time.perf_counter()
+        try:
+            live.close(complete)
+        finally:
+            self.output_seconds += time.perf_counter() - t0
+            self.frames_rendered += len(live.frames)
+            self.render_seconds += sum(live.seconds.values())
+            for k, v in live.seconds.items():
+                self.writer.seconds[f"{k} (while stepping)"] += v
+            self._movie_done = live.movie_done
 
     def finish(self):
         """After the last output: the frames and movies, when asked."""
@@ -440,8 +479,9 @@ class Run:
         self.writer.drain()
         self.output_seconds += time.perf_counter() - t0
         self.render_frames()
+        self._close_frames(complete=True)
         self._renderer = None
-        movies = [f for f in ("mp4", "gif") if f in self.formats]
+        movies = [f for f in ("mp4", "gif") if f in self.formats and not (f == "mp4" and self._movie_done)]
         if not movies or not self._frames:
             return
         from .render import make_movie
@@ -456,7 +496,7 @@ class Run:
     def breakdown(self) -> dict:
         """Seconds per output kind as the writer measured them (snapshot: derived fields and files, of which
         "snapshot: vtu" and "snapshot: frame records"; checkpoint, diagnostics, probes; frames and movie, rendered
-        at the end) and `waited`: the time the solver waited on the writer."""
+        at the end, or "frames (while stepping)" and "movie (while stepping)" on the frame worker) and `waited`: the time the solver waited on the writer."""
         out = {k: v for k, v in self.writer.seconds.items() if v > 0}
         out["waited"] = self.writer.wait_seconds
         return out
@@ -503,7 +543,10 @@ class Run:
         t0 = time.perf_counter()
         in_flight = sys.exc_info()[1] is not None
         try:
-            self.writer.close()
+            try:
+                self.writer.close()
+            finally:
+                self._close_frames(complete=False)   # (after a complete run: closed already, by finish)
         except Exception as e:
             if not in_flight:
                 raise
@@ -535,6 +578,8 @@ class Run:
         self.checkpoint()
         t0 = time.perf_counter()
         self.writer.drain()   # every output handed over is on disk before the stop is reported
+        if self._live:
+            self._renderer.drain()   # and so is every frame queued
         self.output_seconds += time.perf_counter() - t0
         raise Interrupted(self, self.stop_signal or signal.SIGINT)
 

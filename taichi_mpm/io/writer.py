@@ -29,7 +29,7 @@ _STOP = object()
 class Writer:
     """Runs output jobs in order on one background thread (or inline); seconds per kind in `seconds`."""
 
-    def __init__(self, threaded: bool = True, depth: int = 8):
+    def __init__(self, threaded: bool = True, depth: int = 8, name: str = "taichi-mpm-writer"):
         self.threaded = bool(threaded)
         self.seconds: dict[str, float] = defaultdict(float)   # kind -> seconds its jobs took (in the writer)
         self.counts: dict[str, int] = defaultdict(int)
@@ -40,7 +40,7 @@ class Writer:
         self._thread: threading.Thread | None = None
         if self.threaded:
             self._queue = queue.Queue(maxsize=max(1, int(depth)))
-            self._thread = threading.Thread(target=self._work, name="taichi-mpm-writer", daemon=True)
+            self._thread = threading.Thread(target=self._work, name=name, daemon=True)
             self._thread.start()
 
     # ------------------------------------------------------------ the stepping thread's side

@@ -232,6 +232,11 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "output.render.colormap": ("", "matplotlib colormap name"),
     "output.render.clim": ("unit of the field", "fixed colour limits [min, max]; null: robust limits from the "
                            "percentiles of the whole run's values, fixed across its frames"),
+    "output.render.framing": ("m", "what the 3D camera frames: run, the bodies over the whole run (known at its end); "
+                              "domain; or a box [[x, y, z], [x, y, z]] (lower, upper). With domain or a box and a "
+                              "colour range fixed in advance (clim, or a label field such as body) each frame is "
+                              "drawn while the solver steps, else at the end of the run; 2D and 1D frames always "
+                              "show the domain (clim alone is enough there)"),
     "output.render.scale": ("", "colour scale: linear, or log (for stresses spanning decades; values at or below "
                                 "the low limit take the bottom colour)"),
     "output.render.percentiles": ("%", "[low, high] percentiles of all particles over all frames that set the colour "
