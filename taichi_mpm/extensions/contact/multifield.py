@@ -177,6 +177,7 @@ class MultiField(Extension):
             n = g[k][I]   # outward of field k: its own mass gradient where it is the heaviest body there, else
             if ti.static(rank[k]) != first:   # minus the others' (inward of them)
                 n -= g_all
+            n = wall.tangential(I, n)   # bodies flush with a wall: their gradient across it is no contact surface
             size = n.norm()
             lost = ti.Vector.zero(float, 2)
             if size > 0:
