@@ -38,7 +38,7 @@ def _body_velocity(sim, b):
 def test_colliding_disks_rebound_with_momentum_conserved():
     """Sulsky's disks (0.1, 0.1) and (-0.1, -0.1) m/s: after the impact each moves back at nearly its speed (an
     elastic collision reverses it exactly; the 20 % allowed is what the grid's dissipation at dx = r/5 and the
-    disks' vibration cost: measured 0.0850 of 0.1 here, 0.0895 at dx = r/10), and the field correction conserves
+    disks' vibration cost: measured 0.0850 of 0.1 here, 0.0896 at dx = r/10), and the field correction conserves
     momentum to round-off. Before the gap check (docs/contact.md, "Gap") contact began a stencil before the disks
     touched and cushioned the impact: 0.0888 and 0.0927, with the same 81 % of the energy kept, less of it in the
     disks' vibration (0.064 J against 0.22 J of 2.53)."""
