@@ -162,6 +162,19 @@ def test_disk_rolls_down_an_inclined_body():
     assert accel == pytest.approx(2.0 / 3.0 * G * np.sin(a), rel=0.03)
 
 
+def test_surface_offsets_from_the_centroid_of_a_flat_body():
+    """The gap check's curve (contact/surface.py): a body filling everything behind a flat surface through the node
+    has its node-weighted centroid at -int_0 u N / int_0 N: -1/3 cell (linear), -13/32 (quadratic), -7/15 (cubic);
+    with the surface a cell behind the node, quadratic: -9/8 (its mass lies in [-1.5, -1], (1.5 - |u|)^2 / 2)."""
+    from taichi_mpm.extensions.contact.surface import centroid_curve
+    for degree, at0 in ((1, -1.0 / 3.0), (2, -13.0 / 32.0), (3, -7.0 / 15.0)):
+        s, C = centroid_curve(degree)
+        assert np.all(np.diff(C) > 0)   # increasing: the table inverts it
+        assert np.interp(0.0, s, C) == pytest.approx(at0, abs=1e-6)
+    s, C = centroid_curve(2)
+    assert np.interp(-1.0, s, C) == pytest.approx(-9.0 / 8.0, abs=1e-6)
+
+
 def test_contact_section_errors_name_the_key():
     base = _disks(True)
     cases = [
