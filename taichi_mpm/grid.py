@@ -187,4 +187,25 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     # inside it and kept inside (stencils.py, make_wall_hold; docs/bases.md "Bodies flush against walls")
     apply.holds = [tuple(on_box and (codes[a][s] in (1, 2, 3) or (codes[a][s] == 4 and given[2 * a + s][a]))
                          for s in (0, 1)) for a in range(dim)]
+    apply.tangential = _face_tangential(dim, n_cells, axes, apply.holds)   # for contact normals
     return apply
+
+
+def _face_tangential(dim, n_cells, axes, holds):
+    """@ti.func (I, n) -> n without its components along the outward normals of the holding box faces (`holds`)
+    that node I lies on. A body flush with such a face has a mass gradient across it at the face's nodes (its mass
+    ends at the wall), which is no surface of the body: contact normals drop it (extensions/contact)."""
+
+    @ti.func
+    def tangential(I, n):
+        for a in ti.static(range(dim)):
+            if ti.static(holds[a][0] or holds[a][1]):   # box faces only (holds is False off the box)
+                c = axes[a].coord(I[a], n_cells[a])
+                if ti.static(holds[a][0]):
+                    if c <= 0.0:
+                        n[a] = 0.0
+                if ti.static(holds[a][1]):
+                    if c >= ti.static(float(n_cells[a])):
+                        n[a] = 0.0
+        return n
+    return tangential

@@ -4,8 +4,7 @@ field per body, Bardenhagen et al. 2000's correction with Coulomb friction (fric
 Measured against independent references: elastic rebound and momentum conservation of Sulsky's two disks, the
 welding of touching bodies in one field, a block on an inclined MPM body (the slope rotated into gravity, so the
 interface stays on the grid; the lower body gripped) sliding at g (sin t - mu cos t) or resting, and the friction's
-dissipation against the particles' own loss of mechanical energy. (Not here yet: the 3D block, measured 5 % slow,
-and the rolling disk, which failed its 3 %: docs/contact.md, "Open".)"""
+dissipation against the particles' own loss of mechanical energy, in 2D and 3D, and a disk rolling at 2/3 g sin t."""
 import copy
 
 import numpy as np
@@ -38,14 +37,17 @@ def _body_velocity(sim, b):
 
 def test_colliding_disks_rebound_with_momentum_conserved():
     """Sulsky's disks (0.1, 0.1) and (-0.1, -0.1) m/s: after the impact each moves back at nearly its speed (an
-    elastic collision reverses it exactly; the 15 % allowed is what the grid's dissipation at dx = r/5 costs:
-    measured 0.0888 of 0.1 here, 0.092 at dx = r/10), and the field correction conserves momentum to round-off."""
+    elastic collision reverses it exactly; the 20 % allowed is what the grid's dissipation at dx = r/5 and the
+    disks' vibration cost: measured 0.0850 of 0.1 here, 0.0896 at dx = r/10), and the field correction conserves
+    momentum to round-off. Before the gap check (docs/contact.md, "Gap") contact began a stencil before the disks
+    touched and cushioned the impact: 0.0888 and 0.0927, with the same 81 % of the energy kept, less of it in the
+    disks' vibration (0.064 J against 0.22 J of 2.53)."""
     sim = tm.Simulation(_disks(True))
     sim.advance_to(3.0)
     mass = sim.scene.mass.sum()
     for b, sign in ((0, -1.0), (1, 1.0)):
         v = _body_velocity(sim, b)
-        assert np.all(sign * v > 0.085), v   # reversed, within 15 % of the elastic 0.1
+        assert np.all(sign * v > 0.08), v   # reversed, within 20 % of the elastic 0.1
     # the total momentum starts at 0: round-off of f64 sums over ~600 particles and 250 steps
     assert np.abs(sim.momentum()["linear"]).max() < 1e-12 * mass * 0.1
     lo, hi = sim.particles()["x"][sim.scene.body == 0], sim.particles()["x"][sim.scene.body == 1]
@@ -101,9 +103,12 @@ def _incline(angle_deg, mu, basis="quadratic", dim=2, T=0.25, **solver):
     return np.array(t), np.array(v), np.array(x), sim
 
 
-@pytest.mark.parametrize("basis,dim", [("quadratic", 2), pytest.param("gimp", 2, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("basis,dim", [("quadratic", 2), pytest.param("gimp", 2, marks=pytest.mark.slow),
+                                       ("quadratic", 3)])
 def test_block_slides_down_an_inclined_body_at_the_coulomb_acceleration(basis, dim):
-    """tan 30 = 0.58 > mu = 0.3: a = g (sin t - mu cos t) within 2 % (measured 0.01 % in 2D quadratic and gimp);
+    """tan 30 = 0.58 > mu = 0.3: a = g (sin t - mu cos t) within 2 % (measured 0.01 % in 2D quadratic and gimp, and
+    in 3D quadratic, where block and base are flush with both z walls: 5 % slow before the contact normal dropped
+    their mass gradient across a wall, whose extra normal impulse the walls took while friction counted it);
     the friction's dissipation closes the energy balance: what the particles lost beyond it is under 1 % of it
     (measured 0.24 %: the friction's work counted at the slip it leaves; the test would fail by 100 % if the
     friction's work were missing, or by the impact part if the normal correction were counted)."""
@@ -120,13 +125,54 @@ def test_block_slides_down_an_inclined_body_at_the_coulomb_acceleration(basis, d
     assert bal["friction"] == pytest.approx(0.3 * mass * G * np.cos(a) * x[-1], rel=0.01)
 
 
-def test_block_rests_on_an_inclined_body_below_the_friction_angle():
-    """tan 20 = 0.36 < mu = 0.5: the block stays; its drift stays under 1e-3 of g t^2 / 2 (measured 3.7e-4 of it:
-    the block's elastic shear under the slope's pull)."""
+@pytest.mark.parametrize("dim", [2, 3])
+def test_block_rests_on_an_inclined_body_below_the_friction_angle(dim):
+    """tan 20 = 0.36 < mu = 0.5: the block stays; its drift stays under 1e-3 of g t^2 / 2 (measured 3.7e-4 of it
+    in 2D and 3D: the block's elastic shear under the slope's pull)."""
     T = 0.25
-    t, v, x, sim = _incline(20, 0.5, T=T)
+    t, v, x, sim = _incline(20, 0.5, dim=dim, T=T)
     assert np.max(np.abs(x)) < 1e-3 * 0.5 * G * T ** 2
     assert sim.energy_balance()["friction"] < 1e-3 * 0.5 * sim.scene.mass[sim.scene.body == 1].sum() * (G * T) ** 2
+
+
+def test_disk_rolls_down_an_inclined_body():
+    """A disk (r = 0.1, ten cells) on a gripped body with enough friction (mu = 1 > tan(t) / 3, t = 30 deg) rolls:
+    its centre accelerates at 2/3 g sin t (a solid cylinder, I = m r^2 / 2) within 3 %, not at g sin t (sliding).
+    Measured 0.990 of it over 0.3 s (1.5 radii rolled; 0.976 at five cells, dx 0.02). APIC, which keeps the disk's
+    spin (PIC takes it). Before the gap check the disk did not roll (-0.06 of it at dx 0.02): the nodes ahead of the
+    contact point, which the disk shares with the base a stencil away, stopped its front (docs/contact.md, "Gap")."""
+    a, T = np.radians(30), 0.3
+    cfg = make_cfg(2, basis="quadratic", transfer="apic", dx=0.01, model="neo_hookean", E=1.0e6, nu=0.3,
+                   end_time=T, gravity=[G * np.sin(a), -G * np.cos(a)])
+    cfg["domain"].update(upper=[1.0, 0.3])
+    cfg["bodies"] = [dict(name="base", shape=dict(type="box", lower=[0.0, 0.0], upper=[1.0, 0.06]), material="m",
+                          prescribed_velocity=[dict(velocity=[0.0, 0.0])]),
+                     dict(name="disk", shape=dict(type="sphere", center=[0.15, 0.16], radius=0.1), material="m")]
+    cfg["contact"] = dict(method="multi_field", friction=1.0)
+    sim = tm.Simulation(cfg)
+    disk = sim.scene.body == 1
+    m = sim.scene.mass[disk]
+    t, v = [], []
+    while sim.time < T - 1e-12:
+        sim.step(min(sim.stable_dt(), T - sim.time))
+        t.append(sim.time)
+        v.append((sim.particles()["v"][disk, 0] * m).sum() / m.sum())
+    t, v = np.array(t), np.array(v)
+    accel = np.polyfit(t[t > 0.05], v[t > 0.05], 1)[0]
+    assert accel == pytest.approx(2.0 / 3.0 * G * np.sin(a), rel=0.03)
+
+
+def test_surface_offsets_from_the_centroid_of_a_flat_body():
+    """The gap check's curve (contact/surface.py): a body filling everything behind a flat surface through the node
+    has its node-weighted centroid at -int_0 u N / int_0 N: -1/3 cell (linear), -13/32 (quadratic), -7/15 (cubic);
+    with the surface a cell behind the node, quadratic: -9/8 (its mass lies in [-1.5, -1], (1.5 - |u|)^2 / 2)."""
+    from taichi_mpm.extensions.contact.surface import centroid_curve
+    for degree, at0 in ((1, -1.0 / 3.0), (2, -13.0 / 32.0), (3, -7.0 / 15.0)):
+        s, C = centroid_curve(degree)
+        assert np.all(np.diff(C) > 0)   # increasing: the table inverts it
+        assert np.interp(0.0, s, C) == pytest.approx(at0, abs=1e-6)
+    s, C = centroid_curve(2)
+    assert np.interp(-1.0, s, C) == pytest.approx(-9.0 / 8.0, abs=1e-6)
 
 
 def test_contact_section_errors_name_the_key():

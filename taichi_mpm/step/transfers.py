@@ -113,7 +113,7 @@ def make_p2g(ctx, mf, af, external_force):
                 if ti.static(flip):
                     add(gv_old, I, old)
                 if ti.static(own):   # an extension's node fields (multi-field contact: the particle's body field)
-                    nf.scatter(p, I, w, gw, mp, value, old)
+                    nf.scatter(p, I, w, gw, r, mp, value, old)
 
     @ti.func
     def p2g_momentum_particle(p, unused):

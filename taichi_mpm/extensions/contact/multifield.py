@@ -2,24 +2,26 @@
 step extension (step.moments): one velocity field per body or group of bodies (`contact.bodies`) beside the grid's
 own, which stays the centre-of-mass field.
 
-P2G: every particle adds its mass, momentum (with the force impulse), FLIP's old momentum and its mass gradient
-m_p grad w to its own field (NodeFields.scatter), as well as to the grid's. Grid solve (GridSolve.node_fields,
-after the grid's own chain): each field's velocity v_k = p_k / m_k plus gravity, under the walls and its own
-bodies' grips; where two or more fields share a node, with v_cm = sum m_k v_k / sum m_k (a grip's prescribed
-components where a field at the node is gripped: a gripped body is an infinitely heavy one) and the outward normal
-of field k
+P2G: every particle adds its mass, momentum (with the force impulse), FLIP's old momentum, its mass gradient m_p
+grad w and its mass moment about the node w m_p (x_p - x_i) to its own field (NodeFields.scatter), as well as to the
+grid's. Grid solve (GridSolve.node_fields, after the grid's own chain): each field's velocity v_k = p_k / m_k plus
+gravity, under the walls and its own bodies' grips; where two or more fields share a node, with v_cm = sum m_k v_k /
+sum m_k (a grip's prescribed components where a field at the node is gripped: a gripped body is an infinitely heavy
+one) and the outward normal of field k
 
     n_k = g_k / |g_k| for the field of the heaviest bodies at the node (their total mass in the scene), else
     n_k = -g_rest / |g_rest|,    g_k = sum_p in k m_p grad w_ip,  g_rest = sum_(j != k) g_j
 
-(grad w_ip is the weight's gradient in the particle's position, minus its gradient in the node's: g_k points out
-of body k, down its node mass; one side's normal, the larger body's, as Nairn 2013 discusses beside the average
-of both: at a block's corner pressed on a flat face the corner's own gradient tilts, and the block sliding along
-the face would read its own motion as approach there; for two fields n_b = -n_a exactly, so
-the correction conserves momentum), a field approaching the others ((v_k - v_cm) . n_k > 0) loses that normal
-velocity and, by Coulomb's law (friction.friction_loss, the walls' law), mu times it of its tangential velocity
-relative to v_cm, not below zero (the fields then stick); a field moving away is left free. The walls and grips
-act again after the correction. G2P reads each particle's own field (NodeFields.velocity).
+(grad w_ip is the weight's gradient in the particle's position, minus its gradient in the node's: g_k points out of
+body k, down its node mass; one side's normal, the larger body's, as Nairn 2013 discusses beside the average of
+both: at a block's corner pressed on a flat face the corner's own gradient tilts, and the block sliding along the
+face would read its own motion as approach there; for two fields n_b = -n_a exactly, so the correction conserves
+momentum), a field approaching the others ((v_k - v_cm) . n_k > 0) and touching them (the gap between its surface
+and theirs along n_k, each placed from its particles' centroid at the node as if flat (surface.py), closes within
+the step to under TOUCH cells; at a wall node n_k drops its components across the wall: grid's wall condition
+.tangential) loses that normal velocity and, by Coulomb's law (friction.friction_loss, the walls' law), mu times it
+of its tangential velocity relative to v_cm, not below zero (the fields then stick); a field moving away is left
+free. The walls and grips act again after the correction. G2P reads each particle's own field (NodeFields.velocity).
 
 The energy the correction removes is summed per step (sums.Slots): friction's, the tangential impulse's work at
 the slip velocity it leaves, m_k loss . (v_t - loss) (zero where the fields stick: the velocity gravity gives a
@@ -37,6 +39,12 @@ from ...friction import friction_loss
 from ...step.moments import Extension, GridSolve, NodeFields
 from ...sums import Slots
 from .fields import ContactNeeds
+from .surface import surface_offset
+
+# cells of gap still taken as touching: the surfaces' estimates from a few particles at a stencil's tail err by
+# about this much on a flat contact (at 0.05 a block resting on an incline crept 1.5e-3 of g t^2/2, 3.7e-4 at 0.1;
+# a rolling disk lost 5 % of its acceleration at 0.2, docs/contact.md "Gap")
+TOUCH = 0.1
 
 
 class MultiField(Extension):
@@ -70,6 +78,8 @@ class MultiField(Extension):
         self.m = [g.scalar[f"contact_m{k}"] for k in range(self.K)]
         self.p = [g.vec[f"contact_p{k}"] for k in range(self.K)]
         self.g = [g.vec[f"contact_g{k}"] for k in range(self.K)]
+        self.x = [g.vec[f"contact_x{k}"] for k in range(self.K)]
+        self.surface = surface_offset(setup.basis.spec.degree)
         self.o = [g.vec[f"contact_o{k}"] for k in range(self.K)] if self.needs.flip else None
         self.table = ti.field(ti.i32, len(self.field_of_body))   # body -> field
         self.slots = Slots(2)   # the energy the correction removed: friction, normal
@@ -114,16 +124,17 @@ class MultiField(Extension):
 
     def _transfer_funcs(self, ctx):
         K, flip, add = self.K, self.needs.flip, ctx.add
-        body_id, table, m, p, g, o = ctx.body_id, self.table, self.m, self.p, self.g, self.o
+        body_id, table, m, p, g, o, xf = ctx.body_id, self.table, self.m, self.p, self.g, self.o, self.x
 
         @ti.func
-        def scatter(q, I, w, gw, mp, momentum, momentum_old):
+        def scatter(q, I, w, gw, r, mp, momentum, momentum_old):
             k = table[body_id[q]]
             for j in ti.static(range(K)):
                 if k == j:
                     add(m[j], I, w * mp)
                     add(p[j], I, momentum)
                     add(g[j], I, mp * gw)
+                    add(xf[j], I, -w * mp * r)   # the centroid's moment about the node
                     if ti.static(flip):
                         add(o[j], I, momentum_old)
 
@@ -162,6 +173,7 @@ class MultiField(Extension):
     def _node_solve(self, ctx):
         dim, K, mu, flip = self.dim, self.K, self.mu, self.needs.flip
         m, p, g, o, slots, rank = self.m, self.p, self.g, self.o, self.slots, self.rank
+        xf, surface, inv_dx = self.x, self.surface, 1.0 / ctx.dx
         wall, gravity_kick, grip = ctx.wall, ctx.gravity_kick, self._grip_func(ctx)
 
         @ti.func
@@ -170,13 +182,23 @@ class MultiField(Extension):
             return grip(I, wall(I, vel), k)
 
         @ti.func
-        def correct(I, k: ti.template(), v_cm, g_all, first):
+        def gap(I, k: ti.template(), n, mass, x_all):
+            """Cells between field k's surface and the others' along n (< 0: overlap), each surface placed from
+            its centroid at the node as if flat (surface.py)."""
+            mk = m[k][I]
+            own = xf[k][I].dot(n) * inv_dx / mk
+            rest = (x_all - xf[k][I]).dot(n) * inv_dx / (mass - mk)
+            return -surface(-rest) - surface(own)
+
+        @ti.func
+        def correct(I, k: ti.template(), v_cm, g_all, first, mass, x_all, dt, held):
             """Field k's contact correction against the centre of mass; returns the energy it removed (friction,
             normal)."""
             mk = m[k][I]
             n = g[k][I]   # outward of field k: its own mass gradient where it is the heaviest body there, else
             if ti.static(rank[k]) != first:   # minus the others' (inward of them)
                 n -= g_all
+            n = wall.tangential(I, n)   # bodies flush with a wall: their gradient across it is no contact surface
             size = n.norm()
             lost = ti.Vector.zero(float, 2)
             if size > 0:
@@ -184,7 +206,12 @@ class MultiField(Extension):
                 v = p[k][I]
                 rel = v - v_cm
                 into = rel.dot(n)
-                if into > 0:   # approaching the others: compressive contact
+                # the others' approach (into is against v_cm; a gripped field is infinitely heavy)
+                closing = into * ti.select(held, 1.0, mass / (mass - mk))
+                # approaching the others and touching them by the end of the step (Nairn's displacement check,
+                # with the surfaces from the centroids): compressive contact. Without the gap, a field sharing nodes
+                # with another a stencil away was stopped there: a rolling disk's front was held (docs/contact.md)
+                if into > 0 and gap(I, k, n, mass, x_all) - dt * closing * inv_dx < TOUCH:
                     e0 = v.norm_sqr()
                     v -= into * n
                     lost[1] = 0.5 * mk * (e0 - v.norm_sqr())
@@ -201,6 +228,7 @@ class MultiField(Extension):
         def node_fields(I, kick_before, kick_after):
             kick_g = gravity_kick(kick_before, kick_after)
             mass, momentum, g_all = 0.0, ti.Vector.zero(float, dim), ti.Vector.zero(float, dim)
+            x_all = ti.Vector.zero(float, dim)
             present, first = 0, K   # the fields at the node, the heaviest one's rank
             gripped, grip_v = ti.Vector.zero(float, dim), ti.Vector.zero(float, dim)   # a grip's components
             for k in ti.static(range(K)):
@@ -215,6 +243,7 @@ class MultiField(Extension):
                     mass += mk
                     momentum += mk * v
                     g_all += g[k][I]
+                    x_all += xf[k][I]
                     present += 1
                     first = ti.min(first, ti.static(rank[k]))
             if present > 1:
@@ -223,7 +252,8 @@ class MultiField(Extension):
                 lost = ti.Vector.zero(float, 2)
                 for k in ti.static(range(K)):
                     if m[k][I] > 0:
-                        lost += correct(I, k, v_cm, g_all, first)
+                        lost += correct(I, k, v_cm, g_all, first, mass, x_all, 2.0 * kick_after,   # this step's dt
+                                        gripped.max() > 0)
                 slots[0][None] += lost[0]
                 slots[1][None] += lost[1]
         return node_fields
