@@ -365,6 +365,10 @@ class Crack(Strict):
     # those whose neighbours moved against each other by that much are recomputed (all if a damage value changed);
     # 0: recomputed every step (docs/crack_finder.md)
     normal_refresh: Annotated[float, Field(ge=0, le=0.5)] = 0.01
+    # Coulomb friction coefficient across the crack faces and body interfaces in contact (0: frictionless, as the
+    # seed's method): a particle in contact loses mu times the normal impulse contact gave it of its slip
+    # against the other side, not beyond sticking (docs/crack_finder.md, "Friction")
+    friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
 
 
 class Contact(Strict):

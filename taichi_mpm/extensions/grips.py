@@ -72,17 +72,28 @@ class Grips(Extension):
     def _flag_kernel(self, ctx):
         grid, sten, slot, index = ctx.grid, ctx.stencil, self.slot, self.index
         outer, inner = sten.outer, sten.inner
+        pt = ctx.particle_transfer
+        own_side = pt.own_side if pt is not None else None
+        sided = own_side is not None
+
+        @ti.func
+        def holds(p, off):
+            keep = True
+            if ti.static(sided):   # the crack finder: not a node across the particle's crack
+                keep = own_side(p, off)
+            return keep
 
         @ti.kernel
         def flag_grip_nodes():
-            """Mark every node in the support (w > 0) of a gripped particle with its grip (the largest wins)."""
+            """Mark every node in the support (w > 0) of a gripped particle on its side (ParticleTransfer.own_side)
+            with its grip (the largest wins)."""
             for e in slot:
                 p = slot[e]
                 st = sten.at(p)
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
                     I, w, gw, r = sten.node(st, o + inner[k])
-                    if w > 0:
+                    if w > 0 and holds(p, o + inner[k]):
                         ti.atomic_max(grid.vec["grip"][I][0], ti.cast(index[e], float))
         return flag_grip_nodes
 

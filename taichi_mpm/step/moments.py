@@ -151,6 +151,9 @@ class ParticleTransfer:
     p2g: Callable            # (p, st, mp, stress, vp, Ap, force_density, kick)
     p2g_momentum: Callable   # (p, st, mp, vp, Ap): MUSL's remap
     g2p: Callable            # (p, st, deform) -> (v_pic, FLIP increment, APIC B, velocity gradient)
+    # (p, off) -> whether node `off` of p's stencil is on p's own side (the crack finder: not across its
+    # discontinuity); grips hold only such nodes of their particles. None: every node is
+    own_side: Optional[Callable] = None
 
 
 @dataclass(frozen=True)

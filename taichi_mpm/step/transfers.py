@@ -183,7 +183,7 @@ def _moves_F(deform) -> bool:
     return deform in (True, DEFORM_F)
 
 
-def _moves_x(deform) -> bool:
+def moves_x(deform) -> bool:
     return deform in (True, DEFORM_X)
 
 
@@ -317,7 +317,7 @@ def make_g2p(ctx, mf, af, external_force):
         """Positions x += dt v_grid, F = (I + dt grad v) F (fluids keep only J), return mapping, checks.
         deform True: both; DEFORM_F or DEFORM_X: only that (USF updates F before the forces, x after them)."""
         xp = x[p]
-        if ti.static(_moves_x(deform)):
+        if ti.static(moves_x(deform)):
             xp = new_position(p, dt, v_pic)
         Fp = F[p]
         if ti.static(_moves_F(deform)):

@@ -146,6 +146,9 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                   "particle has moved half this fraction of the SPH radius, those whose "
                                   "neighbours moved against each other by that much are recomputed (all if a "
                                   "damage value changed); 0: recomputed every step"),
+    "crack.friction": ("1", "Coulomb friction coefficient mu across crack faces and body interfaces in "
+                            "contact: a contact particle loses mu times its normal impulse of its slip against the "
+                            "other side, never beyond sticking; 0: frictionless (the seed's method)"),
     "materials": ("", "named materials; bodies refer to them by name"),
     "materials.<name>": ("", "one material"),
     # materials.<name>.*: from the models' schemas (taichi_mpm/materials/), added below DESCRIPTIONS

@@ -15,6 +15,8 @@ def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
         ctx.view.x, f.normal, f.state, f.mask, f.sums, f.gsum, f.cent, f.contacts)
     node_mark, node_n = ctx.view.grid.scalar["crack_mark"], ctx.view.grid.vec["crack_n"]
     mask_t, apic, thr, contact = f.mask_t, f.apic, ctx.thr, ctx.contact
+    cnormal = f.cnormal
+    own_normals = cnormal is None
     # tensor stencils: the origin fixes the stencil's nodes; a node's owner (below) follows the particles each step
     reuse_masks = f.cached and sten.origin is not None and not f.sides
     claim_nodes, owned_by_another = node_owner_funcs(ctx)
@@ -31,6 +33,19 @@ def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
         for a in ti.static(range(dim)):
             k = k * grid_shape[a] + ti.cast(b[a], ti.i64)
         return k + 1
+
+    @ti.func
+    def contact_normal(n, heavy, peer):
+        """The normal of a particle in contact (interface bodies): a heavier body's it faces, else the mean of its own
+        and that of a body of its mass (symmetric contact stays symmetric), else its own."""
+        res = n
+        if heavy.norm() > 0:
+            res = -heavy.normalized()
+        elif peer.norm() > 0:
+            mean = n - peer.normalized()
+            if mean.norm() > 1e-6:
+                res = mean.normalized()
+        return res
 
     @ti.func
     def particle_masks(epoch, pool: ti.template()):
@@ -79,11 +94,13 @@ def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
                 if m != 0 and St >= S_FLOOR:
                     st = MODIFIED
                     if ti.static(contact):  # material across within reach, and trial normal traction < 0
-                        vc, touching = closing_speed(p, n, pool)
+                        vc, touching, heavy, peer = closing_speed(p, n, pool)
                         if touching:   # nested: Taichi's `and` evaluates both sides; the stress costs
                             if n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0:
                                 st = CONTACT
                                 contacts[None] += 1
+                                if ti.static(not own_normals):
+                                    cnormal[p] = contact_normal(n, heavy, peer)
                 Sn, Gn, cn = St, Gt, ct
                 if st == CONTACT:   # the normal family keeps the nodes across
                     Sn, Gn, cn = St + Sx, Gt + Gx, ct + cx

@@ -9,7 +9,9 @@ import taichi as ti
 
 class ContactTest(NamedTuple):
     sort_normals: Callable    # func: the normals in cell order, so the searches stream (classify calls it)
-    closing_speed: Callable   # (p, n, pool) -> (kernel-weighted closing speed, whether any q is in reach)
+    # (p, n, pool) -> (kernel-weighted closing speed, whether any q is in reach, the kernel-weighted sums of the
+    # normals of the facing particles of heavier bodies and of bodies of p's mass: zero without interface bodies)
+    closing_speed: Callable
     impedance: Callable       # (p) -> rho c of p's material
 
 
@@ -19,6 +21,8 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
     radius, inv_r, radius2_cut, contact_thr = ctx.radius, ctx.inv_r, ctx.radius2_cut, ctx.contact_thr
     rows_wide, wide_span, wide_reach2 = ctx.rows_wide, ctx.wide_span, ctx.wide_reach2
     listed, contact = f.listed, ctx.contact
+    sides, side = f.sides, f.side
+    side_mass = f.side_mass if sides else [0.0]
     contact_count, contact_start = (f.contact_count, f.contact_start) if listed else (None, None)
     imped = [float(np.sqrt(m.density * (m.lam + 2 * m.mu))) for m in ctx.view.materials]  # rho c
     single_mat = len(f.laws) == 1
@@ -33,14 +37,31 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
                 ns[j] = normal[ids[j]]
 
     @ti.func
-    def contact_term(n, vp, q, d2):
-        """A facing neighbour q at squared distance d2 (< r^2, up to rounding): its kernel weight, and that times
-        its closing speed (v_q - v_p) . n."""
+    def mass_of(s):
+        """The mass of interface side s's body (0 for a particle of no interface body)."""
+        r = 0.0
+        for k in ti.static(range(len(side_mass))):
+            if s == k:
+                r = side_mass[k]
+        return r
+
+    @ti.func
+    def contact_term(n, vp, q, d2, mass_p):
+        """A facing neighbour q at squared distance d2 (< r^2, up to rounding): its kernel weight, that times its
+        closing speed (v_q - v_p) . n, and that times its normal as a heavier body's or one of p's mass (interface
+        bodies)."""
         wk = 0.0
         dist = ti.sqrt(d2)
         if dist < radius:
             wk, _ = sph_kernel(dist * inv_r)
-        return wk, wk * (v[q] - vp).dot(n)
+        heavy, peer = ti.Vector.zero(float, n.n), ti.Vector.zero(float, n.n)
+        if ti.static(sides):
+            mq = mass_of(side[q])
+            if mq > 1.001 * mass_p:
+                heavy = wk * normal[q]
+            elif mq >= 0.999 * mass_p:
+                peer = wk * normal[q]
+        return wk, wk * (v[q] - vp).dot(n), heavy, peer
 
     @ti.func
     def closing_speed(p, n, pool: ti.template()):
@@ -50,6 +71,10 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
         was built), else searches the cell list."""
         xp, vp = x[p], v[p]   # read once: the loops below are the contact test's cost
         sw, sv = 0.0, 0.0
+        sn, se = ti.Vector.zero(float, n.n), ti.Vector.zero(float, n.n)
+        mass_p = 0.0
+        if ti.static(sides):
+            mass_p = mass_of(side[p])
         k = -1
         if ti.static(listed):
             k = contact_count[p]
@@ -62,9 +87,11 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
                 d2 = (xp - x[q]).norm_sqr()
                 if d2 < radius2_cut:
                     if n.dot(normal[q]) < -contact_thr:
-                        wk, wv = contact_term(n, vp, q, d2)
+                        wk, wv, wn, we = contact_term(n, vp, q, d2, mass_p)
                         sw += wk
                         sv += wv
+                        sn += wn
+                        se += we
         else:   # the cell list holds the last refresh's positions: search the reach they can close to
             xl = listed_at(p)
             c = cell_of(xl)
@@ -76,13 +103,15 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
                     d2 = (xp - x[q]).norm_sqr()
                     if d2 < radius2_cut:
                         if n.dot(ns[j]) < -contact_thr:   # few neighbours face p: test before the sqrt
-                            wk, wv = contact_term(n, vp, q, d2)
+                            wk, wv, wn, we = contact_term(n, vp, q, d2, mass_p)
                             sw += wk
                             sv += wv
+                            sn += wn
+                            se += we
         res = 0.0
         if sw > 0:
             res = sv / sw
-        return res, sw > 0
+        return res, sw > 0, sn, se
 
     @ti.func
     def impedance(p):

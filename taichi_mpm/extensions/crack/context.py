@@ -35,9 +35,10 @@ class CrackContext:
     wide_reach2: float
     rows_wide: list
     wide2: float
+    friction_lost: Any      # sums.Slots(1): the energy friction dissipated (crack.friction), or None
 
 
-def crack_context(fields, view, cc, kernel_ctx) -> CrackContext:
+def crack_context(fields, view, cc, kernel_ctx, friction_lost=None) -> CrackContext:
     dim, radius = fields.dim, fields.radius
     radius2 = radius * radius
     inv_cell = CELL_SPLIT / radius
@@ -51,4 +52,4 @@ def crack_context(fields, view, cc, kernel_ctx) -> CrackContext:
                         gthr=float(cc.gradient_threshold), contact_thr=max(thr, 0.0),
                         contact=bool(cc.contact_in_compression), rows=nbr[:-1], nbr=nbr, wide_span=wide_span,
                         wide_reach2=wide_cells * wide_cells, rows_wide=[(-wide_span, wide_span + 1)] * (dim - 1),
-                        wide2=(wide_cells / inv_cell) ** 2 * (1 + 1e-4))
+                        wide2=(wide_cells / inv_cell) ** 2 * (1 + 1e-4), friction_lost=friction_lost)

@@ -16,13 +16,15 @@ from ...schemes import get as transfer_scheme
 from .constants import ALL, CELL_SPLIT, MAX_CELLS
 
 
-def grid_fields(dim: int, sides: int = 0) -> tuple[list[str], list[str]]:
+def grid_fields(dim: int, sides: int = 0, friction: bool = False) -> tuple[list[str], list[str]]:
     """The crack finder's fields in the solver's grid (cleared with it each step): vectors (the rows of the
-    anisotropic node mass A_i, the node normal) and scalars (the node's mark: 1 in a near particle's stencil,
-    2 on the discontinuity; with two or more interface bodies, the largest weight an interface body's particle
-    has at the node and that body, its owner)."""
+    anisotropic node mass A_i, the node normal; with friction, the contact's momentum at the node, then the velocity
+    contact gave it) and scalars (the node's mark: 1 in a near particle's stencil, 2 on the discontinuity; with two
+    or more interface bodies, the largest weight an interface body's particle has at the node and that body, its
+    owner; with friction, the node mass of the particles in contact)."""
     owners = ["crack_wmax", "crack_owner"] if sides else []
-    return [f"A{a}" for a in range(dim)] + ["crack_n"], ["crack_mark"] + owners
+    vectors = [f"A{a}" for a in range(dim)] + ["crack_n"] + (["crack_dv"] if friction else [])
+    return vectors, ["crack_mark"] + owners + (["crack_mc"] if friction else [])
 
 
 def interface_sides(bodies) -> list[int]:
@@ -55,6 +57,7 @@ class CrackNeeds:
     contact: bool          # crack.contact_in_compression: normals in cell order, contact lists
     kept_normals: bool     # crack.normal_refresh > 0
     sides: int = 0         # interface bodies when two or more: each node's owner tells them apart (classify)
+    friction: bool = False  # crack.friction > 0 (with contact): the node field of contact's velocity change
 
     @classmethod
     def of(cls, cfg, materials, basis) -> "CrackNeeds":
@@ -62,15 +65,16 @@ class CrackNeeds:
         # an affine transfer's centroid field (config allows apic only of the affine ones with a crack section)
         return cls(dim=cfg.dim, apic=transfer_scheme(cfg.solver.transfer).affine, has_law=has_damage_law(materials),
                    stencil_nodes=basis.contributions(cfg.dim), contact=bool(cc.contact_in_compression),
-                   kept_normals=cc.normal_refresh > 0, sides=max(interface_sides(cfg.bodies)) + 1)
+                   kept_normals=cc.normal_refresh > 0, sides=max(interface_sides(cfg.bodies)) + 1,
+                   friction=bool(cc.contact_in_compression) and cc.friction > 0)
 
     @property
     def grid_vectors(self) -> list[str]:
-        return grid_fields(self.dim, self.sides)[0]
+        return grid_fields(self.dim, self.sides, self.friction)[0]
 
     @property
     def grid_scalars(self) -> list[str]:
-        return grid_fields(self.dim, self.sides)[1]
+        return grid_fields(self.dim, self.sides, self.friction)[1]
 
     def mask_type(self) -> str:
         return "u64" if self.stencil_nodes > 32 else "u32"   # bit k: stencil node k lies across the discontinuity
@@ -82,7 +86,9 @@ class CrackNeeds:
                 + [FieldDecl("normal", "real", (d,)), FieldDecl("state", "i32"), FieldDecl("mask", self.mask_type()),
                    FieldDecl("sums", "real", (2,)), FieldDecl("gsum", "real", (2, d))]
                 + ([FieldDecl("cent", "real", (2, d), "apic")] if self.apic else [])
-                + ([FieldDecl("side", "i32", (), "two or more interface bodies")] if self.sides else []))
+                + ([FieldDecl("side", "i32", (), "two or more interface bodies")] if self.sides else [])
+                + ([FieldDecl("cnormal", "real", (d,), "contact between interface bodies")]
+                   if self.sides and self.contact else []))
 
     def cell_order_fields(self, d: int) -> list[FieldDecl]:
         """Per particle: its cell, the cell order, positions, SPH weights (and normals) in cell order."""
@@ -135,8 +141,13 @@ class CrackFields:
         self.apic = view.apic
         self.needs = CrackNeeds(dim=d, apic=view.apic, has_law=self.has_law, stencil_nodes=self.n_nodes,
                                 contact=bool(cc.contact_in_compression), kept_normals=cc.normal_refresh > 0,
-                                sides=int(view.side.max(initial=-1)) + 1)
+                                sides=int(view.side.max(initial=-1)) + 1,
+                                friction=bool(cc.contact_in_compression) and cc.friction > 0)
         self.sides = self.needs.sides
+        # per side, the mass of its body: in contact, a particle takes the normal of a heavier body it faces (Nairn
+        # 2013), so a block's corner pressed on a flat face couples along the face's normal, not along its own
+        # tilted one; facing a body of its own mass (within 0.1 %), the mean of both normals
+        self.side_mass = [float(view.mass[view.side == k].sum()) for k in range(self.sides)]
         self._particle_fields(d, n, cc)
         self._cell_list(d, n, cc)
         # normals kept between steps (crack.normal_refresh). Once a particle has moved half the skin since the last
@@ -155,6 +166,7 @@ class CrackFields:
         self.kappa = getattr(self, "kappa", None)
         self.cent = getattr(self, "cent", None)         # rows: sum_i N~ (x_i - x_p), APIC only
         self.side = getattr(self, "side", None)         # the particle's interface body (-1: none), sides only
+        self.cnormal = getattr(self, "cnormal", None)   # a particle in contact: the normal its transfers use
         self.contacts = ti.field(ti.i32, ())            # particles in contact this step (CONTACT)
         self.mask_t = ti.u64 if self.needs.mask_type() == "u64" else ti.u32
 

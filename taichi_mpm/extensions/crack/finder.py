@@ -7,6 +7,7 @@ solve's node solve on steps with contact (GridSolve)."""
 import numpy as np
 
 from ...field_decl import nbytes
+from ...sums import Slots
 
 from .cells import bin_cells_kernel, cell_list_funcs
 from .classify import classify_kernel
@@ -56,6 +57,9 @@ class CrackFinder(Extension):
     def allocate(self, setup):
         self.view = view_of(setup)   # everything the finder reads of the scene and the solver's fields
         self.fields = CrackFields(self.view, self.cc)
+        # the energy friction dissipated (crack.friction): this run's sum, and what a state set before it held
+        self.friction_lost = Slots(1) if self.fields.needs.friction else None
+        self._friction_before = 0.0
 
     def before_p2g(self):
         self.update()
@@ -70,14 +74,25 @@ class CrackFinder(Extension):
     def outputs(self) -> dict:
         return {"damage": self.damage()}
 
+    def dissipation(self) -> dict:
+        """J friction dissipated since the start (crack.friction), for the energy balance."""
+        if self.friction_lost is None:
+            return {}
+        return {"friction": float(self.friction_lost.to_numpy()[0]) + self._friction_before}
+
     def get_state(self) -> dict:
-        return get_state(self)
+        state = get_state(self)
+        state.update({"crack_friction_dissipated": self.dissipation()["friction"]} if self.friction_lost else {})
+        return state
 
     def check_state(self, state: dict):
         check_state(self, state)
 
     def set_state(self, state: dict):
         set_state(self, state)
+        if self.friction_lost is not None:
+            self.friction_lost.from_numpy(np.zeros(1))
+            self._friction_before = float(state.get("crack_friction_dissipated", 0.0))
 
     # what tests, probes and benchmarks inspect
     @property
@@ -169,7 +184,7 @@ class CrackFinder(Extension):
     def build(self, kernel_ctx):
         """Build the crack finder's funcs and kernels from the step context (step.StepContext): its stencil of
         (node, weight, gradient, offset) contributions and material funcs; add its contributions to it."""
-        ctx = crack_context(self.fields, self.view, self.cc, kernel_ctx)
+        ctx = crack_context(self.fields, self.view, self.cc, kernel_ctx, self.friction_lost)
         cells = cell_list_funcs(ctx)
         sph = sph_funcs(ctx, cells)
         damage = damage_funcs(ctx)
@@ -185,7 +200,8 @@ class CrackFinder(Extension):
                        node_cache_size=node_cache.size, node_cache_read=node_cache.read,
                        node_cache_write=node_cache.write)
         kernel_ctx.contribute("particle_transfer", ParticleTransfer(
-            takes=shape.modified, p2g=moves.p2g, p2g_momentum=moves.p2g_momentum, g2p=moves.g2p))
+            takes=shape.modified, p2g=moves.p2g, p2g_momentum=moves.p2g_momentum, g2p=moves.g2p,
+            own_side=shape.own_side))
         kernel_ctx.contribute("degradation", Degradation(stress=damage.degrade, energy=damage.degrade_energy))
         kernel_ctx.grid_solve.append(tensor_grid_solve(ctx))   # the tensor node mass, on steps with contact
 

@@ -14,6 +14,7 @@ class ShapeFunctions(NamedTuple):
     family: Callable          # (p) -> p's mask, contact flag, reciprocal sums and gradient sums
     tangential: Callable      # (fam, off, w, gw) -> (Nt, grad Nt) of one node
     normal_family: Callable   # (fam, w, gw) -> (Nn, grad Nn) of one node
+    own_side: Callable        # (p, off) -> node off of p's stencil is not across p's discontinuity
 
 
 def shape_function_funcs(ctx) -> ShapeFunctions:
@@ -52,4 +53,12 @@ def shape_function_funcs(ctx) -> ShapeFunctions:
         wn = w * iSn
         return wn, (gw - wn * Gn) * iSn
 
-    return ShapeFunctions(modified=modified, family=family, tangential=tangential, normal_family=normal_family)
+    @ti.func
+    def own_side(p, off):
+        across = ti.cast(0, mask_t)
+        if state[p] != STANDARD:
+            across = (mask[p] >> ti.cast(sten.index(off), mask_t)) & ti.cast(1, mask_t)
+        return across == 0
+
+    return ShapeFunctions(modified=modified, family=family, tangential=tangential, normal_family=normal_family,
+                          own_side=own_side)

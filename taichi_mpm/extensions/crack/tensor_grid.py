@@ -1,7 +1,10 @@
 """The crack finder's part of the grid solve: a tensor node mass M_i = m_i I + A_i (A_i from particles in contact),
 v_i = M_i^+ p_i. The solver's one grid-solve chain (step.grid_update) takes it as its node solve on steps where a
 particle is in contact (CrackFinder.node_solve_active); gravity, walls and grips follow in the chain as for every
-node."""
+node. With crack.friction, its acceleration term turns the momentum contact added at a node into the velocity it
+changed there: (p_c - A v) / m, p_c the terms in P2G's momentum that only particles in contact add, v the node's
+velocity from the tensor mass before gravity; the sides apart (each particle through its own side's nodes) would
+give (p - p_c) / m, and M v = p. G2P's friction reads it (transfer.friction_at)."""
 
 import taichi as ti
 
@@ -14,6 +17,7 @@ def tensor_grid_solve(ctx) -> GridSolve:
     Arows = [grid.vec[f"A{a}"] for a in range(dim)]
     node_mark = grid.scalar["crack_mark"]
     tol = 1e-12 if ctx.view.precision == "f64" else 1e-6   # pseudo-inverse cut-off, relative
+    gdv, gravity_kick = grid.vec.get("crack_dv"), ctx.solver.gravity_kick
 
     @ti.func
     def tensor(I):
@@ -50,4 +54,12 @@ def tensor_grid_solve(ctx) -> GridSolve:
     def velocity(I, m, p):
         return solve(m, tensor(I), p)
 
-    return GridSolve(has_mass=has_mass, velocity=velocity)
+    @ti.func
+    def contact_change(I, vel, m, kick_before, kick_after):
+        if node_mark[I] > 0 and m > 0:
+            v = vel - gravity_kick(kick_before, kick_after)
+            gdv[I] = (gdv[I] - tensor(I) @ v) / m
+        return vel
+
+    return GridSolve(has_mass=has_mass, velocity=velocity,
+                     accelerate=contact_change if ctx.fields.needs.friction else None)

@@ -1,9 +1,13 @@
 """P2G and G2P of a particle near a discontinuity through the tensor weights W_ip = Nt I + (Nn - Nt) n n^T: the
-@ti.funcs the solver's transfer kernels call for such particles (its ParticleTransfer: p2g, p2g_momentum, g2p)."""
+@ti.funcs the solver's transfer kernels call for such particles (its ParticleTransfer: p2g, p2g_momentum, g2p).
+With crack.friction, G2P gives a particle in contact Coulomb friction against the other side (friction_at)."""
 
 from typing import Callable, NamedTuple
 
 import taichi as ti
+
+from ...friction import friction_loss
+from ...step.transfers import moves_x
 
 
 class Transfers(NamedTuple):
@@ -14,12 +18,16 @@ class Transfers(NamedTuple):
 
 def transfer_funcs(ctx, sf) -> Transfers:
     f, dim, sten, add, vgrad = ctx.fields, ctx.fields.dim, ctx.solver.stencil, ctx.solver.add, ctx.solver.vgrad
-    normal, cent = f.normal, f.cent
+    normal, cent = f.normal if f.cnormal is None else f.cnormal, f.cent   # the normal of a particle in contact
     grid, flip, apic = ctx.view.grid, ctx.view.flip, ctx.view.apic
     gm, gv = grid.m, grid.vec["v"]
     gv_old, gv2 = grid.vec.get("v_old"), grid.vec.get("v2")
     Arows = [grid.vec[f"A{a}"] for a in range(dim)]
     family, tangential, normal_family = sf.family, sf.tangential, sf.normal_family
+    mu = float(ctx.cc.friction)
+    friction = f.needs.friction
+    gdv, gmc = (grid.vec["crack_dv"], grid.scalar["crack_mc"]) if friction else (None, None)
+    lost, density, vol0 = ctx.friction_lost, ctx.solver.density, ctx.view.vol0
 
     @ti.func
     def momentum_origins(p, vp, Ap):
@@ -60,7 +68,11 @@ def transfer_funcs(ctx, sf) -> Transfers:
                 dw = wn - wt
                 f_n = stress @ gn + wn * force_density
                 mom_n = node_momentum(vn, Ap, r)
-                mv += (mp * (wn * n.dot(mom_n) - wt * n.dot(mom_t)) + kick * n.dot(f_n - f_t)) * n
+                across = (mp * (wn * n.dot(mom_n) - wt * n.dot(mom_t)) + kick * n.dot(f_n - f_t)) * n
+                mv += across
+                if ti.static(friction):   # the momentum contact adds here (tensor_grid: its velocity change)
+                    add(gdv, I, across)
+                    add(gmc, I, mp * wt)
                 for a in ti.static(range(dim)):
                     add(Arows[a], I, mp * dw * n[a] * n)
             add(gm, I, wt * mp)   # plain adds inside the solver's colour loop (no other thread at this node)
@@ -86,6 +98,22 @@ def transfer_funcs(ctx, sf) -> Transfers:
             add(gv2, I, mv)
 
     @ti.func
+    def friction_at(p, n, v_pic, contact_dv, far_v, far_w):
+        """Coulomb friction of a particle in contact: contact changed its velocity by contact_dv (the grid's
+        coupled velocities against those of the sides apart, tensor_grid); the compressive part along -n (n points
+        across) is the normal impulse per mass `into`; the particle's slip is its tangential velocity against the
+        nodes across (far_v / far_w, their mean in Nn); friction takes mu into of it, not beyond sticking
+        (friction.friction_loss, the walls' and multi-field contact's law). Returns the velocity it takes off and
+        the slip."""
+        loss, slip = ti.Vector.zero(float, dim), ti.Vector.zero(float, dim)
+        into = -n.dot(contact_dv)
+        if into > 0 and far_w > 0:
+            rel = v_pic - far_v / far_w
+            slip = rel - n.dot(rel) * n
+            loss = friction_loss(slip, into, mu)
+        return loss, slip
+
+    @ti.func
     def g2p(p, st, deform: ti.template()):
         """(v_pic, FLIP increment, APIC B, velocity gradient G) with the modified functions.
         APIC's affine C of such a particle is its velocity gradient: B = G D_p makes the solver's
@@ -95,6 +123,7 @@ def transfer_funcs(ctx, sf) -> Transfers:
         v_pic = ti.Vector.zero(float, dim)
         dv = ti.Vector.zero(float, dim)
         G = ti.Matrix.zero(float, dim, dim)
+        contact_dv, far_v, far_w = ti.Vector.zero(float, dim), ti.Vector.zero(float, dim), 0.0   # friction's sums
         for o in ti.grouped(ti.ndrange(*sten.outer)):
           for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split of the stencil loop)
             off = o + sten.inner[k]
@@ -115,6 +144,24 @@ def transfer_funcs(ctx, sf) -> Transfers:
                 v_pic += (wn - wt) * n.dot(vi) * n
                 dv += (wn - wt) * n.dot(dvi) * n
                 G += (n.dot(vg) * n).outer_product(gn - gt)
+                if ti.static(friction):
+                    # the node's change in full to its particles in contact, the others' share included: their
+                    # friction then takes mu times the whole normal impulse (sum_p m_p wt = the node's mass)
+                    share = 0.0
+                    if gmc[I] > 0:
+                        share = gm[I] / gmc[I]
+                    contact_dv += (wn - wt) * n.dot(vi) * n + wt * share * gdv[I]
+                    if wt == 0:   # a node across
+                        far_v += wn * vi
+                        far_w += wn
+        if ti.static(friction):
+            if fam[1]:
+                loss, slip = friction_at(p, n, v_pic, contact_dv, far_v, far_w)
+                v_pic -= loss
+                dv -= loss
+                if ti.static(moves_x(deform)):   # once a step (MUSL and USF read the grid twice)
+                    # the friction impulse's work at the slip it leaves (none where the particle sticks)
+                    lost[0][None] += density(p) * vol0[p] * loss.dot(slip - loss)
         return v_pic, dv, G @ sten.inertia(st), G
 
     return Transfers(p2g=p2g, p2g_momentum=p2g_momentum, g2p=g2p)

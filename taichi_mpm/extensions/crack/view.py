@@ -34,6 +34,7 @@ class SimView:
     v: Any
     F: Any
     vol0: Any
+    mass: np.ndarray                # the scene's particle masses, creation order
     to_solver: Callable             # per-particle array: creation order -> solver slots
     to_creation: Callable           # and back
     perm: Callable                  # () -> the solver slots' creation indices (set when particles are uploaded)
@@ -46,5 +47,6 @@ def view_of(setup) -> SimView:
     return SimView(dim=s.dim, n=s.n, dx=s.dx, lower=s.lower, upper=s.upper, n_cells=s.n_cells, crack=s.cfg.crack,
                    precision=s.precision, spacing=s.scene.spacing, damage=s.scene.damage,
                    interface=s.scene.interface, side=side, basis=s.basis, materials=s.materials, apic=f.apic,
-                   flip=f.flip, musl=f.musl, grid=s.grid, x=s.x, v=s.v, F=s.F, vol0=s.vol0, to_solver=s.to_solver,
+                   flip=f.flip, musl=f.musl, grid=s.grid, x=s.x, v=s.v, F=s.F, vol0=s.vol0, mass=s.scene.mass,
+                   to_solver=s.to_solver,
                    to_creation=s.to_creation, perm=s.perm)

@@ -1,0 +1,57 @@
+"""Coulomb friction across body interfaces in the crack finder (crack.friction, issue 27): a block slides down a
+gripped base (2D plane strain, gravity tilted by theta). docs/crack_finder.md, "Friction", has the figures."""
+import numpy as np
+import pytest
+
+import taichi_mpm as tm
+
+G, T = 9.81, 0.15
+
+
+def incline(theta_deg, mu):
+    """Mass-weighted velocity history along the slope of a 0.2 x 0.1 m block on a 1 x 0.1 m base held by a grip,
+    both interface bodies (their contact is the crack finder's)."""
+    a = np.radians(theta_deg)
+    mat = dict(model="neo_hookean", E=2.0e5, nu=0.3, density=1000)
+    cfg = dict(name="incline", dim=2, precision="f64", arch="cpu",
+               domain=dict(lower=[0, 0], upper=[1.0, 0.3], dx=0.05, boundaries=dict(default="free")),
+               solver=dict(basis="quadratic", transfer="pic", cfl=0.4, end_time=T,
+                           gravity=[G * np.sin(a), -G * np.cos(a)]), materials=dict(m=mat),
+               bodies=[dict(name="base", shape=dict(type="box", lower=[0, 0], upper=[1.0, 0.1]), material="m",
+                            interface=True, prescribed_velocity=[dict(velocity=[0.0, 0.0])]),
+                       dict(name="block", shape=dict(type="box", lower=[0.1, 0.1], upper=[0.3, 0.2]),
+                            material="m", interface=True)],
+               crack=dict(threshold=0.0, contact_in_compression=True, friction=mu))
+    sim = tm.Simulation(tm.load_config(cfg))
+    block = sim.scene.body == 1
+    m = sim.scene.mass[block]
+    t, v = [], []
+    while sim.time < T - 1e-12:
+        sim.step(min(sim.stable_dt(), T - sim.time))
+        t.append(sim.time)
+        v.append((sim.particles()["v"][block, 0] * m).sum() / m.sum())
+    return np.array(t), np.array(v), sim
+
+
+@pytest.mark.parametrize("mu", [0.0, 0.3])
+def test_block_slides_down_an_incline_with_coulomb_friction(mu):
+    """At theta = 30 deg the block's acceleration (a line fitted to its velocity after 0.05 s) against Coulomb's
+    g (sin theta - mu cos theta). Measured: 0.94 of it at mu 0 (an unexplained drag), 1.20 at mu 0.3 (friction
+    takes 0.7 of mu N). Asserted: 0.85 to 1.05 at mu 0, 0.85 to 1.35 at mu 0.3: a welded interface gives 0 (the
+    base does not move), a frictionless one at mu 0.3 1.95, friction twice too strong 0. The friction work at
+    mu 0.3 lies between 0.4 and 1.1 of mu N times the distance slid; none at mu 0."""
+    t, v, sim = incline(30.0, mu)
+    a = np.radians(30.0)
+    ref = G * (np.sin(a) - mu * np.cos(a))
+    late = t > 0.05
+    accel = np.polyfit(t[late], v[late], 1)[0]
+    assert 0.85 * ref < accel < (1.05 if mu == 0 else 1.35) * ref, (accel, ref)
+    slid = np.trapezoid(v, t) if hasattr(np, "trapezoid") else np.trapz(v, t)
+    block_mass = sim.scene.mass[sim.scene.body == 1].sum()
+    work = sim.energy_balance().get("friction", 0.0)
+    if mu == 0:
+        assert work == 0.0
+    else:
+        normal_work = mu * block_mass * G * np.cos(a) * slid
+        print(f"friction work {work:.3f} J, mu N d {normal_work:.3f} J")
+        assert 0.4 * normal_work < work < 1.1 * normal_work, (work, normal_work)
