@@ -85,13 +85,18 @@ _STYPE_8BIT_STORAGE = 1000177000                   # VkPhysicalDevice8BitStorage
 def _vulkan_library():
     names = {"darwin": ["libvulkan.1.dylib", "libMoltenVK.dylib"], "win32": ["vulkan-1.dll"]}.get(
         sys.platform, ["libvulkan.so.1", "libvulkan.so"])
-    found = ctypes.util.find_library("vulkan")
-    for name in names + ([found] if found else []):
+    for name in names:
         try:
             return ctypes.CDLL(name)
         except OSError:
             continue
-    return None
+    # elsewhere than Linux, where the loader's soname is fixed: on Linux find_library runs `ldconfig -p`, a
+    # process (also under `taichi-mpm validate`), for a name libvulkan.so.1 already covers
+    found = ctypes.util.find_library("vulkan") if not sys.platform.startswith("linux") else None
+    try:
+        return ctypes.CDLL(found) if found else None
+    except OSError:
+        return None
 
 
 @lru_cache(maxsize=1)

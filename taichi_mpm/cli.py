@@ -349,6 +349,7 @@ def _run(cfg, args) -> int:
         sim = Simulation(cfg)
     run = Run(sim, args.out, resume=args.resume, overwrite=args.overwrite)  # an OSError: main's exit 4
     if args.resume and run.done:
+        run.lock.release()   # the folder is free again (no run.lock left behind)
         if not args.quiet:
             print(f"nothing to do: {run.out_dir} is already at t={sim.time:g} = solver.end_time", file=sys.stderr)
         return EXIT_OK

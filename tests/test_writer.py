@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
+import taichi_mpm as tm
 from conftest import make_cfg
 from taichi_mpm.cli import main
 from taichi_mpm.config import ConfigError, validate
@@ -173,7 +174,8 @@ def test_a_run_killed_while_the_writer_is_busy_loses_nothing_and_resumes_bit_for
         if p.poll() is None:
             p.kill()
             p.wait()
-    assert p.returncode == 128 + sig and "Traceback" not in err, err
+    # 128 + sig; 0 when the signal came during the last step (the run then completes; test below)
+    assert p.returncode in (128 + sig, 0) and "Traceback" not in err, err
     assert not list(out.rglob(".*.tmp*"))                         # no partial file
     state, meta = io.load_checkpoint(out / io.CHECKPOINT_NAME)    # the stop's state, after every output before it
     series = io.series(out)
@@ -187,3 +189,33 @@ def test_a_run_killed_while_the_writer_is_busy_loses_nothing_and_resumes_bit_for
     for k in a:
         assert a[k] == b[k], k                                    # bit for bit (deterministic mode)
     same_checkpoint(tmp_path / "full" / io.CHECKPOINT_NAME, out / io.CHECKPOINT_NAME)
+
+
+@pytest.mark.parametrize("stop_at", [0.02, 0.06])
+def test_a_stop_on_a_step_that_lands_on_an_output_time_keeps_that_output(tmp_path, stop_at):
+    """A stop asked during the step that reaches an output time (0.02: mid-run) writes that output before the
+    checkpoint; the resumed run then writes every later one, bit for bit as an uninterrupted run. (Before: the
+    stop came first, the resumed run aimed at the output after the state's time and skipped this one; seen when
+    a SIGTERM landed on such a step.) Asked during the last step (0.06), the run completes: nothing is left to
+    do, and a --resume says so and leaves the folder as the uninterrupted run's (no run.lock)."""
+    from taichi_mpm.io.runner import Interrupted, Run
+
+    path = scene(tmp_path)
+    assert main(["run", str(path), "--quiet", "--out", str(tmp_path / "full")]) == 0
+    run = Run(tm.Simulation(tm.load_config(path)), tmp_path / "cut")
+
+    def stop_on_the_step_reaching(s):
+        if abs(s.time - stop_at) < 1e-12:
+            run.stop_requested = True
+
+    if stop_at < 0.06:
+        with pytest.raises(Interrupted):
+            run.execute(on_step=stop_on_the_step_reaching)
+    else:
+        run.execute(on_step=stop_on_the_step_reaching)
+    assert run.index == round(stop_at / 0.01) + 1        # the output at stop_at is written
+    assert main(["run", str(path), "--quiet", "--out", str(tmp_path / "cut"), "--resume"]) == 0
+    a, b = folder(tmp_path / "full"), folder(tmp_path / "cut")
+    assert sorted(a) == sorted(b)
+    for k in a:
+        assert a[k] == b[k], k

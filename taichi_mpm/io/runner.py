@@ -592,11 +592,16 @@ class Run:
             if self.index == 0:
                 self(sim)
 
+            target = self.next_time()
+
             def after_step(s):
                 self.probes.on_step(s)
                 if on_step is not None:
                     on_step(s)
-                if self.stop_requested:
+                # a step that lands on an output time writes that output before the stop (the loop's check below
+                # stops then; after the last step the run completes): a resumed run aims at the output after its
+                # state's time and would skip this one
+                if self.stop_requested and s.time < target - 1e-12 * max(1.0, abs(target)):
                     self._stop()
 
             while not self.done:
