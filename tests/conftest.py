@@ -44,6 +44,24 @@ def cfg_factory():
     return lambda *a, **k: copy.deepcopy(make_cfg(*a, **k))
 
 
+def body_motion(sim, body, end_time, axis=0):
+    """Step `sim` to end_time at its stable step: the times, and body `body`'s mass-weighted velocity and
+    displacement along `axis` after each step."""
+    import numpy as np
+
+    sel = sim.scene.body == body
+    m = sim.scene.mass[sel]
+    x0 = (sim.scene.x[sel, axis] * m).sum() / m.sum()
+    t, v, x = [], [], []
+    while sim.time < end_time - 1e-12:
+        sim.step(min(sim.stable_dt(), end_time - sim.time))
+        p = sim.particles()
+        t.append(sim.time)
+        v.append((p["v"][sel, axis] * m).sum() / m.sum())
+        x.append((p["x"][sel, axis] * m).sum() / m.sum() - x0)
+    return np.array(t), np.array(v), np.array(x)
+
+
 def velocity_along(sim, direction, end_time):
     """Step `sim` to end_time at its stable step: the times and the centre-of-mass velocity along `direction`
     (a unit vector) after each step."""

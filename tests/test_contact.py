@@ -13,7 +13,7 @@ import yaml
 
 import taichi_mpm as tm
 from taichi_mpm.config import load_config
-from conftest import fast_subset, make_cfg
+from conftest import body_motion, fast_subset, make_cfg
 
 G = 9.81
 
@@ -90,17 +90,7 @@ def _incline(angle_deg, mu, basis="quadratic", dim=2, T=0.25, **solver):
                                  material="m", prescribed_velocity=[dict(velocity=[0.0] * dim)]))
     cfg["contact"] = dict(method="multi_field", friction=mu)
     sim = tm.Simulation(cfg)
-    slider = sim.scene.body == 1
-    m = sim.scene.mass[slider]
-    x0 = (sim.scene.x[slider, 0] * m).sum() / m.sum()
-    t, v, x = [], [], []
-    while sim.time < T - 1e-12:
-        sim.step(min(sim.stable_dt(), T - sim.time))
-        p = sim.particles()
-        t.append(sim.time)
-        v.append((p["v"][slider, 0] * m).sum() / m.sum())
-        x.append((p["x"][slider, 0] * m).sum() / m.sum() - x0)
-    return np.array(t), np.array(v), np.array(x), sim
+    return (*body_motion(sim, 1, T), sim)
 
 
 @pytest.mark.parametrize("basis,dim", [("quadratic", 2), pytest.param("gimp", 2, marks=pytest.mark.slow),
@@ -150,14 +140,7 @@ def test_disk_rolls_down_an_inclined_body():
                      dict(name="disk", shape=dict(type="sphere", center=[0.15, 0.16], radius=0.1), material="m")]
     cfg["contact"] = dict(method="multi_field", friction=1.0)
     sim = tm.Simulation(cfg)
-    disk = sim.scene.body == 1
-    m = sim.scene.mass[disk]
-    t, v = [], []
-    while sim.time < T - 1e-12:
-        sim.step(min(sim.stable_dt(), T - sim.time))
-        t.append(sim.time)
-        v.append((sim.particles()["v"][disk, 0] * m).sum() / m.sum())
-    t, v = np.array(t), np.array(v)
+    t, v, _ = body_motion(sim, 1, T)
     accel = np.polyfit(t[t > 0.05], v[t > 0.05], 1)[0]
     assert accel == pytest.approx(2.0 / 3.0 * G * np.sin(a), rel=0.03)
 

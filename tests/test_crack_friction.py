@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 import taichi_mpm as tm
+from conftest import body_motion
 
 G, T = 9.81, 0.15
 
@@ -23,14 +24,8 @@ def incline(theta_deg, mu):
                             material="m", interface=True)],
                crack=dict(threshold=0.0, contact_in_compression=True, friction=mu))
     sim = tm.Simulation(tm.load_config(cfg))
-    block = sim.scene.body == 1
-    m = sim.scene.mass[block]
-    t, v = [], []
-    while sim.time < T - 1e-12:
-        sim.step(min(sim.stable_dt(), T - sim.time))
-        t.append(sim.time)
-        v.append((sim.particles()["v"][block, 0] * m).sum() / m.sum())
-    return np.array(t), np.array(v), sim
+    t, v, _ = body_motion(sim, 1, T)
+    return t, v, sim
 
 
 @pytest.mark.parametrize("mu", [0.0, 0.3])

@@ -592,8 +592,6 @@ class Run:
             if self.index == 0:
                 self(sim)
 
-            target = self.next_time()
-
             def after_step(s):
                 self.probes.on_step(s)
                 if on_step is not None:

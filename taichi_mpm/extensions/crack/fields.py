@@ -64,9 +64,14 @@ class CrackNeeds:
         cc = cfg.crack
         # an affine transfer's centroid field (config allows apic only of the affine ones with a crack section)
         return cls(dim=cfg.dim, apic=transfer_scheme(cfg.solver.transfer).affine, has_law=has_damage_law(materials),
-                   stencil_nodes=basis.contributions(cfg.dim), contact=bool(cc.contact_in_compression),
-                   kept_normals=cc.normal_refresh > 0, sides=max(interface_sides(cfg.bodies)) + 1,
-                   friction=bool(cc.contact_in_compression) and cc.friction > 0)
+                   stencil_nodes=basis.contributions(cfg.dim), sides=max(interface_sides(cfg.bodies)) + 1,
+                   **cls.switches(cc))
+
+    @staticmethod
+    def switches(cc) -> dict:
+        """What the crack section itself switches on (from the config or the allocated fields alike)."""
+        contact = bool(cc.contact_in_compression)
+        return dict(contact=contact, kept_normals=cc.normal_refresh > 0, friction=contact and cc.friction > 0)
 
     @property
     def grid_vectors(self) -> list[str]:
@@ -140,9 +145,7 @@ class CrackFields:
         self.n_nodes = view.basis.contributions(d)       # contributions per particle (stencils.py)
         self.apic = view.apic
         self.needs = CrackNeeds(dim=d, apic=view.apic, has_law=self.has_law, stencil_nodes=self.n_nodes,
-                                contact=bool(cc.contact_in_compression), kept_normals=cc.normal_refresh > 0,
-                                sides=int(view.side.max(initial=-1)) + 1,
-                                friction=bool(cc.contact_in_compression) and cc.friction > 0)
+                                sides=int(view.side.max(initial=-1)) + 1, **CrackNeeds.switches(cc))
         self.sides = self.needs.sides
         # per side, the mass of its body: in contact, a particle takes the normal of a heavier body it faces (Nairn
         # 2013), so a block's corner pressed on a flat face couples along the face's normal, not along its own

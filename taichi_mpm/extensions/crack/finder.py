@@ -82,7 +82,8 @@ class CrackFinder(Extension):
 
     def get_state(self) -> dict:
         state = get_state(self)
-        state.update({"crack_friction_dissipated": self.dissipation()["friction"]} if self.friction_lost else {})
+        if self.friction_lost is not None:
+            state["crack_friction_dissipated"] = self.dissipation()["friction"]
         return state
 
     def check_state(self, state: dict):

@@ -22,6 +22,11 @@ def shape_function_funcs(ctx) -> ShapeFunctions:
     state, mask, sums, gsum, mask_t = f.state, f.mask, f.sums, f.gsum, f.mask_t
 
     @ti.func
+    def across(m, off):
+        """Whether stencil node `off` lies across the discontinuity by mask m (bit k: stencil node k)."""
+        return (m >> ti.cast(sten.index(off), mask_t)) & ti.cast(1, mask_t) != 0
+
+    @ti.func
     def modified(p):
         return state[p] != STANDARD
 
@@ -39,9 +44,8 @@ def shape_function_funcs(ctx) -> ShapeFunctions:
         grad Nt = (grad N*_t - Nt grad S_t) / S_t, N*_t = 0 for a node across. W_ip = Nt I + (Nn - Nt) n n^T;
         a particle not in contact has Nn = Nt (same nodes, sums and centroids): a scalar weight."""
         m, _, iSt, _, Gt, _ = fam
-        across = (m >> ti.cast(sten.index(off), mask_t)) & ti.cast(1, mask_t)
         wt, gt = w, gw
-        if across != 0:
+        if across(m, off):
             wt, gt = 0.0, ti.Vector.zero(float, dim)
         wt *= iSt
         return wt, (gt - wt * Gt) * iSt
@@ -55,10 +59,10 @@ def shape_function_funcs(ctx) -> ShapeFunctions:
 
     @ti.func
     def own_side(p, off):
-        across = ti.cast(0, mask_t)
+        own = True
         if state[p] != STANDARD:
-            across = (mask[p] >> ti.cast(sten.index(off), mask_t)) & ti.cast(1, mask_t)
-        return across == 0
+            own = not across(mask[p], off)
+        return own
 
     return ShapeFunctions(modified=modified, family=family, tangential=tangential, normal_family=normal_family,
                           own_side=own_side)
