@@ -335,9 +335,10 @@ class Solver(Strict):
     end_time: PositiveFloat
     gravity: Optional[Vec] = None
     max_steps: Optional[Annotated[int, Field(gt=0)]] = None
-    # unroll the stencil loop: faster steps, slower first compile (docs/performance.md); auto unrolls stencils of at
-    # most 16 nodes whole (all 1D and 2D bases) and the trailing axes of larger tensor stencils, up to 9 nodes per
-    # run-time iteration (3D quadratic and gimp: 9 of 27, cubic and ddmp: 4 of 64); cpdi in 3D runs at run time
+    # unroll the stencil loop: faster steps, slower first compile (docs/performance.md); auto unrolls runs of at
+    # least 1e7 particle-steps (stencils.resolve_unroll), stencils of at most 16 nodes whole (all 1D and 2D bases)
+    # and the trailing axes of larger tensor stencils, up to 9 nodes per run-time iteration (3D quadratic and gimp:
+    # 9 of 27, cubic and ddmp: 4 of 64); cpdi in 3D runs at run time
     unroll: Union[Literal["auto"], bool] = "auto"
     # how P2G adds to the grid: auto (coloured on a CPU with a tensor-product basis, atomic otherwise), coloured
     # (particles binned by grid block each step, blocks of one colour in parallel with plain adds;

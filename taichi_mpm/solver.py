@@ -29,7 +29,7 @@ from .bases import registry as bases
 from .bases.shape_functions import domain_averaged, make_basis
 from .bases.knots import grid_knots, smallest_span
 from .bases.mapped import MappedGrid
-from .bases.stencils import make_stencil
+from .bases.stencils import make_stencil, resolve_unroll
 from . import layout as field_layout   # the declared fields (layout.py)
 from .sums import ChunkSums, Slots
 from .extensions import scatter
@@ -118,10 +118,11 @@ class Simulation:
         self._balance = None  # energy balance reference (see _check_energy_balance)
         self._potentials = {}  # step -> strain + gravity potential of that state (energy_balance's pairing)
         self._body_acc_time, self._body_acc_max = None, 0.0
+        self._vmax = _max_speed(self.scene.v) if self.n else 0.0
         self._allocate()
+        self.unroll = resolve_unroll(c.solver.unroll, self._expected_particle_steps())
         self._build_kernels()
         self._upload()
-        self._vmax = _max_speed(self.scene.v)
         self._shape_ref = None  # per-body spread reference (see _check_fracture)
         self._warn_weak_fluids()
 
@@ -276,7 +277,7 @@ class Simulation:
             n_cells=self.n_cells, basis=self.basis, feat=self.feat, precision=c.precision,
             x=self.x, v=self.v, F=self.F, C=self.C, vol0=self.vol0, mat=self.mat, half_width=self.half_width,
             domain_lp0=0.5 * float(self.scene.spacing[0]) / dx if self.n else 0.5,
-            gimp_deforming=c.solver.gimp_domain == "deforming", unroll=c.solver.unroll, grid=self.grid,
+            gimp_deforming=c.solver.gimp_domain == "deforming", unroll=self.unroll, grid=self.grid,
             gravity_kick=step_kernels.make_gravity_kick(self.gravity_field, self.gravity_before_field),
             extra=dict(mapped=self.mapped),
             # each material's Taichi funcs, its parameters compile-time constants (materials/: the model registry)
@@ -292,7 +293,17 @@ class Simulation:
         if _live["id"] != self._id:
             raise RuntimeError("this Simulation is no longer live: a newer Simulation restarted Taichi")
 
-    def dt_limits(self) -> dict:
+    def _expected_particle_steps(self) -> float:
+        """Particles times the steps to end_time at the starting dt (solver.max_steps caps it; a body force, not
+        yet evaluated, is left out): the run length solver.unroll auto weighs against the compile."""
+        s = self.cfg.solver
+        dt = s.dt if s.dt is not None else min(self.dt_limits(body_force=False).values())
+        steps = s.end_time / dt if dt > 0 else math.inf
+        if s.max_steps is not None:
+            steps = min(steps, s.max_steps)
+        return self.n * steps
+
+    def dt_limits(self, body_force: bool = True) -> dict:
         """The time-step bound of every rate in the scene (seconds), by name (see DT_LIMITS):
         elastic waves + particle speed: cfl dx / (c + |v|max), named `elastic` or `speed` by the larger;
         acceleration: cfl sqrt(dx / |a|), |a| = |g| + max |b| (named `body_force` when b dominates);
@@ -303,7 +314,7 @@ class Simulation:
         c, v = self.wave_speed, self._vmax
         out = {"elastic" if c >= v else "speed": cfl * dx / (c + v) if c + v > 0 else math.inf}
         g = self._g_norm
-        b = self._body_acc_now()
+        b = self._body_acc_now() if body_force else 0.0
         if g + b > 0:
             out["body_force" if b > g else "gravity"] = cfl * math.sqrt(dx / (g + b))
         for m, scale in zip(self._materials, self._stiffness):

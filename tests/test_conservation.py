@@ -70,8 +70,11 @@ def test_stencil_loop_split_steps_the_same(basis):
     bit-identical after 5 steps, quadratic and cubic)."""
     states = []
     for unroll in ("auto", False):
-        cfg = make_cfg(3, basis=basis, dx=0.1, lower=[0.35] * 3, upper=[0.65] * 3, unroll=unroll, deterministic=True)
+        # a long end_time: auto unrolls only runs that earn their compile back (stencils.resolve_unroll)
+        cfg = make_cfg(3, basis=basis, dx=0.1, lower=[0.35] * 3, upper=[0.65] * 3, unroll=unroll, deterministic=True,
+                       end_time=1e3)
         sim = tm.Simulation(cfg)
+        assert sim.unroll == unroll
         X = sim.scene.x
         sim.set_particles(v=0.05 + 0.4 * (X - 0.5) + 0.1 * np.sin(7.0 * X))   # stretches, shears, spins
         for _ in range(5):
@@ -81,6 +84,29 @@ def test_stencil_loop_split_steps_the_same(basis):
     for a, b in zip(*states):
         assert np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0)
     assert np.abs(states[0][2] - np.eye(3)).max() > 1e-4   # it did deform (measured 9e-4)
+
+
+def test_auto_unrolls_only_runs_that_earn_their_compile_back():
+    """solver.unroll auto unrolls the stencil when the run (particles x steps to end_time) is long enough to repay
+    the longer compile (stencils.UNROLL_WORK); a short run keeps the loop at run time. The split changes only the
+    code: 2D quadratic, one thread, no fast math, the states after 3 steps agree to round-off (1e-12 of the
+    scale, f64; the 3D split: test_stencil_loop_split_steps_the_same)."""
+    from taichi_mpm.bases.stencils import UNROLL_WORK, resolve_unroll
+
+    assert resolve_unroll("auto", 0.5 * UNROLL_WORK) is False and resolve_unroll("auto", 2 * UNROLL_WORK) == "auto"
+    assert resolve_unroll(True, 1.0) is True and resolve_unroll(False, 1e12) is False
+    states = []
+    for end_time, expected in ((0.01, False), (1e3, "auto")):
+        sim = tm.Simulation(make_cfg(2, dx=0.05, end_time=end_time, deterministic=True))
+        assert sim.unroll == expected, (end_time, sim.n)
+        X = sim.scene.x
+        sim.set_particles(v=0.05 + 0.4 * (X - 0.5) + 0.1 * np.sin(7.0 * X))
+        for _ in range(3):
+            sim.step(1e-3)
+        p = sim.particles()
+        states.append([p[k] for k in ("x", "v", "F", "C")])
+    for a, b in zip(*states):
+        assert np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0)
 
 
 def spinning_disk(basis, update, steps=1000):

@@ -124,6 +124,19 @@ AUTO_FULL = 16   # solver.unroll auto: stencils of at most this many contributio
 AUTO_INNER = 9   # and larger tensor stencils their trailing axes, up to this many nodes per run-time iteration
 
 
+UNROLL_WORK = 1e7   # solver.unroll auto: runs of fewer particle-steps keep the whole stencil loop at run time
+
+
+def resolve_unroll(setting, particle_steps: float):
+    """solver.unroll as the kernels use it. `auto` weighs the run against the compile: unrolled nodes step 3D
+    quadratic ~1.3-1.4x faster but compile ~2x longer (cold: 2.6 s more for 3D quadratic, 15 s for a 3D crack
+    scene), which a run shorter than UNROLL_WORK particle-steps (a few seconds of stepping) does not earn back; such
+    a run gets the run-time loop (`false`, same nodes in the same order). docs/performance.md, "Stencil loop"."""
+    if setting == "auto" and particle_steps < UNROLL_WORK:
+        return False
+    return setting
+
+
 def _loops(span: list, unroll, auto_inner: int = 1):
     """Split the contribution index into a run-time loop `outer` and a statically unrolled `inner` list (the
     trailing axes, as many as fit in `n` contributions). Unrolled nodes keep the weights in registers but each adds

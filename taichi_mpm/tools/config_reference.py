@@ -112,9 +112,11 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.end_time": ("s", "simulated time to run to"),
     "solver.gravity": ("m/s^2", "gravitational acceleration, one number per axis; null: none"),
     "solver.max_steps": ("", "stop after this many steps; null: no limit"),
-    "solver.unroll": ("", "unroll the stencil loop (true / false); auto unrolls stencils of at most 16 nodes "
-                          "whole and the trailing axes of larger tensor-product ones, up to 9 nodes per run-time "
-                          "iteration (3D gimp and quadratic: 9 of 27, cubic and ddmp: 4 of 64)"),
+    "solver.unroll": ("", "unroll the stencil loop (true / false); auto unrolls only runs of at least 1e7 "
+                          "particle-steps (particles x steps to end_time at the starting dt; shorter runs keep the "
+                          "loop at run time and start sooner), then stencils of at most 16 nodes whole and the "
+                          "trailing axes of larger tensor-product ones, up to 9 nodes per run-time iteration (3D "
+                          "gimp and quadratic: 9 of 27, cubic and ddmp: 4 of 64)"),
     "solver.scatter": ("", "how P2G adds particle values to the grid: coloured bins the particles by grid block each "
                            "step and lets the blocks of one of 2^d colours add in parallel without atomics (same "
                            "result, 2-3x faster P2G on CPUs; tensor-product bases only); atomic adds atomically; "
