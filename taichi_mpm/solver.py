@@ -22,7 +22,7 @@ from typing import Callable, Optional
 import numpy as np
 import taichi as ti
 
-from . import budget, states   # states: the API's refusals (states.py)
+from . import budget, host_copy, states   # states: the API's refusals (states.py)
 from .budget import VISCOUS_DIFFUSION  # noqa: F401 (the dt rule's constant, shared with the estimate)
 from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
 from .bases import registry as bases
@@ -232,26 +232,26 @@ class Simulation:
         return out
 
     def _upload(self):
-        s, d = self.scene, self.dim
+        s, d, n = self.scene, self.dim, self.n
         self._perm = self._block_order()
-        self.x.from_numpy(self._to_solver(s.x).astype(np.float64))
-        self.v.from_numpy(self._to_solver(s.v).astype(np.float64))
-        self.F.from_numpy(np.broadcast_to(np.eye(d), (self.n, d, d)).copy())
-        self.vol0.from_numpy(self._to_solver(s.volume).astype(np.float64))
+        pairs = [(self.x, self._to_solver(s.x)), (self.v, self._to_solver(s.v)),
+                 (self.F, np.broadcast_to(np.eye(d), (n, d, d))), (self.vol0, self._to_solver(s.volume))]
+        if self.C is not None:
+            pairs.append((self.C, np.zeros((n, d, d))))
+        if self.mat is not None:
+            pairs.append((self.mat, self._to_solver(s.material)))
+        if self.half_width is not None:
+            pairs.append((self.half_width, self._to_solver(0.5 * s.spacing / self.dx)))
+        if self.body_id is not None:
+            pairs.append((self.body_id, self._to_solver(s.body)))
+        if self.stress0 is not None:  # S0 = the initial Cauchy stress (F = I at t = 0), held as a 2nd P-K stress
+            pairs.append((self.stress0, self._to_solver(s.stress).reshape(n, d, d)))
+        if self.state is not None:
+            pairs.append((self.state, self._to_solver(self._initial_state())))
+        if n:
+            host_copy.upload(pairs)   # one kernel for all (host_copy.py: a compile saved per field)
         for e in self.extensions:
             e.particles_set({"x", "v", "F"})
-        if self.C is not None:
-            self.C.fill(0)
-        if self.mat is not None:
-            self.mat.from_numpy(self._to_solver(s.material).astype(np.uint8))
-        if self.half_width is not None:
-            self.half_width.from_numpy(self._to_solver(0.5 * s.spacing / self.dx))
-        if self.body_id is not None:
-            self.body_id.from_numpy(self._to_solver(s.body).astype(np.int32))
-        if self.stress0 is not None:  # S0 = the initial Cauchy stress (F = I at t = 0), held as a 2nd P-K stress
-            self.stress0.from_numpy(self._to_solver(s.stress).reshape(self.n, d, d))
-        if self.state is not None:
-            self.state.from_numpy(self._to_solver(self._initial_state()))
         for e in self.extensions:
             e.upload()   # the crack finder's initial damage and interface flags, the loaded and gripped particles
 
@@ -712,7 +712,7 @@ class Simulation:
         (plastic_strain, Jp: materials/) when any has state; particles of other materials hold the initial value."""
         self._check_live()
         s = self.scene
-        out = {name: self._read(name) for name in self._state_fields()}
+        out = self._read_all()
         stress3 = np.zeros((self.n, 3, 3), dtype=np.float64)
         self._k["cauchy_stress"](stress3)
         stress3 = self._to_creation(stress3)
@@ -764,18 +764,27 @@ class Simulation:
         return fields
 
     def _read(self, name) -> np.ndarray:
-        a = self._state_fields()[name].to_numpy()
-        shape = (self.n, self.dim) if name in ("x", "v") else (self.n, self.dim, self.dim)
-        return self._to_creation(a.reshape(shape))  # 1x1 matrix fields come back as (N, 1)
+        return self._read_all([name])[name]
+
+    def _read_all(self, names=None) -> dict:
+        """name -> (N, d) or (N, d, d) in creation order, of x, v, F, C (all stored ones by default), in one
+        kernel (host_copy.py)."""
+        fields = self._state_fields()
+        names = list(fields) if names is None else list(names)
+        d = self.dim
+        if not self.n:
+            return {k: np.zeros((0, d) if k in ("x", "v") else (0, d, d)) for k in names}
+        arrays = host_copy.download([fields[k] for k in names])
+        return {k: self._to_creation(a.reshape((self.n, d) if k in ("x", "v") else (self.n, d, d)))
+                for k, a in zip(names, arrays)}
 
     def set_particles(self, **arrays):
         """Set per-particle state (x, v, F, C) in creation order."""
         self._check_live()
         fields = self._state_fields()
         checked = self._validated_particles(arrays)  # everything is checked before anything is written
-        for name, value in checked.items():
-            value = self._to_solver(value)
-            fields[name].from_numpy(value.reshape(self.n, 1) if self.dim == 1 and name in ("F", "C") else value)
+        if self.n:
+            host_copy.upload([(fields[name], self._to_solver(value)) for name, value in checked.items()])
         self._balance = self._shape_ref = None  # a new state: the balance and body shapes are measured afresh
         self._potentials = {}
         for e in self.extensions:
@@ -807,7 +816,7 @@ class Simulation:
     def get_state(self) -> dict:
         """Everything needed to continue bit for bit: particle fields (creation order), clock, CFL speed estimate."""
         self._check_live()
-        state = {name: self._read(name) for name in self._state_fields()}
+        state = self._read_all()
         state.update(time=self.time, n_steps=self.n_steps, dt=self.dt, vmax=self._vmax, half_dt=self._half_dt,
                      work=self.work.to_numpy().astype(np.float64))
         if self.state is not None:

@@ -86,7 +86,7 @@ def restored(sim):
     """After set_particles / set_state: a failed simulation whose whole state is good again may step."""
     if getattr(sim, "_failed", None) is None:
         return
-    p = {name: sim._read(name) for name in sim._state_fields()}   # x, v, F (and C where stored)
+    p = sim._read_all()   # x, v, F (and C where stored)
     good = all(np.isfinite(a).all() for a in p.values())
     if good:
         try:

@@ -73,6 +73,7 @@ def test_stencil_loop_split_steps_the_same(basis):
         # a long end_time: auto unrolls only runs that earn their compile back (stencils.resolve_unroll)
         cfg = make_cfg(3, basis=basis, dx=0.1, lower=[0.35] * 3, upper=[0.65] * 3, unroll=unroll, deterministic=True,
                        end_time=1e3)
+        cfg["output"] = dict(every=1e3)
         sim = tm.Simulation(cfg)
         assert sim.unroll == unroll
         X = sim.scene.x
@@ -97,7 +98,9 @@ def test_auto_unrolls_only_runs_that_earn_their_compile_back():
     assert resolve_unroll(True, 1.0) is True and resolve_unroll(False, 1e12) is False
     states = []
     for end_time, expected in ((0.01, False), (1e3, "auto")):
-        sim = tm.Simulation(make_cfg(2, dx=0.05, end_time=end_time, deterministic=True))
+        cfg = make_cfg(2, dx=0.05, end_time=end_time, deterministic=True)
+        cfg["output"] = dict(every=end_time)   # the long run is never run: no output plan to warn about
+        sim = tm.Simulation(cfg)
         assert sim.unroll == expected, (end_time, sim.n)
         X = sim.scene.x
         sim.set_particles(v=0.05 + 0.4 * (X - 0.5) + 0.1 * np.sin(7.0 * X))
