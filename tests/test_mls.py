@@ -50,8 +50,10 @@ def mpm88_reference(x, v, steps, bound=3, sandbox_fluid=False):
             weight = w[i][:, 0] * w[j][:, 1]
             node = base + [i, j]
             mom = weight[:, None] * (p_mass * v + np.einsum("pab,pb->pa", affine, dpos))
-            np.add.at(gv, (node[:, 0], node[:, 1]), mom)
-            np.add.at(gm, (node[:, 0], node[:, 1]), weight * p_mass)
+            flat = node[:, 0] * N_GRID + node[:, 1]   # scatter-add by bincount (np.add.at is ~10x slower)
+            for a in range(2):
+                gv[..., a] += np.bincount(flat, mom[:, a], N_GRID * N_GRID).reshape(N_GRID, N_GRID)
+            gm += np.bincount(flat, weight * p_mass, N_GRID * N_GRID).reshape(N_GRID, N_GRID)
         has = gm > 0
         gv[has] /= gm[has][:, None]
         gv[..., 1] -= DT * GRAVITY

@@ -259,29 +259,31 @@ def simple_shear(dim_psi, steps=2000, rate=1e-4, p0=1.0e3, phi=PHI):
         Ft = (ti.Matrix.identity(float, 2) + ti.Matrix([[0.0, rate], [0.0, x]])) @ F
         return funcs.project(Ft, q)
 
-    @ti.func
-    def residual(F, q, x):
-        Fn, qn, d = step(F, q, x)
-        return funcs.kirchhoff3(Fn, ti.Matrix.zero(float, 2, 2), qn)[1, 1] + p0
-
     @ti.kernel
     def go():
         F = ti.Matrix([[ti.exp(e0), 0.0], [0.0, ti.exp(e0)]])
         q = ti.Vector([0.0, 1.0, ti.exp(e0)])
+        zero = ti.Matrix.zero(float, 2, 2)
         for _ in range(1):                      # serial
             for s in range(steps):
-                x0 = 0.0
-                x1 = rate
-                g0 = residual(F, q, x0)
-                g1 = residual(F, q, x1)
-                for it in range(30):
-                    if ti.abs(g1) > 1e-12 * p0 and g1 != g0:
-                        x2 = x1 - g1 * (x1 - x0) / (g1 - g0)
-                        x0 = x1
-                        g0 = g1
-                        x1 = x2
-                        g1 = residual(F, q, x1)
-                Fn, qn, d = step(F, q, x1)
+                # secant iterations on x from 0 and rate; one call site of the return map (each inlined copy
+                # compiles anew: four of them took ~19 s with an empty cache)
+                x_prev, g_prev, x = 0.0, 0.0, 0.0
+                Fn, qn = F, q
+                for it in range(33):
+                    Fn, qn, d = step(F, q, x)
+                    g = funcs.kirchhoff3(Fn, zero, qn)[1, 1] + p0
+                    if it == 0:
+                        x_prev = x
+                        g_prev = g
+                        x = rate
+                    elif ti.abs(g) > 1e-12 * p0 and g != g_prev:
+                        x_next = x - g * (x - x_prev) / (g - g_prev)
+                        x_prev = x
+                        g_prev = g
+                        x = x_next
+                    else:
+                        break
                 F = Fn
                 q = qn
         out[None] = funcs.kirchhoff3(F, ti.Matrix.zero(float, 2, 2), q)
