@@ -199,7 +199,7 @@ class Simulation:
         self.gravity_before_field[None] = self._gravity.tolist()
         self._gravity_before = self._gravity.copy()
         self.stiffness_field = ti.field(float, len(self._materials))
-        self.stiffness_field.from_numpy(self._stiffness)
+        self._upload_stiffness()
         self.flip_blend_field = ti.field(float, ())
         self.flip_blend_field[None] = self._flip_blend
         self.diag = ChunkSums(n, 8)  # reduction slots for energies and momenta
@@ -208,6 +208,11 @@ class Simulation:
         self.work = Slots(3)
         self.n_bodies = int(self.scene.body.max(initial=0)) + 1
         self.moments = ChunkSums(n, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
+
+    def _upload_stiffness(self):
+        # entry by entry: a handful of materials, and from_numpy would compile a kernel for it in every new scene
+        for k, scale in enumerate(self._stiffness):
+            self.stiffness_field[k] = float(scale)
 
     def _bytes_per_particle(self) -> int:
         """The solver's declared particle fields (layout.py) and the extensions'."""
@@ -954,7 +959,7 @@ class Simulation:
         def apply():
             for k in slots:
                 self._stiffness[k] = float(scale)
-            self.stiffness_field.from_numpy(self._stiffness)
+            self._upload_stiffness()
             self.wave_speed = self._wave_speed()
         self._change_live(apply)
 
