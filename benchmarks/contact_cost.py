@@ -6,8 +6,9 @@ and memory, on two scenes (2D, quadratic, f64, CPU):
   t = 3 s (the impact is over by 2.6 s); error: 1 - |v_after| / |v_before| of each disk's mean velocity (an
   elastic collision gives 0), and the total momentum left (0 at the start).
 - block: a 0.2 x 0.1 m block on a 1 m long body lying on a sticky floor, gravity tilted by 30 degrees,
-  frictionless (the crack finder has no friction), 0.25 s; error: the block's acceleration against g sin 30.
-  (Mu > 0 is multi_field's alone: tests/test_contact.py.)
+  frictionless, 0.25 s; error: the block's acceleration against g sin 30.
+- block_friction: the same with Coulomb friction mu = 0.3 at the interface (crack.friction, contact.friction);
+  error: the acceleration against g (sin 30 - mu cos 30).
 
 Time: wall and process CPU ms per step over the whole run after the first step (compile excluded), each case in
 its own process (the solver keeps one live Simulation per process). Memory: the run's size estimate
@@ -34,7 +35,8 @@ from common import parser, report  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = ("crack", "multi_field")
-SCENES = ("disks", "block")
+SCENES = ("disks", "block", "block_friction")
+MU = 0.3   # block_friction
 G = 9.81
 
 
@@ -49,7 +51,7 @@ def disks(method: str, dx: float, end: float) -> dict:
     return d
 
 
-def block(method: str, dx: float, end: float) -> dict:
+def block(method: str, dx: float, end: float, mu: float = 0.0) -> dict:
     a = np.radians(30.0)
     mat = dict(model="neo_hookean", E=2.0e5, nu=0.3, density=1000.0)
     iface = method == "crack"
@@ -63,9 +65,9 @@ def block(method: str, dx: float, end: float) -> dict:
                      dict(name="block", shape=dict(type="box", lower=[0.1, 0.1], upper=[0.3, 0.2]), material="m",
                           interface=iface)])
     if method == "crack":
-        d["crack"] = dict(threshold=-0.6, contact_in_compression=True)
+        d["crack"] = dict(threshold=-0.6, contact_in_compression=True, friction=mu)
     else:
-        d["contact"] = {"method": "multi_field"}
+        d["contact"] = {"method": "multi_field", "friction": mu}
     return d
 
 
@@ -82,7 +84,8 @@ def run_case(scene: str, method: str, tiny: bool) -> dict:
 
     dx = (0.04 if tiny else 0.02) if scene == "disks" else (0.05 if tiny else 0.025)
     end = (3.0 if scene == "disks" else 0.25) * (0.1 if tiny else 1.0)
-    cfg = load_config(disks(method, dx, end) if scene == "disks" else block(method, dx, end))
+    mu = MU if scene == "block_friction" else 0.0
+    cfg = load_config(disks(method, dx, end) if scene == "disks" else block(method, dx, end, mu))
     est = budget.estimate(cfg)
     sim = tm.Simulation(cfg)
     before = [_mean_v(sim, b) for b in (0, 1)]
@@ -91,7 +94,7 @@ def run_case(scene: str, method: str, tiny: bool) -> dict:
     times, vx = [], []
     while sim.time < end - 1e-12:
         sim.step(min(sim.stable_dt(), end - sim.time))
-        if scene == "block":
+        if scene != "disks":
             times.append(sim.time)
             vx.append(_mean_v(sim, 1)[0])
     steps = sim.n_steps - steps0
@@ -109,8 +112,9 @@ def run_case(scene: str, method: str, tiny: bool) -> dict:
         t, v = np.array(times), np.array(vx)
         late = t > 0.2 * end
         accel = float(np.polyfit(t[late], v[late], 1)[0])
-        row["error"] = accel / (G * np.sin(np.radians(30.0))) - 1
-        row["error_is"] = "acceleration / (g sin 30) - 1"
+        a = np.radians(30.0)
+        row["error"] = accel / (G * (np.sin(a) - mu * np.cos(a))) - 1
+        row["error_is"] = f"acceleration / (g (sin 30 - {mu:g} cos 30)) - 1"
     return row
 
 

@@ -103,15 +103,14 @@ def transfer_funcs(ctx, sf) -> Transfers:
         coupled velocities against those of the sides apart, tensor_grid); the compressive part along -n (n points
         across) is the normal impulse per mass `into`; the particle's slip is its tangential velocity against the
         nodes across (far_v / far_w, their mean in Nn); friction takes mu into of it, not beyond sticking
-        (friction.friction_loss, the walls' and multi-field contact's law). Returns the velocity it takes off and
-        the slip."""
-        loss, slip = ti.Vector.zero(float, dim), ti.Vector.zero(float, dim)
+        (friction.friction_loss, the walls' and multi-field contact's law). Returns the velocity it takes off."""
+        loss = ti.Vector.zero(float, dim)
         into = -n.dot(contact_dv)
         if into > 0 and far_w > 0:
             rel = v_pic - far_v / far_w
             slip = rel - n.dot(rel) * n
             loss = friction_loss(slip, into, mu)
-        return loss, slip
+        return loss
 
     @ti.func
     def g2p(p, st, deform: ti.template()):
@@ -156,12 +155,14 @@ def transfer_funcs(ctx, sf) -> Transfers:
                         far_w += wn
         if ti.static(friction):
             if fam[1]:
-                loss, slip = friction_at(p, n, v_pic, contact_dv, far_v, far_w)
+                loss = friction_at(p, n, v_pic, contact_dv, far_v, far_w)
+                if ti.static(moves_x(deform)):   # once a step (MUSL and USF read the grid twice)
+                    # the kinetic energy friction takes from the particle, m (v.loss - |loss|^2 / 2): summed over
+                    # both sides of a contact that is the impulse times the relative slip, counted once (the
+                    # impulse's work at each side's own slip counted a free pair twice)
+                    lost[0][None] += density(p) * vol0[p] * (v_pic.dot(loss) - 0.5 * loss.dot(loss))
                 v_pic -= loss
                 dv -= loss
-                if ti.static(moves_x(deform)):   # once a step (MUSL and USF read the grid twice)
-                    # the friction impulse's work at the slip it leaves (none where the particle sticks)
-                    lost[0][None] += density(p) * vol0[p] * loss.dot(slip - loss)
         return v_pic, dv, G @ sten.inertia(st), G
 
     return Transfers(p2g=p2g, p2g_momentum=p2g_momentum, g2p=g2p)
