@@ -157,9 +157,8 @@ def transfer_funcs(ctx, sf) -> Transfers:
             if fam[1]:
                 loss = friction_at(p, n, v_pic, contact_dv, far_v, far_w)
                 if ti.static(moves_x(deform)):   # once a step (MUSL and USF read the grid twice)
-                    # the kinetic energy friction takes from the particle, m (v.loss - |loss|^2 / 2): summed over
-                    # both sides of a contact that is the impulse times the relative slip, counted once (the
-                    # impulse's work at each side's own slip counted a free pair twice)
+                    # the kinetic energy friction takes, m (v.loss - |loss|^2 / 2): over both sides of a contact
+                    # the impulse times the relative slip, once (docs/crack_finder.md, "Friction")
                     lost[0][None] += density(p) * vol0[p] * (v_pic.dot(loss) - 0.5 * loss.dot(loss))
                 v_pic -= loss
                 dv -= loss
