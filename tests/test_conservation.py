@@ -61,6 +61,16 @@ def test_linear_momentum_3d_sparse():
     assert np.abs(P1 - P0).max() < 1e-10 * scale
 
 
+def _deformed_state(sim, steps):
+    """x, v, F, C after `steps` steps of 1 ms from a velocity field that stretches, shears and spins."""
+    X = sim.scene.x
+    sim.set_particles(v=0.05 + 0.4 * (X - 0.5) + 0.1 * np.sin(7.0 * X))
+    for _ in range(steps):
+        sim.step(1e-3)
+    p = sim.particles()
+    return [p[k] for k in ("x", "v", "F", "C")]
+
+
 @pytest.mark.slow  # compiles the 3D kernels twice (~40 s CPU cold); the default run steps 3D quadratic elsewhere
 @pytest.mark.parametrize("basis", ["quadratic", "cubic"])
 def test_stencil_loop_split_steps_the_same(basis):
@@ -76,12 +86,7 @@ def test_stencil_loop_split_steps_the_same(basis):
         cfg["output"] = dict(every=1e3)
         sim = tm.Simulation(cfg)
         assert sim.unroll == unroll
-        X = sim.scene.x
-        sim.set_particles(v=0.05 + 0.4 * (X - 0.5) + 0.1 * np.sin(7.0 * X))   # stretches, shears, spins
-        for _ in range(5):
-            sim.step(1e-3)
-        p = sim.particles()
-        states.append([p[k] for k in ("x", "v", "F", "C")])
+        states.append(_deformed_state(sim, 5))
     for a, b in zip(*states):
         assert np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0)
     assert np.abs(states[0][2] - np.eye(3)).max() > 1e-4   # it did deform (measured 9e-4)
@@ -102,12 +107,7 @@ def test_auto_unrolls_only_runs_that_earn_their_compile_back():
         cfg["output"] = dict(every=end_time)   # the long run is never run: no output plan to warn about
         sim = tm.Simulation(cfg)
         assert sim.unroll == expected, (end_time, sim.n)
-        X = sim.scene.x
-        sim.set_particles(v=0.05 + 0.4 * (X - 0.5) + 0.1 * np.sin(7.0 * X))
-        for _ in range(3):
-            sim.step(1e-3)
-        p = sim.particles()
-        states.append([p[k] for k in ("x", "v", "F", "C")])
+        states.append(_deformed_state(sim, 3))
     for a, b in zip(*states):
         assert np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0)
 

@@ -213,10 +213,16 @@ def test_two_blocks_separate_3d_with_interface_threshold():
 
 # ---------------------------------------------------------------- cracked bar
 def _bar(crack, v0, basis="quadratic"):
-    """Left of the crack moves at v0 (< 0 pulls the crack open, > 0 closes it); mean sigma_xx over the
-    right side near the crack once the wave of the uncracked bar has run 0.2 into it; the gap between
-    the two sides' particles (the damaged column excluded)."""
-    sim = tm.Simulation(bar_cfg(crack, basis))
+    return push_bar(tm.Simulation(bar_cfg(crack, basis)), v0)
+
+
+def push_bar(sim, v0, start=None):
+    """A bar cracked at x = 0.4875 (bar_cfg's; from the state `start` when given): left of the crack moves at v0
+    (< 0 pulls the crack open, > 0 closes it); mean sigma_xx over the right side near the crack once the wave of
+    the uncracked bar has run 0.2 into it; the gap between the two sides' particles (the damaged column
+    excluded)."""
+    if start is not None:
+        sim.set_state(start)
     x0 = sim.particles()["x"]
     v = np.zeros_like(x0)
     left, right = x0[:, 0] < 0.475, x0[:, 0] > 0.5

@@ -7,6 +7,7 @@ import pytest
 
 import taichi_mpm as tm
 from taichi_mpm.config import ConfigWarning
+from test_crack import push_bar
 
 F_T, H, NOTCH = 500.0, 0.2, 0.05      # tensile strength (Pa), bar height and notch depth (m)
 
@@ -191,20 +192,11 @@ def fbar_bar(crack, volumetric="fbar"):
     return cfg
 
 
-def pushed_bar(sim, v0):
-    """The left part (x < 0.475) of a bar set moving at v0 (< 0 pulls the crack open, > 0 closes it) from sim's
-    initial state; the mean sigma_xx of the right part within 0.15 of the crack once the uncracked bar's wave has
-    run 0.2 into it. Each call starts from the first one's initial state (one build serves both loads)."""
-    if not hasattr(sim, "_test_start"):
-        sim._test_start = sim.get_state()
-    sim.set_state(sim._test_start)
-    x0 = sim.particles()["x"]
-    v = np.zeros_like(x0)
-    v[x0[:, 0] < 0.475, 0] = v0
-    sim.set_particles(v=v)
-    sim.advance(0.2 / np.sqrt(1.0e4 / 1000.0))
-    near = (x0[:, 0] > 0.5) & (x0[:, 0] < 0.65)
-    return sim.particles()["stress"][near, 0, 0].mean()
+def both_loads(sim):
+    """test_crack.push_bar pulling (v0 = -0.05) and pushing (+0.05), each from sim's initial state: one build for
+    both loads. Per load (mean sigma_xx right of the crack, gap)."""
+    start = sim.get_state()
+    return [push_bar(sim, v0, start) for v0 in (-0.05, 0.05)]
 
 
 def _bar_sim(cfg):
@@ -221,13 +213,12 @@ def test_fbar_with_a_crack_opens_and_closes_at_nu_049():
     locking: F-bar's 58 against 87 in tension). Asserted: the open crack carries < 5 % of the uncracked stress,
     the closed one 85-105 % (the 10 % the nu = 0 closed-crack test allows, a little more for the closed faces'
     contact at nu 0.49), and F-bar stays softer than the standard update (it is acting)."""
-    loads = (-0.05, 0.05)
-    plain = [pushed_bar(sim, v0) for sim in [_bar_sim(fbar_bar(False))] for v0 in loads]
-    cracked = [pushed_bar(sim, v0) for sim in [_bar_sim(fbar_bar(True))] for v0 in loads]
+    plain = [stress for stress, _ in both_loads(_bar_sim(fbar_bar(False)))]
+    cracked = [stress for stress, _ in both_loads(_bar_sim(fbar_bar(True)))]
     assert min(abs(plain[0]), abs(plain[1])) > 40.0
     assert abs(cracked[0]) < 0.05 * abs(plain[0]), (cracked, plain)
     assert 0.85 < cracked[1] / plain[1] < 1.05, (cracked, plain)
-    assert abs(plain[1]) < 0.8 * abs(pushed_bar(_bar_sim(fbar_bar(False, "standard")), 0.05))
+    assert abs(plain[1]) < 0.8 * abs(push_bar(_bar_sim(fbar_bar(False, "standard")), 0.05)[0])
 
 
 # ---------------------------------------------------------------- a crack on the annulus map
@@ -293,10 +284,8 @@ def test_crack_on_graded_knots_opens_and_closes():
         cfg["domain"]["knots"] = {"x": graded(20), "y": graded(20)}
         return _bar_sim(cfg)
 
-    cracked = bar(True)
-    opened, closed = pushed_bar(cracked, -0.05), pushed_bar(cracked, 0.05)
-    plain = bar(False)
-    pulled, pushed = pushed_bar(plain, -0.05), pushed_bar(plain, 0.05)
+    (opened, _), (closed, _) = both_loads(bar(True))
+    (pulled, _), (pushed, _) = both_loads(bar(False))
     assert pulled > 50.0 and abs(opened) < 0.05 * pulled, (opened, pulled)
     assert pushed < -50.0 and closed == pytest.approx(pushed, rel=0.10), (closed, pushed)
 
@@ -316,15 +305,7 @@ def test_crack_in_1d_opens_and_closes():
                                 damage_regions=[dict(shape=dict(type="box", lower=[0.475], upper=[0.5]))])])
         if crack:
             cfg["crack"] = {}
-        sim = _bar_sim(cfg)
-        x0 = sim.particles()["x"]
-        left, right = x0[:, 0] < 0.475, x0[:, 0] > 0.5
-        out = []
-        for v0 in (-0.05, 0.05):
-            stress = pushed_bar(sim, v0)
-            x = sim.particles()["x"]
-            out.append((stress, x[right, 0].min() - x[left, 0].max()))
-        return out
+        return both_loads(_bar_sim(cfg))
 
     (opened, gap_open), (closed, gap_closed) = bar(True)
     (pulled, gap_pulled), (pushed, _) = bar(False)
