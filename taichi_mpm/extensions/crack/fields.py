@@ -19,12 +19,15 @@ from .constants import ALL, CELL_SPLIT, MAX_CELLS
 def grid_fields(dim: int, sides: int = 0, friction: bool = False) -> tuple[list[str], list[str]]:
     """The crack finder's fields in the solver's grid (cleared with it each step): vectors (the rows of the
     anisotropic node mass A_i, the node normal; with friction, the contact's momentum at the node, then the velocity
-    contact gave it) and scalars (the node's mark: 1 in a near particle's stencil, 2 on the discontinuity; with two
-    or more interface bodies, the largest weight an interface body's particle has at the node and that body, its
-    owner; with friction, the node mass of the particles in contact)."""
+    friction gives the particles across; the momentum and the normals the particles across bring; the node's velocity
+before walls and grips) and scalars (the
+    node's mark: 1 in a near particle's stencil, 2 on the discontinuity; with two or more interface bodies, the
+    largest weight an interface body's particle has at the node and that body, its owner; with friction, the mass
+    the particles across bring in their normal functions, and in their squares)."""
     owners = ["crack_wmax", "crack_owner"] if sides else []
-    vectors = [f"A{a}" for a in range(dim)] + ["crack_n"] + (["crack_dv"] if friction else [])
-    return vectors, ["crack_mark"] + owners + (["crack_mc"] if friction else [])
+    far = ["crack_dv", "crack_pf", "crack_nf", "crack_vc"] if friction else []
+    vectors = [f"A{a}" for a in range(dim)] + ["crack_n"] + far
+    return vectors, ["crack_mark"] + owners + (["crack_mf", "crack_mw"] if friction else [])
 
 
 def interface_sides(bodies) -> list[int]:
@@ -57,7 +60,7 @@ class CrackNeeds:
     contact: bool          # crack.contact_in_compression: normals in cell order, contact lists
     kept_normals: bool     # crack.normal_refresh > 0
     sides: int = 0         # interface bodies when two or more: each node's owner tells them apart (classify)
-    friction: bool = False  # crack.friction > 0 (with contact): the node field of contact's velocity change
+    friction: bool = False  # crack.friction > 0 (with contact): the node fields of friction at the nodes
 
     @classmethod
     def of(cls, cfg, materials, basis) -> "CrackNeeds":

@@ -55,7 +55,7 @@ def node_normals_func(ctx, sph):
                     if known:
                         nn, on = cache_n[I], cache_m[I] > 1.5
                 if not known:
-                    val, g = damage_field(position(I))
+                    val, g = damage_field(position(I), -1)
                     gn = g.norm() * radius
                     if gn > 1e-6:
                         nn = g / g.norm()

@@ -25,6 +25,15 @@ def particle_normal_funcs(ctx, cl, sph) -> ParticleNormals:
         (f.n_cache, f.s_cache, f.x_ref, f.drift, f.cell_drift, f.recomputed) if cached else (None,) * 6)
     drift_limit = DRIFT_LIMIT * f.skin
     damage_field = sph.damage_field
+    side, by_side = f.side, f.side is not None
+
+    @ti.func
+    def own_side(p):
+        """The interface side whose particles alone give p's normal (-1: all particles)."""
+        s = -1
+        if ti.static(by_side):
+            s = side[p]
+        return s
 
     @ti.func
     def mark_stencil(p):
@@ -49,7 +58,7 @@ def particle_normal_funcs(ctx, cl, sph) -> ParticleNormals:
                     drift[p] = moved
             if redo:
                 if cell_varies[pcell[p]]:  # D varies within reach: p may sit near a discontinuity
-                    _, g = damage_field(x[p])
+                    _, g = damage_field(x[p], own_side(p))
                     gn = g.norm() * radius
                     if (D[p] >= dthr or gn >= gthr) and gn > 1e-6:
                         nrm = g / g.norm()

@@ -7,17 +7,21 @@ import taichi as ti
 
 class Sph(NamedTuple):
     sph_kernel: Callable     # (s) -> (W, dW/ds), s = distance / support
-    damage_field: Callable   # (x) -> (D(x), grad D(x))
+    damage_field: Callable   # (x, side) -> (D(x), grad D(x)) over the particles of that interface side (-1: all)
 
 
 def sph_funcs(ctx, cl) -> Sph:
     dim, xs, vs = ctx.fields.dim, ctx.fields.xs, ctx.fields.vs
     rows, radius2, inv_r = ctx.rows, ctx.radius2, ctx.inv_r
     cell_of, cell_units, row = cl.cell_of, cl.cell_units, cl.row
+    sides, side, ids = ctx.fields.sides, ctx.fields.side, ctx.fields.ids
 
     @ti.func
-    def damage_field(xq):
-        """Shepard-normalised SPH value and gradient of D at xq (cubic spline kernel of support r)."""
+    def damage_field(xq, own):
+        """Shepard-normalised SPH value and gradient of D at xq (cubic spline kernel of support r). With two or
+        more interface bodies and own >= 0, over the particles of interface side `own` alone: an interface body's
+        normal is then its own surface's, which the D of a body lying on it does not tilt (docs/crack_finder.md,
+        "The contact normal between two bodies")."""
         c = cell_of(xq)
         u = cell_units(xq)
         Sw, SD = 0.0, 0.0
@@ -28,7 +32,11 @@ def sph_funcs(ctx, cl) -> Sph:
             for j in range(j0, j1):
                 rv = xq - xs[j]
                 d2 = rv.norm_sqr()
-                if d2 < radius2:   # most candidates fall outside: no sqrt for them
+                keep = d2 < radius2   # most candidates fall outside: no sqrt for them
+                if ti.static(sides):
+                    if own >= 0 and side[ids[j]] != own:
+                        keep = False
+                if keep:
                     dist = ti.sqrt(d2)
                     s = dist * inv_r
                     wk, dk = sph_kernel(s)

@@ -1,12 +1,13 @@
 """P2G and G2P of a particle near a discontinuity through the tensor weights W_ip = Nt I + (Nn - Nt) n n^T: the
 @ti.funcs the solver's transfer kernels call for such particles (its ParticleTransfer: p2g, p2g_momentum, g2p).
-With crack.friction, G2P gives a particle in contact Coulomb friction against the other side (friction_at)."""
+With crack.friction, P2G adds to each node what the particles in contact across it bring (their normal momentum
+and force impulse, and their mass, momentum and normals in their normal functions), and G2P gives them the
+reaction of the friction the grid solve applied there (tensor_grid.node_friction)."""
 
 from typing import Callable, NamedTuple
 
 import taichi as ti
 
-from ...friction import friction_loss
 from ...step.transfers import moves_x
 
 
@@ -24,9 +25,10 @@ def transfer_funcs(ctx, sf) -> Transfers:
     gv_old, gv2 = grid.vec.get("v_old"), grid.vec.get("v2")
     Arows = [grid.vec[f"A{a}"] for a in range(dim)]
     family, tangential, normal_family = sf.family, sf.tangential, sf.normal_family
-    mu = float(ctx.cc.friction)
     friction = f.needs.friction
-    gdv, gmc = (grid.vec["crack_dv"], grid.scalar["crack_mc"]) if friction else (None, None)
+    gdv, gpf, gnf, gvc = ((grid.vec["crack_dv"], grid.vec["crack_pf"], grid.vec["crack_nf"], grid.vec["crack_vc"])
+                          if friction else (None,) * 4)
+    gmf, gmw = (grid.scalar["crack_mf"], grid.scalar["crack_mw"]) if friction else (None,) * 2
     lost, density, vol0 = ctx.friction_lost, ctx.solver.density, ctx.view.vol0
 
     @ti.func
@@ -70,9 +72,13 @@ def transfer_funcs(ctx, sf) -> Transfers:
                 mom_n = node_momentum(vn, Ap, r)
                 across = (mp * (wn * n.dot(mom_n) - wt * n.dot(mom_t)) + kick * n.dot(f_n - f_t)) * n
                 mv += across
-                if ti.static(friction):   # the momentum contact adds here (tensor_grid: its velocity change)
-                    add(gdv, I, across)
-                    add(gmc, I, mp * wt)
+                if ti.static(friction):
+                    if wt == 0:   # a node across: what this side brings to friction there (tensor_grid)
+                        add(gdv, I, across)
+                        add(gmf, I, mp * wn)
+                        add(gmw, I, mp * wn * wn)
+                        add(gpf, I, mp * wn * mom_n)
+                        add(gnf, I, mp * wn * n)
                 for a in ti.static(range(dim)):
                     add(Arows[a], I, mp * dw * n[a] * n)
             add(gm, I, wt * mp)   # plain adds inside the solver's colour loop (no other thread at this node)
@@ -98,21 +104,6 @@ def transfer_funcs(ctx, sf) -> Transfers:
             add(gv2, I, mv)
 
     @ti.func
-    def friction_at(p, n, v_pic, contact_dv, far_v, far_w):
-        """Coulomb friction of a particle in contact: contact changed its velocity by contact_dv (the grid's
-        coupled velocities against those of the sides apart, tensor_grid); the compressive part along -n (n points
-        across) is the normal impulse per mass `into`; the particle's slip is its tangential velocity against the
-        nodes across (far_v / far_w, their mean in Nn); friction takes mu into of it, not beyond sticking
-        (friction.friction_loss, the walls' and multi-field contact's law). Returns the velocity it takes off."""
-        loss = ti.Vector.zero(float, dim)
-        into = -n.dot(contact_dv)
-        if into > 0 and far_w > 0:
-            rel = v_pic - far_v / far_w
-            slip = rel - n.dot(rel) * n
-            loss = friction_loss(slip, into, mu)
-        return loss
-
-    @ti.func
     def g2p(p, st, deform: ti.template()):
         """(v_pic, FLIP increment, APIC B, velocity gradient G) with the modified functions.
         APIC's affine C of such a particle is its velocity gradient: B = G D_p makes the solver's
@@ -122,7 +113,8 @@ def transfer_funcs(ctx, sf) -> Transfers:
         v_pic = ti.Vector.zero(float, dim)
         dv = ti.Vector.zero(float, dim)
         G = ti.Matrix.zero(float, dim, dim)
-        contact_dv, far_v, far_w = ti.Vector.zero(float, dim), ti.Vector.zero(float, dim), 0.0   # friction's sums
+        # friction's changes (tensor_grid.node_friction): the reaction from the nodes across, the nodes' own loss
+        reaction, own = ti.Vector.zero(float, dim), ti.Vector.zero(float, dim)
         for o in ti.grouped(ti.ndrange(*sten.outer)):
           for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split of the stencil loop)
             off = o + sten.inner[k]
@@ -137,6 +129,8 @@ def transfer_funcs(ctx, sf) -> Transfers:
                 dvi = vi - gv_old[I]
             v_pic += wt * vi
             dv += wt * dvi
+            if ti.static(friction):
+                own -= wt * gvc[I]
             G += vg.outer_product(gt)
             if fam[1]:   # (Pt vg) gt^T + (Pn vg) gn^T
                 wn, gn = normal_family(fam, w, gw)
@@ -144,24 +138,16 @@ def transfer_funcs(ctx, sf) -> Transfers:
                 dv += (wn - wt) * n.dot(dvi) * n
                 G += (n.dot(vg) * n).outer_product(gn - gt)
                 if ti.static(friction):
-                    # the node's change in full to its particles in contact, the others' share included: their
-                    # friction then takes mu times the whole normal impulse (sum_p m_p wt = the node's mass)
-                    share = 0.0
-                    if gmc[I] > 0:
-                        share = gm[I] / gmc[I]
-                    contact_dv += (wn - wt) * n.dot(vi) * n + wt * share * gdv[I]
-                    if wt == 0:   # a node across
-                        far_v += wn * vi
-                        far_w += wn
+                    own -= (wn - wt) * n.dot(gvc[I]) * n
+                    if wt == 0:   # a node across: friction's reaction there, shared in the normal functions
+                        reaction += wn * gdv[I]
         if ti.static(friction):
-            if fam[1]:
-                loss = friction_at(p, n, v_pic, contact_dv, far_v, far_w)
-                if ti.static(moves_x(deform)):   # once a step (MUSL and USF read the grid twice)
-                    # the kinetic energy friction takes, m (v.loss - |loss|^2 / 2): over both sides of a contact
-                    # the impulse times the relative slip, once (docs/crack_finder.md, "Friction")
-                    lost[0][None] += density(p) * vol0[p] * (v_pic.dot(loss) - 0.5 * loss.dot(loss))
-                v_pic -= loss
-                dv -= loss
+            if ti.static(moves_x(deform)):   # once a step (MUSL and USF read the grid twice)
+                # the kinetic energy friction took from this particle: v_pic holds its own nodes' change already
+                change = own + reaction
+                lost[0][None] -= density(p) * vol0[p] * ((v_pic - own).dot(change) + 0.5 * change.dot(change))
+            v_pic += reaction
+            dv += reaction
         return v_pic, dv, G @ sten.inertia(st), G
 
     return Transfers(p2g=p2g, p2g_momentum=p2g_momentum, g2p=g2p)
