@@ -117,9 +117,9 @@ def test_block_slides_down_an_incline_in_3d(mu):
                    "creeps (docs/crack_finder.md, 'Friction')")
 def test_block_stays_at_rest_where_friction_holds_it():
     """At 20 deg with mu 0.5 > tan 20 the block should stay at rest: drift below 1e-3 of g t^2 / 2 (the issue's bar).
-    Measured: 2.0e-2 at dx 0.025 in 2D (1.9e-2 in 3D; 5.2e-2 at dx 0.05), a steady creep of ~0.011 m/s: each step
-    friction takes only part of the slip back, as the particles across a node join it only with their normal
-    functions' share of their mass."""
+    Measured: 2.0e-2 at dx 0.025 in 2D (1.9e-2 in 3D; 5.2e-2 at dx 0.05), a steady creep of ~0.011 m/s: friction
+    stops the nodes where the sides meet, but the particles' tangential functions, renormalised over their own
+    side's nodes, read the nodes above them, which gravity moves each step (docs/crack_finder.md, "Friction")."""
     t, v, sim = incline(20.0, 0.5)
     x = np.cumsum(np.diff(np.concatenate([[0.0], t])) * v)
     assert abs(x[-1]) < 1e-3 * 0.5 * G * T**2, x[-1] / (0.5 * G * T**2)
