@@ -17,6 +17,7 @@ cell list and contact pool are fixed fields the estimate leaves out, docs/archit
 
     python benchmarks/contact_cost.py                 # dx 0.02 (disks) and 0.025 (block)
     python benchmarks/contact_cost.py --tiny          # coarser and shorter: seconds (tests/test_benchmarks.py)
+    python benchmarks/contact_cost.py --plot docs/images/contact_cost.png   # also the three panels of docs/contact.md
 """
 from __future__ import annotations
 
@@ -131,6 +132,7 @@ def main(argv=None):
     p = parser(__doc__)
     p.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES))
     p.add_argument("--worker", help="internal: scene,method; run one case and print its row")
+    p.add_argument("--plot", type=Path, help="also draw time per step, memory and |error| per scene and method here")
     a = p.parse_args(argv)
     if a.worker:
         scene, method = a.worker.split(",")
@@ -144,7 +146,34 @@ def main(argv=None):
                 r["time_vs_crack"] = r["ms_per_step"] / ref["ms_per_step"]
                 r["memory_vs_crack"] = r["memory_mb"] / ref["memory_mb"]
     report([copy.copy(r) for r in rows], a.json)
+    if a.plot:
+        plot(rows, a.scenes, a.plot)
     return rows
+
+
+def plot(rows, scenes, path):
+    """Three panels side by side, each a pair of bars per scene (crack finder, multi_field): CPU ms per step, the
+    memory estimate and the error's magnitude in percent (its meaning per scene: the table's error_is)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [("cpu_ms_per_step", "CPU ms per step"), ("memory_mb", "memory [MB]"), ("error", "|error| [%]")]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
+    x = np.arange(len(scenes))
+    for ax, (key, label) in zip(axes, panels):
+        for k, method in enumerate(METHODS):
+            vals = [next((abs(r[key]) * (100 if key == "error" else 1) for r in rows
+                          if r["scene"] == s and r["method"] == method and key in r), np.nan) for s in scenes]
+            ax.bar(x + (k - 0.5) * 0.38, vals, 0.38, label=method)
+        ax.set_xticks(x, scenes, rotation=15)
+        ax.set_ylabel(label)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0].legend()
+    fig.suptitle("contact: crack finder (one field) against multi-velocity-field contact (2D, quadratic, f64, CPU)")
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":
