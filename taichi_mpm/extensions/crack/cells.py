@@ -140,6 +140,7 @@ def bin_cells_kernel(ctx, cl: CellList):
     cell_lo, cell_hi, cell_varies, xs, vs, d_range = f.cell_lo, f.cell_hi, f.cell_varies, f.xs, f.vs, f.d_range
     n_cell_total, cells_v, nbr, cached = f.n_cell_total, ti.Vector(f.cells), ctx.nbr, f.cached
     x_ref, cell_dlo, cell_dhi, cell_drift = (f.x_ref, f.cell_dlo, f.cell_dhi, f.cell_drift) if cached else (None,) * 4
+    side, ss, by_side = f.side, f.ss, f.ss is not None
     cell_of, flat, unflat = cl.cell_of, cl.flat, cl.unflat
     rescan, binned_position = _binning_funcs(ctx, cl)
 
@@ -178,6 +179,8 @@ def bin_cells_kernel(ctx, cl: CellList):
             q = ids[j]
             xs[j] = binned_position(q, at_refresh)
             vs[j] = ti.Vector([vol0[q], vol0[q] * D[q]])
+            if ti.static(by_side):
+                ss[j] = side[q]
         # refresh steps only: the cells' min / max of D and box of motion since the last refresh, then over each
         # occupied cell's 5^d block (where D varies; how far particles that reach each other moved apart)
         d_range[0], d_range[1] = 1.0, 0.0

@@ -18,12 +18,12 @@ from .constants import ALL, CELL_SPLIT, MAX_CELLS
 
 def grid_fields(dim: int, sides: int = 0, friction: bool = False) -> tuple[list[str], list[str]]:
     """The crack finder's fields in the solver's grid (cleared with it each step): vectors (the rows of the
-    anisotropic node mass A_i, the node normal; with friction, the contact's momentum at the node, then the velocity
-    friction gives the particles across; the momentum and the normals the particles across bring; the node's velocity
-before walls and grips) and scalars (the
-    node's mark: 1 in a near particle's stencil, 2 on the discontinuity; with two or more interface bodies, the
-    largest weight an interface body's particle has at the node and that body, its owner; with friction, the mass
-    the particles across bring in their normal functions, and in their squares)."""
+    anisotropic node mass A_i, the node normal; with friction, the normal momentum the particles across bring, then
+    the velocity friction gives them; their momentum and normals; the node's velocity before walls and grips, then
+    its own loss to friction) and scalars (the node's mark: 1 in a near particle's stencil, 2 on the discontinuity;
+    with two or more interface bodies, the largest weight an interface body's particle has at the node and that
+    body, its owner; with friction, the mass the particles across bring in their normal functions, and in their
+    squares)."""
     owners = ["crack_wmax", "crack_owner"] if sides else []
     far = ["crack_dv", "crack_pf", "crack_nf", "crack_vc"] if friction else []
     vectors = [f"A{a}" for a in range(dim)] + ["crack_n"] + far
@@ -99,10 +99,12 @@ class CrackNeeds:
                    if self.sides and self.contact else []))
 
     def cell_order_fields(self, d: int) -> list[FieldDecl]:
-        """Per particle: its cell, the cell order, positions, SPH weights (and normals) in cell order."""
+        """Per particle: its cell, the cell order, positions, SPH weights (and normals, interface sides) in cell
+        order."""
         return ([FieldDecl("pcell", "i32"), FieldDecl("ids", "i32"), FieldDecl("xs", "real", (d,)),
                  FieldDecl("vs", "real", (2,))]
-                + ([FieldDecl("ns", "real", (d,), "contact in compression")] if self.contact else []))
+                + ([FieldDecl("ns", "real", (d,), "contact in compression")] if self.contact else [])
+                + ([FieldDecl("ss", "i32", (), "two or more interface bodies")] if self.sides else []))
 
     def kept_fields(self, d: int) -> list[FieldDecl]:
         """Per particle, with kept normals: the kept normal and state, positions at the refresh, drift, the
@@ -190,6 +192,7 @@ class CrackFields:
         for name, f in allocate(self.needs.cell_order_fields(d), n).items():
             setattr(self, name, f)
         self.ns = getattr(self, "ns", None)
+        self.ss = getattr(self, "ss", None)   # the interface side in cell order (the SPH sums stream it)
 
     def _kept_normals(self, d, n, cc, grid_shape):
         # per particle: n_p as the gradient sums gave it (before band normals) and the state they gave, positions at

@@ -14,7 +14,7 @@ def sph_funcs(ctx, cl) -> Sph:
     dim, xs, vs = ctx.fields.dim, ctx.fields.xs, ctx.fields.vs
     rows, radius2, inv_r = ctx.rows, ctx.radius2, ctx.inv_r
     cell_of, cell_units, row = cl.cell_of, cl.cell_units, cl.row
-    sides, side, ids = ctx.fields.sides, ctx.fields.side, ctx.fields.ids
+    sides, ss = ctx.fields.sides, ctx.fields.ss
 
     @ti.func
     def damage_field(xq, own):
@@ -34,7 +34,7 @@ def sph_funcs(ctx, cl) -> Sph:
                 d2 = rv.norm_sqr()
                 keep = d2 < radius2   # most candidates fall outside: no sqrt for them
                 if ti.static(sides):
-                    if own >= 0 and side[ids[j]] != own:
+                    if own >= 0 and ss[j] != own:
                         keep = False
                 if keep:
                     dist = ti.sqrt(d2)
