@@ -295,8 +295,8 @@ class Domain(Strict):
 
 
 class Cpdi(Strict):
-    # cpdi1: parallelogram / parallelepiped domains r_a = F r_a0 (Sadeghirad et al. 2011); cpdi2: corners tracked
-    # as their own points (Sadeghirad et al. 2013), not implemented yet
+    # cpdi1: parallelogram / parallelepiped domains r_a = F r_a0 (Sadeghirad et al. 2011); cpdi2: quadrilateral /
+    # hexahedral domains whose corners are tracked as their own points (Sadeghirad et al. 2013)
     variant: Literal["cpdi1", "cpdi2"] = "cpdi1"
 
 
@@ -645,9 +645,7 @@ class Config(Strict):
         self._check_contact()
         self._check_transfer()
         self._check_unused_settings()
-        if self.solver.cpdi.variant == "cpdi2":   # (solver.cpdi is refused above unless the basis reads it)
-            raise _Located("solver.cpdi.variant", "cpdi2 (corners tracked as their own points, Sadeghirad et al. "
-                                                  "2013) is not implemented yet; use cpdi1")
+        self._check_cpdi2()
         self._check_probes()
         self._check_ranges()
         return self
@@ -776,6 +774,19 @@ class Config(Strict):
         if any(p.type == "wall" for p in self.output.probes):
             raise _Located("output.probes", "wall probes are not available with multi_field contact: they measure "
                                             "the centre-of-mass field, not the bodies' fields the walls act on")
+
+    def _check_cpdi2(self):
+        """cpdi2 moves each particle with its own corners (the centroid of its domain): what would move it
+        otherwise is refused (solver.cpdi is refused earlier unless the basis reads it)."""
+        if self.solver.cpdi.variant != "cpdi2":
+            return
+        if self.crack is not None:
+            raise _Located("crack", "the crack finder does not work with solver.cpdi.variant cpdi2 (its corners move "
+                                    "with one velocity field, not with the side of a crack each corner is on); use "
+                                    "cpdi1")
+        if self.solver.transfer == "asflip":
+            raise _Located("solver.transfer", "asflip's position correction moves particles off their cpdi2 "
+                                              "domain's centroid; use apic or flip with cpdi2, or cpdi1")
 
     def _check_transfer(self):
         """The transfer works with the basis (its declaration in schemes/ tests the basis') and the crack finder."""

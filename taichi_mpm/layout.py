@@ -43,6 +43,7 @@ class Needs:
     coloured: bool              # the coloured scatter's bins (scatter.BlockBins)
     crack: CrackNeeds | None
     contact: ContactNeeds | None = None   # multi-field contact's node fields (its velocity fields)
+    cpdi2: bool = False         # cpdi2's corners, each particle's own (extensions/domain_corners.py)
 
     @classmethod
     def of_simulation(cls, sim, feat, coloured: bool) -> "Needs":
@@ -80,7 +81,8 @@ class Needs:
 def _common(cfg, coloured: bool) -> dict:
     spec = bases.get(cfg.solver.basis)   # the basis' declaration (bases/registry.py)
     return dict(fbar=cfg.solver.volumetric == "fbar" and cfg.dim > 1, fbar_linear=spec.fbar_linear_grid,
-                ddmp=spec.prepass_grid, coloured=coloured)
+                ddmp=spec.prepass_grid, coloured=coloured,
+                cpdi2=spec.stencil_kind == "corners" and cfg.solver.cpdi.variant == "cpdi2")
 
 
 def solver_particle_fields(n: Needs) -> list[FieldDecl]:
@@ -128,13 +130,19 @@ MAPPED_XI = FieldDecl("xi", "real", (2,), "domain.map")     # each particle's pa
 FBAR_J = FieldDecl("J_start", "real", (), "fbar")            # det F at the start of the step
 
 
+def cpdi2_corners(dim: int) -> FieldDecl:
+    """cpdi2: each particle's 2^d domain corners, as the rows of a matrix."""
+    return FieldDecl("corners", "real", (2 ** dim, dim), "cpdi2")
+
+
 def particle_fields(n: Needs) -> list[FieldDecl]:
-    """Every per-particle field of the scene: the solver's, the coloured scatter's, the mapped grid's, F-bar's and
-    the crack finder's."""
+    """Every per-particle field of the scene: the solver's, the coloured scatter's, the mapped grid's, F-bar's,
+    cpdi2's corners and the crack finder's."""
     out = solver_particle_fields(n)
     out += scatter_particle_fields(n.dim) if n.coloured else []
     out += [MAPPED_XI] if n.mapped else []
     out += [FBAR_J] if n.fbar else []
+    out += [cpdi2_corners(n.dim)] if n.cpdi2 else []
     out += n.crack.particle_fields(n.dim) if n.crack is not None else []
     return out
 

@@ -50,7 +50,8 @@ FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
                3: "particle left the domain",
                4: "fluid volume collapse",
                5: "particle domain corner left the domain (cpdi)",
-               6: "particle left the mapped grid (domain.map could not be inverted there)"}
+               6: "particle left the mapped grid (domain.map could not be inverted there)",
+               7: "particle domain folded (cpdi2: its corners crossed over)"}
 ENERGY_GROWTH = "energy growth beyond the work done on the system"
 NUMERICAL_FRACTURE = "numerical fracture (a body tore apart on the grid)"
 CAUSES = (*FAIL_CAUSES.values(), ENERGY_GROWTH, NUMERICAL_FRACTURE)  # every InstabilityError.cause the solver raises
@@ -471,9 +472,12 @@ class Simulation:
         elif kind == 1 and hint:
             detail += "; " + hint
         elif kind == 5:
-            detail += ("; a corner x_p + F r0 of the particle's CPDI domain crossed a wall, where the linear grid "
+            detail += ("; a corner of the particle's CPDI domain crossed a wall, where the linear grid "
                        "functions end; fix: keep bodies half a particle spacing off walls they stretch towards, "
                        "or a larger domain")
+        elif kind == 7:
+            detail += ("; the grid velocity moved two corners of the domain across each other within one step "
+                       "(a particle squeezed or sheared faster than the step follows); fix: lower solver.cfl")
         elif kind in (1, 2):
             detail += f"; fix: lower solver.cfl (measured stable limits per basis and transfer: docs/accuracy.md)"
         elif kind == 4:

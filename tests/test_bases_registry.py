@@ -55,8 +55,9 @@ def test_registration_rules():
      "is read by solver.basis gimp only (the basis is linear): remove it or use basis gimp"),
     (dict(basis="gimp", cpdi=dict(variant="cpdi2")), "solver.cpdi",
      "is read by solver.basis cpdi only (the basis is gimp): remove it or use basis cpdi"),
-    (dict(basis="cpdi", cpdi=dict(variant="cpdi2")), "solver.cpdi.variant",
-     "cpdi2 (corners tracked as their own points, Sadeghirad et al. 2013) is not implemented yet; use cpdi1"),
+    (dict(basis="cpdi", transfer="asflip", cpdi=dict(variant="cpdi2")), "solver.transfer",
+     "asflip's position correction moves particles off their cpdi2 domain's centroid; use apic or flip with cpdi2, "
+     "or cpdi1"),
 ])
 def test_messages_read_from_the_declarations(change, key, message):
     cfg = make_cfg(2)

@@ -13,14 +13,15 @@ BASES = ["linear", "gimp", "quadratic", "cubic"]
 TRANSFERS = ["pic", "flip", "apic"]
 
 
-def moving_block(dim=2, basis="quadratic", transfer="apic", update="usl", sparse=True, steps=20, knots=None):
+def moving_block(dim=2, basis="quadratic", transfer="apic", update="usl", sparse=True, steps=20, knots=None,
+                 **solver):
     """A block drifting, spinning and breathing (so it carries stress), free walls; returns the momenta
     (Simulation.momentum()) before and after, and the scale sum m |v|.
     The drift is kept slow: with the linear basis a particle of a stressed body crossing into an empty
     cell meets a node of tiny mass and full gradient, and the block collapses (J <= 0 within ~20 steps
     at 0.2 m/s, measured) -- the known linear-MPM cell-crossing failure, not a conservation matter."""
     cfg = make_cfg(dim, basis=basis, transfer=transfer, update=update, dx=0.05 if dim == 2 else 0.1, E=1e4,
-                   lower=[0.35] * dim, upper=[0.65] * dim)
+                   lower=[0.35] * dim, upper=[0.65] * dim, **solver)
     cfg["domain"]["sparse"] = sparse
     cfg["domain"]["boundaries"]["default"] = "free"
     if knots is not None:

@@ -214,6 +214,7 @@ CASES = {
     "2d pic f32": lambda: make_cfg(2, transfer="pic", precision="f32"),
     "3d gimp mixed spacing, two materials": lambda: _two_bodies(make_cfg(3, basis="gimp", precision="f32")),
     "2d cpdi mixed spacing": lambda: _two_bodies(make_cfg(2, basis="cpdi", dx=0.05)),
+    "3d cpdi2 f32": lambda: make_cfg(3, basis="cpdi", precision="f32", dx=0.1, cpdi=dict(variant="cpdi2")),
     "2d ddmp sparse": lambda: make_cfg(2, basis="ddmp", dx=0.05),
     "2d ddmp dense": lambda: _dense(make_cfg(2, basis="ddmp", dx=0.05)),
     "2d fbar quadratic": lambda: make_cfg(2, volumetric="fbar", dx=0.05),

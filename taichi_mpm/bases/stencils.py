@@ -18,110 +18,26 @@ contributions (CPDI: once per corner that reaches it); sums over contributions a
   domain (free surfaces), the blend moves to the linear gradient: alpha_p = max(alpha_p, 1 - min fill), fill =
   sum_q V_q N_j(x_q) / (the dual domain's volume), from a nodal-volume pass before P2G (`Stencil.prepare`), so that
   no node without material receives force.
-- cpdi (CPDI1, Sadeghirad, Brannon & Burghardt 2011, IJNME 86): the particle domain is the parallelogram /
-  parallelepiped x_p + A xi, xi in [-1, 1]^d, with half-edge vectors A = F A0 (A0 = half the initial spacing per
-  axis; full F, rotation included). Linear grid functions N_i are replaced over the domain by their multilinear
-  interpolant from the 2^d corners x_c = x_p + A s_c (s_c in {-1, 1}^d), which gives
-      S_ip      = 2^-d sum_c N_i(x_c)
-      grad S_ip = 2^-d sum_c N_i(x_c) A^-T s_c          (the domain average of the interpolant's gradient)
-  The contribution index is (corner bits, node offset bits): 4^d contributions. While the corners are inside the
-  grid, sum S = 1, sum S x_i = x_p, sum grad S = 0 and sum x_i (x) grad S = I exactly (tests/test_cpdi.py), and
-  APIC's D_p = 2^-d sum_c diag(t (1 - t)) dx^2 + A A^T (t: corner's position in its cell) is never singular.
+- cpdi (CPDI1 and CPDI2): the linear grid functions sampled at the corners of each particle's domain, built in
+  corners.py.
 - mapped (domain.map): the rational basis R_i at the particle's parametric coordinates, 3 x 3 control points, with
   physical gradients J^-T grad_xi R_i (the grid itself, xi_p and its Newton search are in mapped.py).
 
 Physics code only: no CLI, rendering or file I/O here.
 """
 
-import itertools
-import math
-from dataclasses import dataclass, field
-from typing import Any, Callable, Optional
-
 import taichi as ti
 from taichi.lang.matrix import make_matrix
 
 from .. import traced
-
-
-@dataclass
-class KernelContext:
-    """What a kernel builder (solver, F-bar, crack finder) may use: compile-time constants, the particle and grid
-    fields, the stencil, and the solver's material and wall funcs. Built once by `Simulation._build_kernels`."""
-    dim: int
-    dx: float
-    lower: Any                       # ti.Vector, domain lower corner
-    upper: Any
-    n_cells: list
-    basis: Any                       # basis.Basis
-    feat: Any                        # step.Features: the scene's compile-time switches
-    precision: str
-    # particle fields
-    x: Any
-    v: Any
-    F: Any
-    C: Any
-    vol0: Any
-    mat: Any
-    half_width: Any                  # per-particle domain half-width (grid units) or None
-    domain_lp0: float                # domain half-width (grid units) when every particle has the same one
-    gimp_deforming: bool
-    unroll: Any                      # solver.unroll: "auto", True or False (_loops)
-    # grid
-    grid: Any
-    stencil: "Stencil" = None
-    # solver funcs (@ti.func), set once the solver has defined them
-    density: Optional[Callable] = None
-    kirchhoff: Optional[Callable] = None       # (p, F) -> Kirchhoff stress
-    wall: Optional[Callable] = None            # (I, v) -> v with wall conditions
-    gravity_kick: Any = None    # ti.func (kick_before, kick_after) -> the velocity gravity adds over a leapfrog kick
-    add: Optional[Callable] = None   # @ti.func (g, I, value): g[I] += value, plain where P2G scatters by colours
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def gm(self):
-        return self.grid.m
-
-    @property
-    def gv(self):
-        return self.grid.vec["v"]
-
-    @property
-    def gv_old(self):
-        return self.grid.vec.get("v_old")
-
-    @property
-    def gv2(self):
-        return self.grid.vec.get("v2")
-
-    @property
-    def vgrad(self):
-        """The grid velocity F's update reads: MUSL's remapped one, else the updated one."""
-        return self.gv2 if self.feat.musl else self.gv
-
-
-@dataclass
-class Stencil:
-    span: list                  # extents of the contribution index (ti.ndrange(*span) visits every contribution)
-    outer: list                 # the loop split by `unroll`: ndrange(*outer) at run time, `inner` unrolled
-    inner: list
-    at: Callable                # @ti.func (p) -> per-particle stencil data st
-    node: Callable              # @ti.func (st, off) -> (storage index I, w, grad w, x_i - x_p)
-    inertia: Callable           # @ti.func (st) -> APIC's D_p = sum w (x_i - x_p)(x_i - x_p)^T
-    inertia_inverse: Callable   # @ti.func (st) -> D_p^-1 (zero along an axis where D_p vanishes)
-    index: Callable             # @ti.func (off) -> flat contribution number 0..count-1
-    count: int
-    prepare: Optional[Callable] = None   # per step before P2G, for stencils that read grid state (ddmp)
-    origin: Optional[Callable] = None    # @ti.func (p) -> the first node of a tensor stencil (scatter.BlockBins)
+from .corners import cpdi_stencil
+from .stencil_parts import (AUTO_INNER, KernelContext, Stencil, domain_half_width, flat_index,  # noqa: F401
+                            loops)
 
 
 def make_stencil(ctx: KernelContext) -> Stencil:
-    build = {"tensor": _tensor_stencil, "corners": _cpdi_stencil, "mapped": _mapped_stencil}[ctx.basis.kind]
+    build = {"tensor": _tensor_stencil, "corners": cpdi_stencil, "mapped": _mapped_stencil}[ctx.basis.kind]
     return build(ctx)
-
-
-AUTO_FULL = 16   # solver.unroll auto: stencils of at most this many contributions are unrolled whole
-AUTO_INNER = 9   # and larger tensor stencils their trailing axes, up to this many nodes per run-time iteration
 
 
 UNROLL_WORK = 1e7   # solver.unroll auto: runs of fewer particle-steps keep the whole stencil loop at run time
@@ -137,52 +53,10 @@ def resolve_unroll(setting, particle_steps: float):
     return setting
 
 
-def _loops(span: list, unroll, auto_inner: int = 1):
-    """Split the contribution index into a run-time loop `outer` and a statically unrolled `inner` list (the
-    trailing axes, as many as fit in `n` contributions). Unrolled nodes keep the weights in registers but each adds
-    its code to the compile: true unrolls everything, false nothing, auto stencils of at most AUTO_FULL
-    contributions whole and larger ones up to `auto_inner` per run-time iteration (tensor stencils: their
-    trailing axes, 3D quadratic 9 of 27, cubic 4 of 64)."""
-    n = math.prod(span) if unroll is True or (unroll == "auto" and math.prod(span) <= AUTO_FULL) else 1
-    if unroll == "auto" and n == 1:
-        n = auto_inner
-    d = len(span)
-    while d > 0 and math.prod(span[d - 1:]) <= n:
-        d -= 1
-    outer = list(span[:d]) + [1] * (len(span) - d)
-    inner = [ti.Vector([0] * d + list(o)) for o in itertools.product(*[range(s) for s in span[d:]])]
-    return outer, inner
-
-
-def _flat_index(span):
-    @ti.func
-    def index(off):
-        k = 0
-        for a in ti.static(range(len(span))):
-            k = k * span[a] + off[a]
-        return k
-    return index
-
-
-def _domain_half_width(ctx: KernelContext):
-    """@ti.func (p) -> the particle's initial domain half-width in grid units."""
-    half_width, lp0 = ctx.half_width, ctx.domain_lp0
-    per_particle = half_width is not None
-
-    @ti.func
-    def lp(p):
-        res = ti.cast(lp0, float)
-        if ti.static(per_particle):
-            res = half_width[p]
-        return res
-    return lp
-
-
 # B-spline particles within WALL_LAYER x r0 (r0: half the initial particle spacing) of a face that holds material
 # are transferred from that depth; the scene seeds the outer particles of a body flush against a face at r0, so only
 # particles placed on a face (set_particles) or compressed to half their spacing against it are affected
 WALL_LAYER = 0.5
-CPDI_CORNER_TOL = 0.01   # cells: how far a CPDI domain corner may lie beyond a wall (make_corner_check)
 
 
 def wall_holds(ctx: KernelContext):
@@ -202,7 +76,7 @@ def make_wall_hold(ctx: KernelContext):
     basis meets such a face."""
     holds, dim, inv_dx, lower = wall_holds(ctx), ctx.dim, 1.0 / ctx.dx, ctx.lower
     n_cells, dx = ctx.n_cells, ctx.dx
-    half_width = _domain_half_width(ctx)
+    half_width = domain_half_width(ctx)
     active = holds is not None
     holds = holds or [(False, False)] * dim
 
@@ -232,11 +106,11 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     domain_weights, gimp_deforming = basis.spec.particle_domains, ctx.gimp_deforming   # uGIMP: lp per particle
     averaged = basis.domain_quadrature
     smooth = basis.smooth_1d is not None   # ddmp
-    half_width = _domain_half_width(ctx)
+    half_width = domain_half_width(ctx)
     holds = wall_holds(ctx)   # B-splines: per axis and side, transfer from at least WALL_LAYER r0 inside
     d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * dx * dx  # smallest D_p entry inverted
     span = [S] * dim
-    outer, inner = _loops(span, ctx.unroll, auto_inner=AUTO_INNER)
+    outer, inner = loops(span, ctx.unroll, auto_inner=AUTO_INNER)
     prepare, fill = _dual_domain_fill(ctx, span) if smooth else (None, None)
 
     @traced.traced
@@ -349,7 +223,7 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     def origin(p):
         return axes_of(p, with_fill=False)[0]   # the weights are dead code here, removed by the compiler
 
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), S ** dim, prepare,
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), S ** dim, prepare,
                    origin)
 
 
@@ -387,7 +261,7 @@ def _dual_domain_fill(ctx: KernelContext, span: list):
                 if w > 0:
                     vol[base + off] += w * Vp
 
-    outer, inner = _loops(span, "auto", auto_inner=S)   # 3D: 64 nodes unrolled in every `at` compiled for 20 s
+    outer, inner = loops(span, "auto", auto_inner=S)   # 3D: 64 nodes unrolled in every `at` compiled for 20 s
 
     @ti.func
     def fill(base):
@@ -412,89 +286,6 @@ def _dual_domain_fill(ctx: KernelContext, span: list):
         scatter()
 
     return prepare, fill
-
-
-def _cpdi_stencil(ctx: KernelContext) -> Stencil:
-    dim, dx, inv_dx = ctx.dim, ctx.dx, 1.0 / ctx.dx
-    basis, n_cells, lower = ctx.basis, ctx.n_cells, ctx.lower
-    nc = 2 ** dim                      # corners
-    share = 1.0 / nc
-    x, F = ctx.x, ctx.F
-    half_width = _domain_half_width(ctx)
-    # corner c = sum_a bit_a 2^a has sign s_a = 2 bit_a - 1
-    signs = ti.Matrix([[2.0 * ((c >> a) & 1) - 1.0 for a in range(dim)] for c in range(nc)])
-
-    @ti.func
-    def corner_sign(c):
-        s = ti.Vector.zero(float, dim)
-        for a in ti.static(range(dim)):
-            s[a] = signs[c, a]
-        return s
-
-    @ti.func
-    def at(p):
-        """Per corner: first node of its linear stencil (storage index), the weight of that node per axis
-        (the other node has 1 - that) and the gradient direction 2^-d A^-T s_c; the particle position."""
-        A = F[p] * (half_width(p) * dx)           # half-edge vectors r_a = F r_a0 as columns
-        G = A.inverse().transpose() * share
-        base = ti.Matrix.zero(int, nc, dim)
-        W0 = ti.Matrix.zero(float, nc, dim)
-        GS = ti.Matrix.zero(float, nc, dim)
-        xp = x[p]
-        for c in ti.static(range(nc)):
-            s = corner_sign(c)
-            u = (xp + A @ s - lower) * inv_dx
-            g = G @ s
-            for a in ti.static(range(dim)):
-                # a corner further beyond a wall than the corner check admits is weighted at that distance: the
-                # check stops the run in this step's G2P, and extrapolating further (a domain on a face reaches r0
-                # past it: weights 1.25 / -0.25) made D_p indefinite, a NaN before the check could name the cause
-                ua = ti.min(ti.max(u[a], -CPDI_CORNER_TOL), n_cells[a] + CPDI_CORNER_TOL)
-                b, w, dw = basis.weights_1d(ua, n_cells[a], 0.0)
-                base[c, a] = b
-                W0[c, a] = w[0]
-                GS[c, a] = g[a]
-        return base, W0, GS, xp, A
-
-    @ti.func
-    def node(st, off):
-        """off = (corner bits, node offset bits): node base_c + offset, w = 2^-d N_i(x_c), grad = N_i(x_c) times
-        corner c's gradient direction."""
-        base, W0, GS, xp, A = st
-        c = 0
-        for a in ti.static(range(dim)):
-            c += off[a] << a
-        I = ti.Vector.zero(int, dim)
-        N = 1.0
-        grad = ti.Vector.zero(float, dim)
-        r = ti.Vector.zero(float, dim)
-        for a in ti.static(range(dim)):
-            k = off[dim + a]
-            I[a] = base[c, a] + k
-            w0 = W0[c, a]
-            N *= w0 + ti.cast(k, float) * (1.0 - 2.0 * w0)   # k = 0: w0, k = 1: 1 - w0
-            grad[a] = GS[c, a]
-            r[a] = lower[a] + basis.coord(I[a], n_cells[a]) * dx - xp[a]
-        return I, share * N, N * grad, r
-
-    @ti.func
-    def inertia(st):
-        """D_p = 2^-d sum_c diag(t (1 - t)) dx^2 + A A^T (t: the corner's coordinate within its cell, i.e. the
-        linear hat's own second moment at x_c, plus the corners' spread about x_p)."""
-        base, W0, GS, xp, A = st
-        D = A @ A.transpose()
-        for c in ti.static(range(nc)):
-            for a in ti.static(range(dim)):
-                D[a, a] += share * W0[c, a] * (1.0 - W0[c, a]) * dx * dx
-        return D
-
-    @ti.func
-    def inertia_inverse(st):
-        return inertia(st).inverse()   # positive definite while det F > 0 (>= A A^T)
-
-    span = [2] * (2 * dim)
-    outer, inner = _loops(span, ctx.unroll)
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 4 ** dim)
 
 
 def _mapped_stencil(ctx: KernelContext) -> Stencil:
@@ -549,33 +340,5 @@ def _mapped_stencil(ctx: KernelContext) -> Stencil:
             D += ti.Matrix.identity(float, 2) * d_min
         return D.inverse()
 
-    outer, inner = _loops(span, ctx.unroll)
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, _flat_index(span), 9)
-
-
-def make_corner_check(ctx: KernelContext):
-    """@ti.func (p, xp, Fp) -> True when a corner of the particle's domain lies beyond a wall (by more than tol);
-    False for bases without particle domains."""
-    dim, dx = ctx.dim, ctx.dx
-    cpdi = ctx.basis.kind == "corners"   # particle-domain corners
-    half_width = _domain_half_width(ctx)
-    lower, upper = ctx.lower, ctx.upper
-    # A corner a little past a wall is harmless: its cell is clamped to the wall cell, whose linear functions
-    # extrapolate with partition of unity and linear reproduction intact (weights down to -tol / dx). A body
-    # pressed against a sticky wall has such corners: x_p - F_p r0 misses the material point on the wall by the
-    # displacement's curvature, u'' r0^2 / 2 (G = 0.05 manufactured solution: 5e-5 dx at 16 cells, ~dx^2).
-    # A hundredth of a cell admits that and still stops a domain that has truly crossed.
-    tol = CPDI_CORNER_TOL * dx
-
-    @ti.func
-    def outside(p, xp, Fp):
-        res = False
-        if ti.static(cpdi):
-            A = Fp * (half_width(p) * dx)
-            for c in ti.static(range(2 ** dim)):
-                s = ti.Vector([2.0 * ((c >> a) & 1) - 1.0 for a in range(dim)])
-                xc = xp + A @ s
-                if (xc < lower - tol).any() or (xc > upper + tol).any():
-                    res = True
-        return res
-    return outside
+    outer, inner = loops(span, ctx.unroll)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), 9)

@@ -61,7 +61,7 @@ class FBar:
         return layout.FBAR_J.nbytes(self.sim.cfg.precision)
 
     def build(self, ctx):
-        """Compile the kernels with the solver's stencil (stencils.KernelContext)."""
+        """Compile the kernels with the solver's stencil (stencil_parts.KernelContext)."""
         sim = self.sim
         dim = sim.dim
         x, F, vol0, J_start = sim.x, sim.F, sim.vol0, self.J_start

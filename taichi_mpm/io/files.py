@@ -32,6 +32,7 @@ from .. import fields as registry
 
 SNAPSHOT = "particles_{:06d}"
 PVD_NAME = "particles.pvd"
+DOMAINS_PVD = "domains.pvd"          # cpdi2: the particle domains' series (one *_domains.vtu per snapshot)
 DIAGNOSTICS_NAME = "diagnostics.csv"
 CHECKPOINT_NAME = "checkpoint.npz"
 CONFIG_NAME = "config.yaml"
@@ -396,6 +397,31 @@ def write_vtu(path, p: dict, fields=(), dtype=np.float64, only: bool = False):
     """One particle snapshot as a VTU of vertex cells (points padded to 3D), floating values as `dtype`."""
     with atomic_write(Path(path)) as f:
         f.write(vtu_bytes(_pad3(p["x"], dtype), point_data(p, fields, dtype, only)))
+
+
+# VTK's corner order of a line, quad and hexahedron, from the bit order of bases.corners.corner_signs
+_DOMAIN_CELLS = {1: ("line", [0, 1]), 2: ("quad", [0, 1, 3, 2]), 3: ("hexahedron", [0, 1, 3, 2, 4, 5, 7, 6])}
+
+
+def domains_name(snapshot: str) -> str:
+    """The domains file of a snapshot's VTU: particles_000012.vtu -> particles_000012_domains.vtu."""
+    return snapshot[:-len(".vtu")] + "_domains.vtu"
+
+
+def write_domains_vtu(path, p: dict, fields=(), dtype=np.float64, only: bool = False):
+    """cpdi2: each particle's domain as one cell (line, quad or hexahedron of its corners, p["domain_corners"]),
+    with the snapshot's fields as cell data, so that ParaView shows the domains as they deform."""
+    import meshio
+
+    corners = np.asarray(p["domain_corners"])
+    n, nc, dim = corners.shape
+    kind, order = _DOMAIN_CELLS[dim]
+    points = _pad3(corners.reshape(n * nc, dim), dtype)
+    cells = (np.arange(n * nc, dtype=np.int64).reshape(n, nc))[:, order]
+    data = {k: [v] for k, v in point_data(p, fields, dtype, only).items()}
+    with atomic_path(Path(path), ".vtu") as tmp:
+        meshio.write(tmp, meshio.Mesh(points, [(kind, cells)], cell_data=data), file_format="vtu",
+                     compression="zlib")
 
 
 def read_vtu(path, dim: int | None = None) -> dict:

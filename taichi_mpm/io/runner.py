@@ -171,8 +171,8 @@ class Run:
     """Writes a simulation's outputs into `out_dir` (default: output.dir of the config)."""
 
     # every kind of result: what a fresh run refuses to replace without --overwrite, and what --overwrite removes
-    STALE = ("particles_*.vtu", "particles_*.npz", io.PVD_NAME, io.DIAGNOSTICS_NAME, io.CHECKPOINT_NAME,
-             "frames/frame_*.png", "frames/.record_*.npz", "movie.mp4", "movie.gif", f"{probes.PROBES_DIR}/*.csv",
+    STALE = ("particles_*.vtu", "particles_*.npz", io.PVD_NAME, io.DOMAINS_PVD, io.DIAGNOSTICS_NAME,
+             io.CHECKPOINT_NAME, "frames/frame_*.png", "frames/.record_*.npz", "movie.mp4", "movie.gif", f"{probes.PROBES_DIR}/*.csv",
              "plots/probe_*.png", "plots/energy.png", io.CONFIG_NAME)
 
     def __init__(self, sim, out_dir=None, formats=None, every: Optional[float] = None, resume: bool = False,
@@ -367,6 +367,10 @@ class Run:
             io.write_vtu(self.out_dir / f"{name}.vtu", p, self.fields, dtype=self.dtype, only=self.only_fields)
             self.entries_written.append((t, f"{name}.vtu"))
             io.write_pvd(self.out_dir / io.PVD_NAME, self.entries_written)
+            if "domain_corners" in p:   # cpdi2: the domains as cells, a series of their own
+                io.write_domains_vtu(self.out_dir / io.domains_name(f"{name}.vtu"), p, self.fields,
+                                     dtype=self.dtype, only=self.only_fields)
+                io.write_pvd(self.out_dir / io.DOMAINS_PVD, [(t, io.domains_name(f)) for t, f in self.entries_written])
             self.writer.seconds["snapshot: vtu"] += time.perf_counter() - t0
         if "npz" in self.formats:
             io.write_npz(self.out_dir / f"{name}.npz", p, self.fields)

@@ -1,7 +1,7 @@
 """The kernels of one step, built from a step context (context.StepContext) by small factories, one job each:
 
     features.py      Features: the scene's compile-time switches (a frozen description)
-    context.py       StepContext: what the builders receive (stencils.KernelContext plus the solver's own fields)
+    context.py       StepContext: what the builders receive (stencil_parts.KernelContext plus the solver's own fields)
     affine.py        APIC's affine part and the velocity gradient a particle carries
     materials.py     the per-material dispatch (written once) and the material funcs: stress, energy, ...
     transfers.py     P2G, G2P, MUSL's momentum remap; the F update and the particle checks

@@ -1,4 +1,4 @@
-"""What the step's kernel builders receive: the shared kernel context (stencils.KernelContext: constants, particle
+"""What the step's kernel builders receive: the shared kernel context (stencil_parts.KernelContext: constants, particle
 and grid fields, the stencil) plus the fields only the solver's own kernels touch (material state, runtime
 parameters, the tractions' particle forces, accumulators, diagnostics sums) and the extensions' contributions.
 Built once by `Simulation._build_kernels`.
@@ -9,7 +9,7 @@ Physics code only: no CLI, rendering or file I/O here.
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-from ..bases.stencils import KernelContext
+from ..bases.stencil_parts import KernelContext
 
 
 @dataclass

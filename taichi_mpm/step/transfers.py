@@ -12,7 +12,8 @@ Physics code only: no CLI, rendering or file I/O here.
 
 import taichi as ti
 
-from ..bases.stencils import make_corner_check, make_wall_hold
+from ..bases.corners import make_domain_check
+from ..bases.stencils import make_wall_hold
 from ..schemes.gradient import make_gradient
 from .affine import gradient_affine
 
@@ -155,21 +156,22 @@ def make_failure_code(ctx, mf):
     lower, upper = ctx.lower, ctx.upper
     out_tol = 1e-6 * ctx.dx  # a particle on a wall that round-off moves a hair beyond it has not left the domain
     fluid_j_min = FLUID_J_MIN
-    corner_outside = make_corner_check(ctx)
+    domain_check = make_domain_check(ctx)
     is_fluid = mf.is_fluid
 
     @ti.func
     def failure(p, xp, Fp, J, speed2):
         """The cause code of a failed particle (solver.FAIL_CAUSES), 0 when it is fine."""
         code = 0
+        domain_code = domain_check(p, xp, Fp)   # cpdi: a domain corner past a wall, a folded cpdi2 domain
         if not (ti.abs(J) < 1e30 and speed2 < 1e60 and xp.norm_sqr() < 1e60):  # false for NaN too
             code = 2
         elif J <= 0:
             code = 1
         elif (xp < lower - out_tol).any() or (xp > upper + out_tol).any():
             code = 3
-        elif corner_outside(p, xp, Fp):
-            code = 5
+        elif domain_code != 0:
+            code = domain_code
         elif J < fluid_j_min:
             if is_fluid(p):
                 code = 4
@@ -207,20 +209,28 @@ def make_velocity_update(ctx):
     return velocity
 
 
-def make_position_update(ctx):
-    """@ti.func (p, dt, v_pic) -> the particle's new position, after G2P set v_p: x + dt v_pic, and ASFLIP's
-    correction b (v_p - v_pic); B-spline particles in a holding face's wall layer stay inside."""
+def make_position_update(ctx, read_v):
+    """@ti.func (p, st, dt, v_pic) -> the particle's new position, after G2P set v_p: x + dt v_pic, and ASFLIP's
+    correction b (v_p - v_pic); B-spline particles in a holding face's wall layer stay inside. cpdi2: its corners
+    move with the node velocities read_v(p, I) at them and the particle to their domain's centroid."""
     x, v, F = ctx.x, ctx.v, ctx.F
     asflip, (_, beta_min, beta) = ctx.feat.asflip, ctx.asflip
     keep_inside = make_wall_hold(ctx)
+    tracked = ctx.stencil.advance is not None
+    advance = ctx.stencil.advance(read_v) if tracked else None
 
     @ti.func
-    def position(p, dt, v_pic):
-        step = v_pic
-        if ti.static(asflip):   # the FLIP part moves the particle too, fully where it is not compressed
-            b = beta if F[p].determinant() >= 1.0 else beta_min
-            step += b * (v[p] - v_pic)
-        return keep_inside(p, x[p], x[p] + dt * step)
+    def position(p, st, dt, v_pic):
+        out = x[p]
+        if ti.static(tracked):
+            out = advance(p, st, dt)
+        else:
+            step = v_pic
+            if ti.static(asflip):   # the FLIP part moves the particle too, fully where it is not compressed
+                b = beta if F[p].determinant() >= 1.0 else beta_min
+                step += b * (v[p] - v_pic)
+            out = keep_inside(p, x[p], x[p] + dt * step)
+        return out
     return position
 
 
@@ -265,7 +275,7 @@ def make_g2p(ctx, mf, af, external_force):
     f = ctx.feat
     flip, apic, taken, has_C = f.flip, f.apic, pt is not None, C is not None
     xpic, v_star = f.xpic, ctx.grid.vec.get("xpic_sum")   # XPIC's v* (step/xpic.py)
-    transfer_velocity, new_position = make_velocity_update(ctx), make_position_update(ctx)
+    transfer_velocity, new_position = make_velocity_update(ctx), make_position_update(ctx, read_v)
     apic_gradient = gradient_affine(ctx)   # C_p = sum v_i grad w^T: TPIC, or APIC on multilinear weights
     works = ctx.body_acc is not None or f.tractions
     project_here = f.plastic and not ctx.project_after_g2p   # with F-bar: after its average (project_all)
@@ -313,12 +323,12 @@ def make_g2p(ctx, mf, af, external_force):
                 C[p] = B  # store_B
 
     @ti.func
-    def deform_particle(p, dt, v_pic, G, deform: ti.template()):
+    def deform_particle(p, st, dt, v_pic, G, deform: ti.template()):
         """Positions x += dt v_grid, F = (I + dt grad v) F (fluids keep only J), return mapping, checks.
         deform True: both; DEFORM_F or DEFORM_X: only that (USF updates F before the forces, x after them)."""
         xp = x[p]
         if ti.static(moves_x(deform)):
-            xp = new_position(p, dt, v_pic)
+            xp = new_position(p, st, dt, v_pic)
         Fp = F[p]
         if ti.static(_moves_F(deform)):
             Fp = (ti.Matrix.identity(float, dim) + dt * G) @ F[p]
@@ -361,6 +371,6 @@ def make_g2p(ctx, mf, af, external_force):
             if ti.static(velocity):
                 new_velocity(p, kick, v_pic, dv, B, G)
             if ti.static(deform):
-                deform_particle(p, dt, v_pic, G, deform)
+                deform_particle(p, st, dt, v_pic, G, deform)
 
     return dict(g2p=g2p)

@@ -85,7 +85,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
         f"{n}: {bases.get(n).description}" for n in bases.names())),
     "solver.cpdi": ("", "options of basis cpdi"),
     "solver.cpdi.variant": ("", "cpdi1: parallelogram / parallelepiped domains with half-edges F r0 (Sadeghirad et "
-                                "al. 2011); cpdi2 (corners tracked as points) is not implemented yet"),
+                                "al. 2011); cpdi2: quadrilateral / hexahedral domains whose corners move with the "
+                                "grid (Sadeghirad et al. 2013; not with a crack section or asflip)"),
     "solver.transfer": ("", "particle-grid velocity transfer (docs/transfers.md): " + "; ".join(
         f"{s.name}: {s.summary}" + (f" (bases {', '.join(schemes.bases_for(s.name))})" if s.basis_need else "")
         for s in schemes.SCHEMES.values())),
