@@ -22,7 +22,7 @@ from typing import Callable, Optional
 import numpy as np
 import taichi as ti
 
-from . import budget, host_copy, states   # states: the API's refusals (states.py)
+from . import budget, host_copy, states, tearing   # states: the API's refusals (states.py)
 from .budget import VISCOUS_DIFFUSION  # noqa: F401 (the dt rule's constant, shared with the estimate)
 from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
 from .bases import registry as bases
@@ -587,20 +587,23 @@ class Simulation:
     def _check_fracture(self):
         """Numerical fracture: a solid body whose particles spread apart further than their own F says (a body
         stretched until its particles no longer share grid nodes breaks into clumps while each clump's F stays
-        near its old value). Compares the spread tr(M2) of each body with the spread its mean F predicts from
-        the reference state, M2_pred = A M2_ref A^T with A = mean F (mean F at the reference)^-1."""
+        near its old value). Compares the spread tr(M2) of each body with the spread its particles' mean stretch
+        predicts from the reference state, M2_pred = A M2_ref A^T with A = mean U (mean U at the reference)^-1,
+        U = R^T F the stretch of F's polar decomposition (the spread is rotation-free, and so is U; a mean of F
+        itself shrinks where the rotations vary over a body, bent or twisted, and took such a body for torn). The
+        message says whether the body also forms more groups on the grid than it started with (tearing.py)."""
         if all(MODELS[m.model].fluid or MODELS[m.model].plastic for m in self._materials):
             return  # no solid body to check: skip the moments pass
         shapes = self._body_shapes()
         if self._shape_ref is None:
             self._shape_ref = shapes
             return
-        for b, (mass, M2, Fm, solid) in shapes.items():
+        for b, (mass, M2, Um, solid) in shapes.items():
             if not solid or b not in self._shape_ref:
                 continue
-            _, M2r, Fr, _ = self._shape_ref[b]
+            _, M2r, Ur, _ = self._shape_ref[b]
             try:
-                A = Fm @ np.linalg.inv(Fr)
+                A = Um @ np.linalg.inv(Ur)
             except np.linalg.LinAlgError:
                 continue
             pred = np.trace(A @ M2r @ A.T)
@@ -609,15 +612,44 @@ class Simulation:
                 raise InstabilityError(
                     NUMERICAL_FRACTURE, self.n_steps, self.time, particle=int(np.flatnonzero(self.scene.body == b)[0]),
                     detail=(f"body {b} spread {math.sqrt(ratio):.2f} x as far as its particles' deformation "
-                            f"gradients account for (mean F {np.array2string(Fm, precision=3)}): its particles "
-                            f"separated by more than a grid cell (stretched material that no longer shares grid "
-                            f"nodes stops feeling its own tension), or F no longer follows the particles' positions "
-                            f"(a body one particle thick: its F shrinks while the particles keep their spacing). "
-                            f"Fix: a finer grid (smaller domain.dx) or more particles_per_cell, basis cpdi "
-                            f"(particle domains that follow F), or a crack section if the body is meant to break"))
+                            f"gradients account for (mean stretch U {np.array2string(Um, precision=3)}); "
+                            f"{self._groups_message(b)}. Fix: a finer grid (smaller domain.dx) or more "
+                            f"particles_per_cell, basis cpdi (particle domains that follow F; cpdi2 where the "
+                            f"stretch is large and uneven), or a crack section if the body is meant to break"))
+
+    def _groups_message(self, b: int) -> str:
+        """Which of the two ways a body spreads beyond its F: it tore into groups on the grid, or it is one group
+        whose F no longer follows its particles (tearing.py counts the groups)."""
+        sel = self.scene.body == b
+        start = tearing.groups(tearing.domain_points(self.scene.x[sel], self._domain_corners(sel, self.scene.x[sel],
+                                                                                              creation=True)),
+                               self.lower, self.dx)
+        x = self._read("x")[sel]
+        now = tearing.groups(tearing.domain_points(x, self._domain_corners(sel, x, creation=False)), self.lower,
+                             self.dx)
+        if now is not None and start is not None and now > start:
+            return (f"it tore into {now} separate groups of particles on the grid (it started as {start}): "
+                    f"stretched material that no longer shares grid nodes stops feeling its own tension")
+        return ("its particles still share grid nodes, but F no longer follows their positions (a body one "
+                "particle thick: its F shrinks while the particles keep their spacing)")
+
+    def _domain_corners(self, sel: np.ndarray, x: np.ndarray, creation: bool):
+        """The domain corners (N, 2^d, d) of the selected particles at positions x (creation order) for bases with
+        particle domains: cpdi2's tracked ones (its corners now), cpdi1's x + F r0 s, gimp's x + r0 s; None for
+        the others. creation: those of the scene as created (F = I)."""
+        spec = bases.get(self.cfg.solver.basis)
+        if not spec.particle_domains:
+            return None
+        tracked = self.extension("corners")
+        if tracked is not None and not creation:
+            return tracked.corner_positions()[sel]
+        s = np.array([[2.0 * ((c >> a) & 1) - 1.0 for a in range(self.dim)] for c in range(2 ** self.dim)])
+        r0 = 0.5 * self.scene.spacing[sel, None, None]
+        F = self._read("F")[sel] if spec.stencil_kind == "corners" and not creation else np.eye(self.dim)[None]
+        return x[:, None, :] + r0 * np.einsum("pab,cb->pca", np.broadcast_to(F, (len(x), self.dim, self.dim)), s)
 
     def _body_shapes(self) -> dict:
-        """body -> (mass, second moment of position about the centre, mass-mean F, solid?)."""
+        """body -> (mass, second moment of position about the centre, mass-mean stretch U, solid?)."""
         self._k["body_moments"]()
         m = self.moments.total()
         d = self.dim
@@ -630,9 +662,9 @@ class Simulation:
                 continue
             mean = m[b, 1:1 + d] / mass
             M2 = m[b, 1 + d:1 + d + d * d].reshape(d, d) / mass - np.outer(mean, mean)
-            Fm = m[b, 1 + d + d * d:].reshape(d, d) / mass
+            Um = m[b, 1 + d + d * d:].reshape(d, d) / mass
             mats = np.unique(self.scene.material[self.scene.body == b])
-            out[b] = (mass, M2, Fm, not fluid[mats].any())
+            out[b] = (mass, M2, Um, not fluid[mats].any())
         return out
 
     def _warn_weak_fluids(self):

@@ -27,7 +27,7 @@ LAYERS = {
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
     "physics": ("grid", "bases", "extensions", "loads", "scene", "backend", "states", "causes", "step", "layout",
-                "budget", "solver", "analytic", "friction"),
+                "budget", "solver", "analytic", "friction", "tearing"),
     # output files, probes, the output-writing run, frames and plots
     "outputs": ("io", "probes"),
     # the tools: studies, stability scenarios and the CFL search, advise, compare, the windows, the config reference
@@ -37,7 +37,7 @@ LAYERS = {
 # the physics core, and the modules it may never import (issue 26)
 PHYSICS = ("solver", "bases", "grid", "materials", "extensions", "sums", "host_copy", "traced", "jit", "scene", "loads",
            "analytic", "budget", "backend", "states", "causes", "step", "fields", "layout", "field_decl", "schemes",
-           "friction")
+           "friction", "tearing")
 TOOLS = ("cli", "io", "tools", "probes")
 
 

@@ -7,6 +7,8 @@ Physics code only: no CLI, rendering or file I/O here.
 
 import taichi as ti
 
+from ..materials.tensor import rotation
+
 
 def make_diagnostics(ctx, mf, af):
     """Kernels energies(), momenta(), body_moments(), cauchy_stress(out), volume_ratios(out)."""
@@ -39,7 +41,9 @@ def make_diagnostics(ctx, mf, af):
 
     @ti.kernel
     def body_moments():
-        """Per body: mass, first and second moments of position, mass-weighted F (the fracture check)."""
+        """Per body: mass, first and second moments of position, the mass-weighted stretch U = R^T F of F's polar
+        decomposition (the fracture check: rotation-free, so that a body bent or twisted, its rotations varying
+        over it, is not taken for one that shrank)."""
         for c in range(moments.chunks):
             moments.clear(c)
             for p in range(moments.begin(c), moments.end(c)):
@@ -48,12 +52,13 @@ def make_diagnostics(ctx, mf, af):
                     b = body_id[p]
                 row = b * n_moments
                 mp = density(p) * vol0[p]
+                U = rotation(F[p]).transpose() @ F[p]
                 moments.add(c, row, mp)
                 for a in ti.static(range(dim)):
                     moments.add(c, row + 1 + a, mp * x[p][a])
                     for e in ti.static(range(dim)):
                         moments.add(c, row + 1 + dim + a * dim + e, mp * x[p][a] * x[p][e])
-                        moments.add(c, row + 1 + dim + dim * dim + a * dim + e, mp * F[p][a, e])
+                        moments.add(c, row + 1 + dim + dim * dim + a * dim + e, mp * U[a, e])
 
     @ti.func
     def angular_momentum(p, mp):
