@@ -5,6 +5,8 @@ import json
 import sys
 from pathlib import Path
 
+import yaml
+
 from ... import schemes as transfer_schemes
 from .cfl import CFL_SPEC, cfl_markdown, cfl_table
 from .picture import plot_map
@@ -22,6 +24,8 @@ def main(argv=None):
     c.add_argument("--tol", type=float, default=0.05)
     c.add_argument("--energy-limit", type=float, default=1.1)
     c.add_argument("--update", choices=("usl", "musl", "usf"), help="solver.update of every trial (default: usl)")
+    c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a config key of every trial, e.g. solver.cpdi.variant=cpdi2 (repeatable)")
     c.add_argument("--jobs", type=int, default=1)
     c.add_argument("--out", help="write the table (markdown) and trials (JSON) with this path stem")
     m = sub.add_parser("map", help="picture of a stability study's results.csv")
@@ -35,9 +39,12 @@ def main(argv=None):
         return 0
     spec = json.loads(args.spec)
     bases = args.bases.split(",") if args.bases else None
+    extra = {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in args.set)}   # values as YAML reads them
+    if args.update:
+        extra["solver.update"] = args.update
     rows = cfl_table(bases, args.transfers.split(","), spec, jobs=args.jobs, lo=args.lo, hi=args.hi,
                      tol=args.tol, energy_limit=args.energy_limit, log=lambda m: print(m, flush=True),
-                     extra={"solver.update": args.update} if args.update else None)
+                     extra=extra or None)
     md = cfl_markdown(rows, spec)
     print(md)
     if args.out:
