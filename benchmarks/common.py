@@ -47,10 +47,10 @@ def kernel_timer(spent: dict, clock=time.perf_counter):
     """timed(name, fn): fn wrapped to add its duration, between two ti.sync(), to spent[name] (per-kernel times);
     it returns what fn returns."""
     def timed(name, fn):
-        def call(*args):
+        def call(*args, **kwargs):
             ti.sync()
             t = clock()
-            out = fn(*args)
+            out = fn(*args, **kwargs)
             ti.sync()
             spent[name] = spent.get(name, 0.0) + clock() - t
             return out

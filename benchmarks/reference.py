@@ -21,6 +21,7 @@ UNROLL_LABEL = {True: " unrolled", False: " run-time loop", "auto": ""}   # "": 
 def main(argv=None):
     p = parser(__doc__)
     p.add_argument("--grid", type=int, default=64)
+    p.add_argument("--models", default="fluid,fixed_corotated", help="our material models to run (comma-separated)")
     p.add_argument("--sparse", choices=["true", "false", "both"], default="both")
     p.add_argument("--unroll", choices=["auto", "true", "false", "both"], default=None,
                    help="stencil unrolling (solver.unroll); default both (auto and true), --tiny: false "
@@ -39,7 +40,7 @@ def main(argv=None):
     import taichi_mpm as tm
 
     sparse_opts = {"both": [True, False], "true": [True], "false": [False]}[a.sparse]
-    for model in ("fluid", "fixed_corotated"):
+    for model in a.models.split(","):
         for unroll in {"both": [True, "auto"], "auto": ["auto"], "true": [True], "false": [False]}[
                 a.unroll or ("false" if a.tiny else "both")]:
             for sparse in sparse_opts:
