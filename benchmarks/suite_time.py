@@ -5,6 +5,7 @@ CLI in a subprocess show their wall time only).
 
     python benchmarks/suite_time.py                 # the README's test command, cold
     python benchmarks/suite_time.py --warm -- tests/test_crack.py
+    python benchmarks/suite_time.py --json rows.json     # every test's row, for comparing two runs
 
 Writes nothing outside temporary folders.
 """
@@ -25,6 +26,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--warm", action="store_true", help="use the user's kernel cache instead of an empty one")
     p.add_argument("--top", type=int, default=25, help="slowest tests listed")
+    p.add_argument("--json", help="also write every test's row (seconds, compile_s, inits) to this file")
     p.add_argument("pytest_args", nargs="*", help="after --: passed to pytest (default: the whole default suite)")
     a = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as out, tempfile.TemporaryDirectory() as cache:
@@ -39,6 +41,8 @@ def main(argv=None):
         wall = time.perf_counter() - t
         rows = [json.loads(line) for f in Path(out).glob("*.jsonl") for line in f.read_text().splitlines()]
     summary = run.stdout.strip().splitlines()[-1] if run.stdout.strip() else run.stderr[-500:]
+    if a.json:
+        Path(a.json).write_text(json.dumps(dict(wall=wall, summary=summary, rows=rows), indent=1))
     return report(rows, wall, summary, a.top, run.returncode)
 
 

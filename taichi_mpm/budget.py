@@ -131,8 +131,10 @@ def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
 
 
 def _coloured_scatter(cfg: Config) -> bool:
-    """Whether the solver bins particles for P2G's coloured scatter, on the arch a run gets."""
-    return scatter.coloured(cfg, gpu=resolve_arch(cfg.arch) != "cpu")
+    """Whether the solver bins particles for P2G's coloured scatter, on the arch a run gets, for the particle count
+    estimated here (the solver decides on its count: near scatter.ATOMIC_BELOW the two may differ by the bins'
+    8 bytes a particle)."""
+    return scatter.coloured(cfg, gpu=resolve_arch(cfg.arch) != "cpu", particles=sum(body_particles(cfg)[0]))
 
 
 @dataclass
@@ -423,8 +425,9 @@ def _time_step(cfg: Config, base_dir, mapped: MapSize | None = None) -> tuple[fl
     return dt, f"from the CFL rule: {rate} limit ({', '.join(keys[:-1])})", limits
 
 
-def estimate(cfg: Config, body_force: bool = False) -> Estimate:
-    """Sizes of a run from its config; reads mesh files (cached) but allocates and generates nothing."""
+def body_particles(cfg: Config) -> tuple[list[int], int]:
+    """Each body's particle count (shape volume x (particles_per_cell / dx)^dim) and the largest body's lattice
+    bytes while its particles are made."""
     d, dx = cfg.dim, cfg.domain.dx
     base_dir = base_dir_of(cfg)
     per_body, lattice = [], 0
@@ -438,6 +441,13 @@ def estimate(cfg: Config, body_force: bool = False) -> Estimate:
         per_body.append(int(round(count)))
         lo, hi = shape_bounds(b.shape, d, base_dir, key)
         lattice = max(lattice, math.prod(int(math.ceil(e / h)) + 1 for e in hi - lo) * d * 8 * 3)
+    return per_body, lattice
+
+
+def estimate(cfg: Config, body_force: bool = False) -> Estimate:
+    """Sizes of a run from its config; reads mesh files (cached) but allocates and generates nothing."""
+    base_dir = base_dir_of(cfg)
+    per_body, lattice = body_particles(cfg)
     mapped = map_size(cfg)
     grid_bytes, grid_detail, cells, grids = _grid_bytes(cfg, base_dir, mapped, sum(per_body), body_force)
     dt, dt_source, limits = _time_step(cfg, base_dir, mapped)
@@ -447,7 +457,7 @@ def estimate(cfg: Config, body_force: bool = False) -> Estimate:
     limit, source = _limit(cfg)
     return Estimate(particles=sum(per_body), per_body=per_body,
                     device_bytes_per_particle=device_bytes_per_particle(cfg, body_force),
-                    host_bytes_per_particle=16 * d + 8 * HOST_FLOATS + 4 * HOST_INTS + 8,
+                    host_bytes_per_particle=16 * cfg.dim + 8 * HOST_FLOATS + 4 * HOST_INTS + 8,
                     grid_cells=cells, grid_bytes=grid_bytes, grid_detail=grid_detail, lattice_bytes=lattice,
                     dt=dt, dt_source=dt_source, steps=steps,
                     outputs=math.floor(cfg.solver.end_time / cfg.output.every) + 1.0,

@@ -66,13 +66,13 @@ class StabilityWarning(UserWarning):
     """A scene that is likely to go wrong numerically (e.g. a weakly compressible fluid that is too soft)."""
 
 
-def thread_independent(cfg: Config, body_force: bool = False) -> bool:
+def thread_independent(cfg: Config, particles: int, body_force: bool = False) -> bool:
     """Whether every sum a CPU step and its diagnostics make has one order whatever the threads: P2G by the coloured
     scatter (scatter.py), energies and momenta by chunks (sums.py), and none of the parts that still add in the
     threads' order (the extensions that say so: ddmp's nodal volumes, F-bar's averages, the crack finder's node
     sums; the tractions', grips' and walls' work and impulses; and the accumulators of body forces' work and of
     dissipation). tests/test_scatter.py checks 1 and 2 threads bit-identical."""
-    if not scatter.coloured(cfg, gpu=False):
+    if not scatter.coloured(cfg, gpu=False, particles=particles):
         return False
     mats = [cfg.materials[b.material] for b in cfg.bodies]
     return not (step_extensions.adds_in_thread_order(cfg) or body_force
@@ -95,7 +95,7 @@ class Simulation:
         self.n = self.scene.n
         self.backend = choose_backend(c, size_check=_fits)  # arch and grid, and why
         self._id = init_taichi(self.backend, c.precision, c.solver.deterministic,
-                               c.solver.deterministic and thread_independent(c, body_force is not None))
+                               c.solver.deterministic and thread_independent(c, self.n, body_force is not None))
         self.basis = make_basis(c.solver.basis, grid_knots(c))   # domain.knots: per-axis knot vectors
         if c.solver.quadrature == "domain":
             self.basis = domain_averaged(self.basis)
@@ -135,7 +135,7 @@ class Simulation:
         self.feat = self._features()
         gpu = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
         # the fields this scene needs, declared once (layout.py; budget.py counts the same declaration)
-        self.needs = field_layout.Needs.of_simulation(self, self.feat, coloured=scatter.coloured(self.cfg, gpu))
+        self.needs = field_layout.Needs.of_simulation(self, self.feat, coloured=scatter.coloured(self.cfg, gpu, self.n))
         self._allocate_particles(self.needs)
         self._allocate_globals()
         self._allocate_grid(self.feat)

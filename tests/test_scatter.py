@@ -71,6 +71,24 @@ def _scene_positions(data):
     return build_scene(tm.load_config(data)).x
 
 
+def test_auto_scatters_by_colours_from_the_measured_crossover_or_when_deterministic(cfg_factory):
+    """solver.scatter auto: atomic adds below scatter.ATOMIC_BELOW[dim] particles (where binning and 2^d colour
+    passes cost more than they save: benchmarks/scatter_crossover.py), colours from there and at any size in a
+    deterministic run (its sums need one order); budget.py decides from its estimate of the count the same way."""
+    from taichi_mpm.extensions import scatter
+
+    for dim, n in scatter.ATOMIC_BELOW.items():
+        assert not scatter.applies(False, "tensor", 3, dim, "auto", n - 1) or n == 0
+        assert scatter.applies(False, "tensor", 3, dim, "auto", n)
+        assert scatter.applies(False, "tensor", 3, dim, "auto", 1, deterministic=True)
+        assert not scatter.applies(True, "tensor", 3, dim, "auto", 10 ** 7)        # GPUs add atomically
+        assert scatter.applies(False, "tensor", 3, dim, "coloured", 1)             # asked for: at any size
+    small = cfg_factory(2)                      # 36 particles
+    assert tm.Simulation(small).bins is None
+    small["solver"]["deterministic"] = True
+    assert tm.Simulation(small).bins is not None
+
+
 def test_coloured_scatter_is_refused_where_a_stencil_is_unbounded(cfg_factory):
     data = cfg_factory(2, basis="cpdi")
     data["solver"]["scatter"] = "coloured"
@@ -100,6 +118,7 @@ def _threads_scene():
     data = make_cfg(3, dx=0.1, velocity=[1.5, -2.0, 0.5], E=2e4, boundaries="sticky", lower=[0.05] * 3,
                     upper=[0.55] * 3, precision="f32")
     data["solver"]["gravity"] = [0.0, -9.8, 0.0]
+    data["solver"]["scatter"] = "coloured"   # the class under test (auto adds this small scene atomically)
     return data
 
 

@@ -26,21 +26,31 @@ from ..grid import LEAF, Grid
 from ..sums import CPU_TASK, cpu_threads
 
 
-def applies(gpu: bool, stencil_kind: str, width: int, dim: int, setting: str) -> bool:
-    """Whether P2G scatters by colours: `solver.scatter` auto (CPU, bounded tensor stencil), coloured or atomic."""
+# Below these particle counts `solver.scatter: auto` adds atomically: binning every step and 2^d colour passes of few
+# blocks each cost more than the atomic adds they save. Measured crossovers (benchmarks/scatter_crossover.py, 2 cores,
+# medians of 3, docs/performance.md "Coloured or atomic"): 2D ~2 300 particles, 3D ~440, 1D none (within noise).
+# Deterministic runs keep the colours at any size: their sums need one order.
+ATOMIC_BELOW = {1: 0, 2: 2300, 3: 440}
+
+
+def applies(gpu: bool, stencil_kind: str, width: int, dim: int, setting: str, particles: int,
+            deterministic: bool = False) -> bool:
+    """Whether P2G scatters by colours: `solver.scatter` auto (CPU, bounded tensor stencil, at least
+    ATOMIC_BELOW[dim] particles or a deterministic run), coloured or atomic."""
     bounded = stencil_kind == "tensor" and width <= LEAF[dim] + 1
     if setting == "atomic":
         return False
     if setting == "coloured":
         return bounded  # (config.py refuses coloured where the stencil is unbounded)
-    return bounded and not gpu
+    return bounded and not gpu and (deterministic or particles >= ATOMIC_BELOW[dim])
 
 
-def coloured(cfg, gpu: bool) -> bool:
-    """Whether a run of `cfg` (on a GPU when `gpu`) bins its particles for the coloured scatter."""
+def coloured(cfg, gpu: bool, particles: int) -> bool:
+    """Whether a run of `cfg` with `particles` particles (on a GPU when `gpu`) bins them for the coloured scatter.
+    The solver passes its count, budget.py its estimate of it."""
     spec = bases.get(cfg.solver.basis)   # its declaration: nothing is built
     kind = "mapped" if cfg.domain.map is not None else spec.stencil_kind
-    return applies(gpu, kind, spec.stencil, cfg.dim, cfg.solver.scatter)
+    return applies(gpu, kind, spec.stencil, cfg.dim, cfg.solver.scatter, particles, cfg.solver.deterministic)
 
 
 class BlockBins:

@@ -121,7 +121,9 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.scatter": ("", "how P2G adds particle values to the grid: coloured bins the particles by grid block each "
                            "step and lets the blocks of one of 2^d colours add in parallel without atomics (same "
                            "result, 2-3x faster P2G on CPUs; tensor-product bases only); atomic adds atomically; "
-                           "auto: coloured on a CPU where the basis allows, atomic on GPUs, cpdi and domain.map"),
+                           "auto: coloured on a CPU where the basis allows and the scene is large enough to gain (2D from "
+                           "2 300 particles, 3D from 440; any size when deterministic), atomic on GPUs, in smaller "
+                           "scenes, with cpdi and on a domain.map"),
     "solver.energy_growth_limit": ("1", "stop with an instability when total energy exceeds its initial value + "
                                         "body-force work - viscous dissipation by more than this fraction of the "
                                         "largest kinetic + strain energy (checked every few steps and after every "
