@@ -51,7 +51,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from common import parser, report  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-METHODS = ("crack", "multi_field")
+METHODS = ("crack", "multi_field", "crack_gap")   # crack_gap: the crack finder with crack.contact_gap GAP
+GAP = 0.3
 SCENES = ("disks", "block", "block_friction", "hertz")
 MU = 0.3   # block_friction
 G = 9.81
@@ -62,21 +63,30 @@ HERTZ_P = np.pi * HERTZ_ESTAR * HERTZ_A ** 2 / (4.0 * HERTZ_R)    # load per uni
 HERTZ_G = HERTZ_P / (HERTZ_RHO * np.pi * HERTZ_R ** 2)            # the disk's weight gives it
 
 
+def crack_section(method: str, **extra) -> dict:
+    """The crack finder's section for interface bodies: threshold 0 (a flat interface), contact in compression,
+    crack.contact_gap GAP for the crack_gap method."""
+    return dict(threshold=0.0, contact_in_compression=True, contact_gap=GAP if method == "crack_gap" else None,
+                **extra)
+
+
 def disks(method: str, dx: float, end: float) -> dict:
-    name = "colliding_disks_interface" if method == "crack" else "colliding_disks"
+    name = "colliding_disks_interface" if method.startswith("crack") else "colliding_disks"
     d = yaml.safe_load((ROOT / "configs" / f"{name}.yaml").read_text())
     d.update(precision="f64", arch="cpu", output={"dir": "unused"})
     d["domain"]["dx"] = dx
     d["solver"]["end_time"] = end
     if method == "multi_field":
         d["contact"] = {"method": "multi_field"}
+    if method == "crack_gap":
+        d["crack"]["contact_gap"] = GAP
     return d
 
 
 def block(method: str, dx: float, end: float, mu: float = 0.0) -> dict:
     a = np.radians(30.0)
     mat = dict(model="neo_hookean", E=2.0e5, nu=0.3, density=1000.0)
-    iface = method == "crack"
+    iface = method.startswith("crack")
     d = dict(name="contact_block", dim=2, precision="f64", arch="cpu",
              domain=dict(lower=[0.0, 0.0], upper=[1.0, 0.3], dx=dx,
                          boundaries={"default": "slip", "y_min": "sticky"}),
@@ -86,8 +96,8 @@ def block(method: str, dx: float, end: float, mu: float = 0.0) -> dict:
                           interface=iface),
                      dict(name="block", shape=dict(type="box", lower=[0.1, 0.1], upper=[0.3, 0.2]), material="m",
                           interface=iface)])
-    if method == "crack":
-        d["crack"] = dict(threshold=0.0, contact_in_compression=True, friction=mu)   # -0.6 dragged it 32 %
+    if iface:
+        d["crack"] = crack_section(method, friction=mu)   # threshold -0.6 dragged it 32 %
     else:
         d["contact"] = {"method": "multi_field", "friction": mu}
     return d
@@ -95,7 +105,7 @@ def block(method: str, dx: float, end: float, mu: float = 0.0) -> dict:
 
 def hertz(method: str, dx: float, end: float) -> dict:
     """The disk resting on the base at one point (their particles' domains touch), gravity switched on at t = 0."""
-    iface = method == "crack"
+    iface = method.startswith("crack")
     mat = dict(model="neo_hookean", E=HERTZ_E, nu=HERTZ_NU, density=HERTZ_RHO)
     centre = [0.5, HERTZ_TOP + HERTZ_R]
     d = dict(name="contact_hertz", dim=2, precision="f64", arch="cpu",
@@ -107,8 +117,8 @@ def hertz(method: str, dx: float, end: float) -> dict:
                           material="m", interface=iface),
                      dict(name="disk", shape=dict(type="sphere", center=centre, radius=HERTZ_R), material="m",
                           interface=iface)])
-    if method == "crack":
-        d["crack"] = dict(threshold=0.0, contact_in_compression=True)
+    if iface:
+        d["crack"] = crack_section(method)
     else:
         d["contact"] = {"method": "multi_field"}
     return d
@@ -116,7 +126,7 @@ def hertz(method: str, dx: float, end: float) -> dict:
 
 def pile(method: str, dx: float, end: float, n: int) -> dict:
     """n disks (r 0.04) on a lattice of 0.1 m in [0.1, 0.9] x [0.15, ...], each moving sideways at +-0.2 m/s."""
-    iface = method == "crack"
+    iface = method.startswith("crack")
     cols = min(n, 8)
     bodies = [dict(name=f"disk{k}", shape=dict(type="sphere", center=[0.15 + 0.1 * (k % cols), 0.1 + 0.1 * (k // cols)],
                                                radius=0.04),
@@ -125,8 +135,8 @@ def pile(method: str, dx: float, end: float, n: int) -> dict:
              domain=dict(lower=[0.0, 0.0], upper=[1.0, 1.0], dx=dx, boundaries={"default": "slip", "y_min": "sticky"}),
              solver=dict(basis="quadratic", transfer="apic", end_time=end, gravity=[0.0, -G]),
              materials=dict(m=dict(model="neo_hookean", E=1.0e5, nu=0.3, density=1000.0)), bodies=bodies)
-    if method == "crack":
-        d["crack"] = dict(threshold=0.0, contact_in_compression=True)
+    if iface:
+        d["crack"] = crack_section(method)
     else:
         d["contact"] = {"method": "multi_field"}
     return d
@@ -252,6 +262,7 @@ def main(argv=None):
     p.add_argument("--worker", help="internal: scene,method; run one case and print its row")
     p.add_argument("--plot", type=Path, help="also draw time per step, memory and |error| per scene and method here")
     p.add_argument("--replot", type=Path, help="draw --plot from this earlier --json instead of running")
+    p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     a = p.parse_args(argv)
     if a.replot:
         rows = json.loads(a.replot.read_text())
@@ -262,7 +273,7 @@ def main(argv=None):
         print("RESULT " + json.dumps(run_case(scene, method, a.tiny)), flush=True)
         return None
     a.scenes = [s for scene in a.scenes for s in ([f"pile_{n}" for n in a.piles] if scene == "piles" else [scene])]
-    rows = [worker(scene, method, a.tiny) for scene in a.scenes for method in METHODS]
+    rows = [worker(scene, method, a.tiny) for scene in a.scenes for method in a.methods]
     for scene in a.scenes:   # each method's cost against the crack finder's
         ref = next((r for r in rows if r["scene"] == scene and r["method"] == "crack" and "ms_per_step" in r), None)
         for r in rows:
@@ -288,16 +299,19 @@ def plot(rows, scenes, path):
     fig, axes = plt.subplots(1, 4, figsize=(17, 4.2))
     x = np.arange(len(scenes))
     for ax, (key, label) in zip(axes, panels):
-        for k, method in enumerate(METHODS):
+        methods = [m for m in METHODS if any(r["method"] == m for r in rows)]
+        width = 0.8 / len(methods)
+        for k, method in enumerate(methods):
             vals = [next((abs(r[key]) * (100 if key == "error" else 1) for r in rows
                           if r["scene"] == s and r["method"] == method and r.get(key) is not None), np.nan)
                     for s in scenes]
-            ax.bar(x + (k - 0.5) * 0.38, vals, 0.38, label=method)
+            ax.bar(x + (k - (len(methods) - 1) / 2) * width, vals, width, label=method)
         ax.set_xticks(x, scenes, rotation=35, ha="right")
         ax.set_ylabel(label)
         ax.grid(axis="y", alpha=0.3)
     axes[0].legend()
-    fig.suptitle("contact: crack finder (one field) against multi-velocity-field contact (2D, quadratic, f64, CPU)")
+    fig.suptitle("contact: crack finder (one field; crack_gap: with crack.contact_gap) against multi-velocity-field "
+                 "contact (2D, quadratic, f64, CPU)")
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

@@ -3,7 +3,8 @@ benchmark block (quadratic APIC elastic, f32, stencil unrolled) at growing parti
 atomic adds, each in a fresh process, the two alternating, rounds repeated and medians reported; the crossover is
 the count where the median ratio coloured / atomic crosses 1 (log-linear between the sizes around it).
 
-    python benchmarks/scatter_crossover.py [--dims 2 3] [--grids N ...] [--rounds 3] [--steps 20] [--threads N] [--json PATH]
+    python benchmarks/scatter_crossover.py [--dims 2 3] [--grids N ...] [--rounds 3] [--steps 20] [--threads N]
+        [--json PATH]
 """
 import json
 import math

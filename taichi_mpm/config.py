@@ -370,6 +370,10 @@ class Crack(Strict):
     # seed's method): a particle in contact loses mu times the normal impulse contact gave it of its slip
     # against the other side, not beyond sticking (docs/crack_finder.md, "Friction")
     friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
+    # between interface bodies, a particle is in contact only while the nearest particle facing it lies within
+    # (1 + contact_gap) particle spacings (their domains at most contact_gap spacings apart); null: anywhere within
+    # the SPH support, as the seed's method (docs/crack_finder.md, "Contact gap")
+    contact_gap: Optional[Annotated[float, BeforeValidator(_no_bool), Field(ge=0)]] = None
 
 
 class Contact(Strict):

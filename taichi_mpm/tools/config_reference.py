@@ -154,6 +154,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "crack.friction": ("1", "Coulomb friction coefficient mu across crack faces and body interfaces in "
                             "contact: a contact particle loses mu times its normal impulse of its slip against the "
                             "other side, never beyond sticking; 0: frictionless (the seed's method)"),
+    "crack.contact_gap": ("1", "between interface bodies, a particle is in contact only while the nearest particle "
+                               "facing it lies within (1 + contact_gap) particle spacings (their domains at most "
+                               "contact_gap spacings apart); null: anywhere within the SPH support (the seed's "
+                               "method)"),
     "materials": ("", "named materials; bodies refer to them by name"),
     "materials.<name>": ("", "one material"),
     # materials.<name>.*: from the models' schemas (taichi_mpm/materials/), added below DESCRIPTIONS

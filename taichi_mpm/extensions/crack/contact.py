@@ -9,8 +9,9 @@ import taichi as ti
 
 class ContactTest(NamedTuple):
     sort_normals: Callable    # func: the normals in cell order, so the searches stream (classify calls it)
-    # (p, n, pool) -> (kernel-weighted closing speed, whether any q is in reach, the kernel-weighted sums of the
-    # normals of the facing particles of heavier bodies and of bodies of p's mass: zero without interface bodies)
+    # (p, n, pool) -> (kernel-weighted closing speed, whether any q is in reach (with crack.contact_gap: that
+    # close), the kernel-weighted sums of the normals of the facing particles of heavier bodies and of bodies of p's
+    # mass: zero without interface bodies)
     closing_speed: Callable
     impedance: Callable       # (p) -> rho c of p's material
 
@@ -29,6 +30,11 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
     cell_of, cell_units, row_cells, cells_slice, listed_at = (
         cl.cell_of, cl.cell_units, cl.row_cells, cl.cells_slice, cl.listed_at)
     sph_kernel = sph.sph_kernel
+    # crack.contact_gap (interface bodies): in contact only while the nearest facing particle is this close (its
+    # distance, not along p's normal: a corner's diagonal normal sees the particles beside it as close); without
+    # it, anywhere within the SPH reach (2e30: beyond any squared distance, in f32 too)
+    gap = ctx.cc.contact_gap if sides else None
+    gap_reach2 = 2e30 if gap is None else (f.spacing * (1.0 + float(gap))) ** 2
 
     @ti.func
     def sort_normals():
@@ -73,6 +79,7 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
         sw, sv = 0.0, 0.0
         sn, se = ti.Vector.zero(float, n.n), ti.Vector.zero(float, n.n)
         mass_p = 0.0
+        d2_min = ti.cast(1e30, float)   # the nearest facing particle's squared distance (crack.contact_gap)
         if ti.static(sides):
             mass_p = mass_of(side[p])
         k = -1
@@ -88,6 +95,7 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
                 if d2 < radius2_cut:
                     if n.dot(normal[q]) < -contact_thr:
                         wk, wv, wn, we = contact_term(n, vp, q, d2, mass_p)
+                        d2_min = ti.min(d2_min, d2)
                         sw += wk
                         sv += wv
                         sn += wn
@@ -104,6 +112,7 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
                     if d2 < radius2_cut:
                         if n.dot(ns[j]) < -contact_thr:   # few neighbours face p: test before the sqrt
                             wk, wv, wn, we = contact_term(n, vp, q, d2, mass_p)
+                            d2_min = ti.min(d2_min, d2)
                             sw += wk
                             sv += wv
                             sn += wn
@@ -111,7 +120,7 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
         res = 0.0
         if sw > 0:
             res = sv / sw
-        return res, sw > 0, sn, se
+        return res, sw > 0 and d2_min < gap_reach2, sn, se
 
     @ti.func
     def impedance(p):
