@@ -828,6 +828,10 @@ class Config(Strict):
             if getattr(s, key) != default and s.basis not in readers:
                 raise _Located(f"solver.{key}", f"is read by solver.basis {bases.listed(readers)} only (the basis is "
                                                 f"{s.basis}): remove it or use basis {bases.listed(readers)}")
+        if self.crack is not None and self.crack.contact_gap is not None and sum(b.interface for b in self.bodies) < 2:
+            raise _Located("crack.contact_gap", "is read between interface bodies only (two or more bodies with "
+                                                "interface: true; a crack's faces keep the SPH reach): remove it or "
+                                                "mark the bodies in contact as interface bodies")
         if self.crack is None:
             why = "acts through the crack finder only: add a `crack:` section (docs/crack_finder.md) or remove it"
             for name, m in self.materials.items():

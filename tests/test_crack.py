@@ -476,6 +476,14 @@ def test_contact_list_holds_every_facing_neighbour():
     assert 0 < listed < 0.2 * pairs and contact > 0
 
 
+def test_contact_gap_without_interface_bodies_is_refused():
+    cfg = bar_cfg(True)
+    cfg["crack"]["contact_gap"] = 0.3
+    with pytest.raises(tm.ConfigError, match="interface bodies only") as e:
+        tm.load_config(cfg)
+    assert e.value.key == "crack.contact_gap"
+
+
 def test_contact_gap_keeps_contact_to_surfaces_that_touch():
     """crack.contact_gap 0.3: two interface blocks a cell (two spacings) apart close at 1 m/s. A particle counts as
     in contact only while the nearest particle facing it lies within 1.3 particle spacings, checked by brute force
