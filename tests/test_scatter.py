@@ -26,8 +26,9 @@ def _scene(case):
         data["domain"]["knots"] = {"x": [0.0] * 3 + [0.05, 0.1, 0.2, 0.35, 0.5, 0.6, 0.7, 0.8, 0.9] + [1.0] * 3}
     if extra == "crack":
         data["crack"] = {}
-        data["bodies"][0]["damage_regions"] = [{"shape": {"type": "box", "lower": [0.28] + [0.0] * (dim - 1),
-                                                          "upper": [0.32] + [1.0] * (dim - 1)}}]
+        # the particle column at x = 0.275 (dx 0.1, two per cell); [0.28, 0.32] held none and the scene was refused
+        data["bodies"][0]["damage_regions"] = [{"shape": {"type": "box", "lower": [0.26] + [0.0] * (dim - 1),
+                                                          "upper": [0.3] + [1.0] * (dim - 1)}}]
     return data
 
 
