@@ -7,6 +7,12 @@ import numpy as np
 import taichi as ti
 
 
+@ti.func
+def _first(a, b):
+    """ti.min's stand-in where no distance is tracked: keeps a (inlined, no code of its own)."""
+    return a
+
+
 class ContactTest(NamedTuple):
     sort_normals: Callable    # func: the normals in cell order, so the searches stream (classify calls it)
     # (p, n, pool) -> (kernel-weighted closing speed, whether any q is in reach (with crack.contact_gap: that
@@ -32,9 +38,11 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
     sph_kernel = sph.sph_kernel
     # crack.contact_gap (interface bodies): in contact only while the nearest facing particle is this close (its
     # distance, not along p's normal: a corner's diagonal normal sees the particles beside it as close); without
-    # it, anywhere within the SPH reach (2e30: beyond any squared distance, in f32 too)
+    # it, anywhere within the SPH reach
     gap = ctx.cc.contact_gap if sides else None
-    gap_reach2 = 2e30 if gap is None else (f.spacing * (1.0 + float(gap))) ** 2
+    gap_reach2 = 0.0 if gap is None else (f.spacing * (1.0 + float(gap))) ** 2
+    gap_check = gap is not None
+    nearest = ti.min if gap_check else _first   # without the check no distance is tracked in the search
 
     @ti.func
     def sort_normals():
@@ -95,7 +103,7 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
                 if d2 < radius2_cut:
                     if n.dot(normal[q]) < -contact_thr:
                         wk, wv, wn, we = contact_term(n, vp, q, d2, mass_p)
-                        d2_min = ti.min(d2_min, d2)
+                        d2_min = nearest(d2_min, d2)
                         sw += wk
                         sv += wv
                         sn += wn
@@ -112,7 +120,7 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
                     if d2 < radius2_cut:
                         if n.dot(ns[j]) < -contact_thr:   # few neighbours face p: test before the sqrt
                             wk, wv, wn, we = contact_term(n, vp, q, d2, mass_p)
-                            d2_min = ti.min(d2_min, d2)
+                            d2_min = nearest(d2_min, d2)
                             sw += wk
                             sv += wv
                             sn += wn
@@ -120,7 +128,10 @@ def contact_test_funcs(ctx, cl, sph) -> ContactTest:
         res = 0.0
         if sw > 0:
             res = sv / sw
-        return res, sw > 0 and d2_min < gap_reach2, sn, se
+        touching = sw > 0
+        if ti.static(gap_check):
+            touching = touching and d2_min < gap_reach2
+        return res, touching, sn, se
 
     @ti.func
     def impedance(p):
