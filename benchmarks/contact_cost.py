@@ -39,8 +39,10 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -61,13 +63,21 @@ HERTZ_R, HERTZ_TOP, HERTZ_E, HERTZ_NU, HERTZ_RHO, HERTZ_A = 0.2, 0.25, 1.0e5, 0.
 HERTZ_ESTAR = HERTZ_E / (2.0 * (1.0 - HERTZ_NU ** 2))            # two bodies of one material, plane strain
 HERTZ_P = np.pi * HERTZ_ESTAR * HERTZ_A ** 2 / (4.0 * HERTZ_R)    # load per unit length for HERTZ_A
 HERTZ_G = HERTZ_P / (HERTZ_RHO * np.pi * HERTZ_R ** 2)            # the disk's weight gives it
+HERTZ_END, HERTZ_RAMP, HERTZ_AVERAGE = 1.4, 1.0, 0.3              # s: run, gravity ramp, stresses averaged over
 
 
-def crack_section(method: str, **extra) -> dict:
-    """The crack finder's section for interface bodies: threshold 0 (a flat interface), contact in compression,
-    crack.contact_gap GAP for the crack_gap method."""
-    return dict(threshold=0.0, contact_in_compression=True, contact_gap=GAP if method == "crack_gap" else None,
-                **extra)
+def with_contact(d: dict, method: str, mu: float = 0.0) -> dict:
+    """d with its bodies' contact by `method`: interface bodies and the crack finder's section (threshold 0, a flat
+    interface: -0.6 dragged the block 32 %; crack.contact_gap GAP for crack_gap), or multi_field; Coulomb mu."""
+    iface = method.startswith("crack")
+    for body in d["bodies"]:
+        body["interface"] = iface
+    if iface:
+        d["crack"] = dict(threshold=0.0, contact_in_compression=True, friction=mu,
+                          contact_gap=GAP if method == "crack_gap" else None)
+    else:
+        d["contact"] = {"method": "multi_field", "friction": mu}
+    return d
 
 
 def disks(method: str, dx: float, end: float) -> dict:
@@ -86,26 +96,19 @@ def disks(method: str, dx: float, end: float) -> dict:
 def block(method: str, dx: float, end: float, mu: float = 0.0) -> dict:
     a = np.radians(30.0)
     mat = dict(model="neo_hookean", E=2.0e5, nu=0.3, density=1000.0)
-    iface = method.startswith("crack")
     d = dict(name="contact_block", dim=2, precision="f64", arch="cpu",
              domain=dict(lower=[0.0, 0.0], upper=[1.0, 0.3], dx=dx,
                          boundaries={"default": "slip", "y_min": "sticky"}),
              solver=dict(basis="quadratic", transfer="pic", end_time=end, gravity=[G * np.sin(a), -G * np.cos(a)]),
              materials=dict(m=mat),
-             bodies=[dict(name="base", shape=dict(type="box", lower=[0.0, 0.0], upper=[1.0, 0.1]), material="m",
-                          interface=iface),
-                     dict(name="block", shape=dict(type="box", lower=[0.1, 0.1], upper=[0.3, 0.2]), material="m",
-                          interface=iface)])
-    if iface:
-        d["crack"] = crack_section(method, friction=mu)   # threshold -0.6 dragged it 32 %
-    else:
-        d["contact"] = {"method": "multi_field", "friction": mu}
-    return d
+             bodies=[dict(name="base", shape=dict(type="box", lower=[0.0, 0.0], upper=[1.0, 0.1]), material="m"),
+                     dict(name="block", shape=dict(type="box", lower=[0.1, 0.1], upper=[0.3, 0.2]), material="m")])
+    return with_contact(d, method, mu)
 
 
 def hertz(method: str, dx: float, end: float) -> dict:
-    """The disk resting on the base at one point (their particles' domains touch), gravity switched on at t = 0."""
-    iface = method.startswith("crack")
+    """The disk resting on the base at one point (their particles' domains touch); its load comes from
+    hertz_gravity (a body force, ramped)."""
     mat = dict(model="neo_hookean", E=HERTZ_E, nu=HERTZ_NU, density=HERTZ_RHO)
     centre = [0.5, HERTZ_TOP + HERTZ_R]
     d = dict(name="contact_hertz", dim=2, precision="f64", arch="cpu",
@@ -114,32 +117,22 @@ def hertz(method: str, dx: float, end: float) -> dict:
              solver=dict(basis="quadratic", transfer="pic", end_time=end),
              materials=dict(m=mat),
              bodies=[dict(name="base", shape=dict(type="box", lower=[0.0, 0.0], upper=[1.0, HERTZ_TOP]),
-                          material="m", interface=iface),
-                     dict(name="disk", shape=dict(type="sphere", center=centre, radius=HERTZ_R), material="m",
-                          interface=iface)])
-    if iface:
-        d["crack"] = crack_section(method)
-    else:
-        d["contact"] = {"method": "multi_field"}
-    return d
+                          material="m"),
+                     dict(name="disk", shape=dict(type="sphere", center=centre, radius=HERTZ_R), material="m")])
+    return with_contact(d, method)
 
 
 def pile(method: str, dx: float, end: float, n: int) -> dict:
     """n disks (r 0.04) on a lattice of 0.1 m in [0.1, 0.9] x [0.15, ...], each moving sideways at +-0.2 m/s."""
-    iface = method.startswith("crack")
     cols = min(n, 8)
     bodies = [dict(name=f"disk{k}", shape=dict(type="sphere", center=[0.15 + 0.1 * (k % cols), 0.1 + 0.1 * (k // cols)],
                                                radius=0.04),
-                   material="m", interface=iface, velocity=[0.2 * (-1) ** k, 0.0]) for k in range(n)]
+                   material="m", velocity=[0.2 * (-1) ** k, 0.0]) for k in range(n)]
     d = dict(name="contact_pile", dim=2, precision="f64", arch="cpu",
              domain=dict(lower=[0.0, 0.0], upper=[1.0, 1.0], dx=dx, boundaries={"default": "slip", "y_min": "sticky"}),
              solver=dict(basis="quadratic", transfer="apic", end_time=end, gravity=[0.0, -G]),
              materials=dict(m=dict(model="neo_hookean", E=1.0e5, nu=0.3, density=1000.0)), bodies=bodies)
-    if iface:
-        d["crack"] = crack_section(method)
-    else:
-        d["contact"] = {"method": "multi_field"}
-    return d
+    return with_contact(d, method)
 
 
 def hertz_gravity(ramp: float):
@@ -156,7 +149,7 @@ def base_stress(sim):
     return -sim.particles()["stress"][sim.scene.body == 0, 1, 1]
 
 
-def hertz_error(x0, pressure, dx):
+def hertz_error(x0, pressure):
     """From the base particles' reference positions x0 and their mean -sigma_yy: the contact half-width (the mean of
     the rows' 2 sqrt(<x^2> - z^2) down to 0.4 a, tension clipped, within 3 a + 2 z of the centre), its error against
     Hertz, and the rows' mean load (p x particle spacing) against the disk's weight."""
@@ -190,14 +183,15 @@ def run_case(scene: str, method: str, tiny: bool) -> dict:
     kind = scene.split("_")[0]
     dx = {"disks": (0.04, 0.02), "hertz": (0.025, 1.0 / 128), "pile": (0.02, 0.01)}.get(kind, (0.05, 0.025))
     dx = dx[0 if tiny else 1]
-    end = {"disks": 3.0, "hertz": 1.4, "pile": 0.3}.get(kind, 0.25) * (0.1 if tiny else 1.0)
+    end = {"disks": 3.0, "hertz": HERTZ_END, "pile": 0.3}.get(kind, 0.25) * (0.1 if tiny else 1.0)
     mu = MU if scene == "block_friction" else 0.0
     data = (disks(method, dx, end) if kind == "disks" else hertz(method, dx, end) if kind == "hertz" else
             pile(method, dx, end, int(scene.split("_")[1])) if kind == "pile" else block(method, dx, end, mu))
     cfg = load_config(data)
     est = budget.estimate(cfg, body_force=kind == "hertz")
     t_first = time.perf_counter()
-    sim = tm.Simulation(cfg, body_force=hertz_gravity(end / 1.4) if kind == "hertz" else None)
+    scale = end / HERTZ_END   # the hertz run's times, shortened with it by --tiny
+    sim = tm.Simulation(cfg, body_force=hertz_gravity(HERTZ_RAMP * scale) if kind == "hertz" else None)
     before = [_mean_v(sim, b) for b in (0, 1)]
     sim.step()
     t_first = time.perf_counter() - t_first
@@ -207,7 +201,7 @@ def run_case(scene: str, method: str, tiny: bool) -> dict:
     while sim.time < end - 1e-12:
         sim.step(min(sim.stable_dt(), end - sim.time))
         if scene == "hertz":
-            if sim.time > end * (1.1 / 1.4) and (not times or sim.time > times[-1] + 0.01 * end):
+            if sim.time > end - HERTZ_AVERAGE * scale and (not times or sim.time > times[-1] + 0.01 * end):
                 times.append(sim.time)
                 pressures.append(base_stress(sim))
         elif scene != "disks":
@@ -227,7 +221,7 @@ def run_case(scene: str, method: str, tiny: bool) -> dict:
         row["error_is"] = "1 - rebound speed / impact speed"
         row["momentum_left"] = float(np.abs(sim.momentum()["linear"]).max())
     elif scene == "hertz":
-        a, err, load = hertz_error(x0_base, np.mean(pressures, axis=0), dx)
+        a, err, load = hertz_error(x0_base, np.mean(pressures, axis=0))
         row.update(error=err, half_width=a, hertz_half_width=HERTZ_A, load_carried=load, samples=len(pressures),
                    error_is="contact half-width / Hertz's - 1")
     else:
@@ -242,9 +236,6 @@ def run_case(scene: str, method: str, tiny: bool) -> dict:
 
 def worker(scene, method, tiny):
     """One case in a fresh process with an empty kernel cache (first_step_s: the compile a new scene costs)."""
-    import os
-    import tempfile
-
     args = [sys.executable, str(Path(__file__)), "--worker", f"{scene},{method}"] + (["--tiny"] if tiny else [])
     with tempfile.TemporaryDirectory() as cache:
         out = subprocess.run(args, capture_output=True, text=True, cwd=ROOT,
