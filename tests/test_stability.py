@@ -102,6 +102,30 @@ def test_scenarios_scale_with_wave_speed():
         make_scenario({"type": "compression", "J": 0.0})
 
 
+@pytest.mark.parametrize("model", ["neo_hookean", "drucker_prager", "mohr_coulomb", "mu_i", "cam_clay"])
+def test_scenarios_give_every_model_the_stiffness_of_e_and_nu(model):
+    """The stability map of the plastic models (stability_map_materials.yaml) runs each model on the scenarios'
+    stiffness: every config validates, and the P-wave modulus lambda + 2 mu the times scale with is the model's
+    own (cam_clay: its bulk modulus p0 / kappa* at the start, plus 4/3 of its shear modulus)."""
+    import taichi_mpm as tm
+
+    sc = make_scenario({"type": "impact", "E": 2.0e7, "nu": 0.35, "model": model})
+    cfg = sc.config()
+    tm.load_config(cfg)   # raises a ConfigError naming the key if a parameter is missing or out of range
+    mat = cfg["materials"]["m"]
+    assert mat["model"] == model
+    mu, lam = 2.0e7 / 2.7, 2.0e7 * 0.35 / (1.35 * 0.3)
+    if model == "cam_clay":
+        modulus = mat["initial_pressure"] / mat["kappa_star"] + 4.0 / 3.0 * mat["shear_modulus"]
+    else:
+        modulus = lam + 2.0 * (mat["E"] / (2.0 * (1.0 + mat["nu"])))
+    assert modulus == pytest.approx(lam + 2.0 * mu, rel=1e-12)
+    assert sc.c == pytest.approx(math.sqrt((lam + 2.0 * mu) / 1000.0), rel=1e-12)
+    if model == "mohr_coulomb":   # `material` sets the model's own keys
+        steep = make_scenario({"type": "impact", "model": model, "material": {"friction_angle": 40.0}})
+        assert steep.config()["materials"]["m"]["friction_angle"] == 40.0
+
+
 @pytest.mark.slow
 def test_full_stability_map(tmp_path):
     """The bundled map: 29 scenarios x 7 transfers; nothing errors and nothing ends as silent garbage."""

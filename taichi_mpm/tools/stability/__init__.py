@@ -15,6 +15,11 @@ Scenarios (2D by default, `dim` 1-3 where it makes sense; unit square domain, `c
 - edge:         a block moves at `mach` x c toward the x_max wall (`boundary`: free | slip | sticky) and
                 reaches it; with a free wall the particles leave the domain.
 
+Every scenario takes `model` (any constitutive model: `model_parameters` gives its material on the stiffness of E
+and nu, so the granular and clay models run the same scenarios; configs/studies/stability_map_materials.yaml) and
+`material` (the model's own keys to set instead; the stiffness and density the times scale with stay E, nu and
+density).
+
 A case is *stable* when it reaches its end time with finite state and mechanical energy at most
 `energy_limit` x its initial value; otherwise it must have stopped with `InstabilityError` (cause in
 the record). A finished case that breaks the energy bound is "undetected" garbage (see study/case.py).
@@ -36,6 +41,26 @@ def _lame(E, nu):
     return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
 
+def model_parameters(model: str, E: float, nu: float) -> dict:
+    """The material of a scenario for `model`, with the stiffness of E and nu (so times scale alike): elastic
+    models take E and nu; the granular and clay models their typical parameters (dry sand phi 30 deg, no cohesion;
+    Jop et al.'s glass beads, 1 mm; a normally consolidated clay with Borja & Tamagnini's indices) on that
+    stiffness. cam_clay has no E: its shear modulus is E's, its bulk modulus p0 / kappa* is E's at the initial
+    pressure p0 = K kappa*, so the body starts consolidated at p0 (and springs out where nothing holds it).
+    mu_i's viscosity is capped at the pressure 0.1 E (a stiff impact's order; it sets only its viscous step)."""
+    elastic = dict(E=E, nu=nu)
+    if model in ("drucker_prager", "mohr_coulomb"):
+        return dict(elastic, friction_angle=30.0)
+    if model == "mu_i":
+        return dict(elastic, mu_s=0.38, mu_2=0.64, grain_diameter=1e-3, max_pressure=0.1 * E)
+    if model == "cam_clay":
+        mu, lam = _lame(E, nu)
+        kappa = 0.02
+        return dict(shear_modulus=mu, kappa_star=kappa, lambda_star=0.1, critical_state_slope=1.2,
+                    initial_pressure=(lam + 2.0 * mu / 3.0) * kappa)
+    return elastic
+
+
 class Scenario:
     """Common parts: one material, unit-cube domain of `cells` cells per side, times in units of dx-free c."""
 
@@ -44,12 +69,14 @@ class Scenario:
     boundaries = "free"
 
     def __init__(self, dim=2, E=1.0e6, nu=0.3, density=1000.0, model="neo_hookean", cells=32, ppc=2,
-                 mach=0.1, transits=4.0, precision="f64", **solver):
+                 mach=0.1, transits=4.0, precision="f64", material=None, **solver):
         if not 1 <= int(dim) <= 3:
             raise ValueError(f"dim must be 1, 2 or 3, got {dim}")
         self.dim, self.E, self.nu, self.rho, self.model = int(dim), float(E), float(nu), float(density), model
         self.cells, self.ppc, self.mach, self.transits = int(cells), int(ppc), float(mach), float(transits)
         self.precision, self.solver = precision, solver
+        # the material: model_parameters' for the model, then `material`'s keys (any of the model's)
+        self.material = dict(model_parameters(model, self.E, self.nu), **(material or {}))
         mu, lam = _lame(self.E, self.nu)
         self.c = math.sqrt((lam + 2 * mu) / self.rho)  # the solver's CFL speed
         self.speed = self.mach * self.c
@@ -74,7 +101,7 @@ class Scenario:
                     domain=dict(lower=[0.0] * d, upper=[1.0] * d, dx=self.dx,
                                 boundaries=self.boundary_config()),
                     solver=solver,
-                    materials=dict(m=dict(model=self.model, E=self.E, nu=self.nu, density=self.rho)),
+                    materials=dict(m=dict(model=self.model, density=self.rho, **self.material)),
                     bodies=self.bodies(), output=dict(formats=[]))
 
     def boundary_config(self) -> dict:
