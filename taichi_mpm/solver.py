@@ -37,6 +37,7 @@ from .config import Config, ConfigError, load_config
 from .causes import load_scale_causes
 from .errors import InstabilityError
 from .grid import Grid
+from .host_scalars import RuntimeParams, StepStatus
 from . import materials as material_models
 from .materials import MODELS, wave_speed
 from .scene import Scene, build_scene
@@ -191,18 +192,15 @@ class Simulation:
     def _allocate_globals(self):
         """Flags, runtime parameters, accumulators and diagnostics sums."""
         d, n = self.dim, self.n
-        self.fail = ti.field(ti.i32, ())
-        self.vmax2 = ti.field(float, ())
+        self.status = StepStatus(_NO_FAIL)
+        self.fail, self.vmax2 = self.status.fail, self.status.vmax2
         # runtime parameters (set_gravity, set_stiffness_scale, set_flip_blend): read by the kernels, no recompile
-        self.gravity_field = ti.Vector.field(d, float, ())
-        self.gravity_field[None] = self._gravity.tolist()
-        self.gravity_before_field = ti.Vector.field(d, float, ())  # the last step's gravity (see gravity_kick)
-        self.gravity_before_field[None] = self._gravity.tolist()
+        self.runtime = RuntimeParams(d, len(self._materials))
+        self.gravity_field = self.runtime.gravity
+        self.gravity_before_field = self.runtime.gravity_before  # the last step's gravity (see gravity_kick)
+        self.stiffness_field, self.flip_blend_field = self.runtime.stiffness, self.runtime.flip_blend
         self._gravity_before = self._gravity.copy()
-        self.stiffness_field = ti.field(float, len(self._materials))
-        self._upload_stiffness()
-        self.flip_blend_field = ti.field(float, ())
-        self.flip_blend_field[None] = self._flip_blend
+        self._upload_runtime()
         self.diag = ChunkSums(n, 8)  # reduction slots for energies and momenta
         # accumulated per step: external work (body forces, tractions, prescribed velocities), viscous and plastic
         # dissipation (the plastic work of the return mappings, docs/materials.md)
@@ -210,10 +208,8 @@ class Simulation:
         self.n_bodies = int(self.scene.body.max(initial=0)) + 1
         self.moments = ChunkSums(n, (self.n_bodies, 1 + d + 2 * d * d))  # per body: m, m x, m x x^T, m F
 
-    def _upload_stiffness(self):
-        # entry by entry: a handful of materials, and from_numpy would compile a kernel for it in every new scene
-        for k, scale in enumerate(self._stiffness):
-            self.stiffness_field[k] = float(scale)
+    def _upload_runtime(self):
+        self.runtime.upload(self._gravity, self._gravity_before, self._flip_blend, self._stiffness)
 
     def _bytes_per_particle(self) -> int:
         """The solver's declared particle fields (layout.py) and the extensions'."""
@@ -380,8 +376,7 @@ class Simulation:
         for e in self.extensions:
             e.after_p2g()
         self._k["grid_velocity"](any(e.node_solve_active() for e in self.extensions))   # the chain, no forces
-        self.fail[None] = _NO_FAIL
-        self.vmax2[None] = 0.0
+        self.status.reset()
         self._k["g2p"](dt, 0.0, velocity=False, deform=DEFORM_F)
 
     @states.stepping   # a failed simulation is not stepped again (states.py)
@@ -422,8 +417,7 @@ class Simulation:
         if self.feat.xpic:
             self._extend_velocities()
         if not self.feat.usf:   # USF's first pass reset them, and may have found a failed particle
-            self.fail[None] = _NO_FAIL
-            self.vmax2[None] = 0.0
+            self.status.reset()
         if self.feat.musl:
             k["g2p"](dt, kick, velocity=True, deform=False)
             self._scatter("p2g_momentum")  # the first g2p pass left the positions: the same bins
@@ -436,11 +430,11 @@ class Simulation:
         self.dt, self._half_dt = dt, 0.5 * dt
         if not np.array_equal(self._gravity_before, self._gravity):  # the gravity of this step, for the next kick
             self._gravity_before = self._gravity.copy()
-            self.gravity_before_field[None] = self._gravity.tolist()
+            self._upload_runtime()
         self.n_steps += 1
         self.time += dt
-        code = self.fail[None]
-        self._vmax = math.sqrt(max(float(self.vmax2[None]), 0.0))
+        code, vmax2 = self.status.read()
+        self._vmax = math.sqrt(max(vmax2, 0.0))
         if code != _NO_FAIL:
             self._raise_particle_failure(code, dt)
         if watch and self._balance["due"] <= self.n_steps:
@@ -972,7 +966,7 @@ class Simulation:
 
         def apply():
             self._gravity = value
-            self.gravity_field[None] = value.tolist()
+            self._upload_runtime()
         self._change_live(apply)
 
     def stiffness_scale(self, material: Optional[str] = None) -> float:
@@ -995,7 +989,7 @@ class Simulation:
         def apply():
             for k in slots:
                 self._stiffness[k] = float(scale)
-            self._upload_stiffness()
+            self._upload_runtime()
             self.wave_speed = self._wave_speed()
         self._change_live(apply)
 
@@ -1014,7 +1008,7 @@ class Simulation:
             raise ValueError(f"set_flip_blend: the blend must be a number in [0, 1], got {a!r}")
         self._check_live()
         self._flip_blend = float(a)
-        self.flip_blend_field[None] = float(a)
+        self._upload_runtime()
 
     def _material_slots(self, material: Optional[str]) -> list[int]:
         names = list(self.scene.materials)

@@ -34,10 +34,13 @@ def cpu_threads() -> int:
 
 
 class Slots:
-    """n f64 accumulators as 0-D fields: in a kernel `slots[k][None] += value` (k a Python int)."""
+    """n f64 accumulators as 0-D fields: in a kernel `slots[k][None] += value` (k a Python int). The host reads and
+    sets them all through one kernel each way (compiled at first use; each field's own accessor would compile one
+    kernel per field)."""
 
     def __init__(self, n: int):
         self.fields = [ti.field(ti.f64, ()) for _ in range(n)]
+        self._kernels = None
 
     def __getitem__(self, k: int):
         return self.fields[k]
@@ -46,12 +49,30 @@ class Slots:
     def shape(self):
         return (len(self.fields),)
 
+    def _copy(self):
+        if self._kernels is None:
+            fields = self.fields
+
+            @ti.kernel
+            def read(out: ti.types.ndarray()):
+                for k in ti.static(range(len(fields))):
+                    out[k] = fields[k][None]
+
+            @ti.kernel
+            def write(values: ti.types.ndarray()):
+                for k in ti.static(range(len(fields))):
+                    fields[k][None] = values[k]
+
+            self._kernels = read, write
+        return self._kernels
+
     def to_numpy(self) -> np.ndarray:
-        return np.array([f[None] for f in self.fields], dtype=np.float64)
+        out = np.zeros(len(self.fields), dtype=np.float64)
+        self._copy()[0](out)
+        return out
 
     def from_numpy(self, values):
-        for f, val in zip(self.fields, np.asarray(values, dtype=np.float64)):
-            f[None] = float(val)
+        self._copy()[1](np.ascontiguousarray(values, dtype=np.float64).reshape(len(self.fields)))
 
 
 class ChunkSums:
