@@ -22,7 +22,7 @@ LAYERS = {
     # output-field registry and the names render settings accept, Taichi trace-time helpers, the bases registry,
     # the field declarations, the transfer-scheme registry (its declarations and gradient pieces)
     "foundation": ("errors", "schema", "geometry", "expressions", "bases.registry", "bases.knots", "bases.mapgeom",
-                   "traced", "jit", "sums", "host_copy", "materials", "fields", "field_decl", "schemes",
+                   "traced", "jit", "sums", "host_copy", "host_scalars", "materials", "fields", "field_decl", "schemes",
                    "io.colour_range", "io.render_options", "tools.window_layout"),
     "config": ("config",),
     # what a simulation is made of; it reads a Config and writes nothing a user sees
@@ -35,7 +35,7 @@ LAYERS = {
     "commands": ("cli", "__main__", ""),   # "": the package's __init__ (the public API)
 }
 # the physics core, and the modules it may never import (issue 26)
-PHYSICS = ("solver", "bases", "grid", "materials", "extensions", "sums", "host_copy", "traced", "jit", "scene", "loads",
+PHYSICS = ("solver", "bases", "grid", "materials", "extensions", "sums", "host_copy", "host_scalars", "traced", "jit", "scene", "loads",
            "analytic", "budget", "backend", "states", "causes", "step", "fields", "layout", "field_decl", "schemes",
            "friction", "tearing")
 TOOLS = ("cli", "io", "tools", "probes")
