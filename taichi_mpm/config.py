@@ -464,6 +464,15 @@ class PrescribedVelocity(Strict):
     velocity: list[FreeTimeExpr]                 # per axis: number or expression of t (m/s), null: free
 
 
+class Geostatic(Strict):
+    """bodies[].geostatic: a cam_clay body starts consolidated under its own weight (K0 conditions,
+    materials.cam_clay.geostatic_state): vertical effective stress rho |g| (surface - height) along the last axis,
+    k0 times it across, p_c from ocr."""
+    k0: Annotated[float, Field(gt=0, le=3)]            # sigma_h / sigma_v (Jaky: 1 - sin phi)
+    ocr: Annotated[float, Field(ge=1, le=1e6)] = 1.0    # p_c / the p_c of the yield surface through the stress
+    surface: Optional[float] = None                     # m, the ground's height; null: the body's top
+
+
 class Body(Strict):
     name: Optional[str] = None
     shape: Shape
@@ -481,6 +490,7 @@ class Body(Strict):
     damage_regions: list[DamageRegion] = []
     # particles of this body inside an earlier body's shape: error, skip (leave them out), allow (keep both)
     overlap: Literal["error", "skip", "allow"] = "error"
+    geostatic: Optional[Geostatic] = None        # cam_clay: a K0 start under the body's own weight
 
 
 class Render(Strict):
@@ -702,6 +712,26 @@ class Config(Strict):
         for j, r in enumerate(b.damage_regions):
             _check_shape(f"{key}.damage_regions.{j}.shape", r.shape, d)
         _check_loads(key, b, d)
+        if b.geostatic is not None:
+            self._check_geostatic(key, b)
+
+    def _check_geostatic(self, key, b):
+        """A geostatic start: a cam_clay body (it sets that model's consolidated state), gravity down the last axis,
+        no initial stress besides, and a ground surface no lower than the body's particles can be."""
+        model = self.materials[b.material].model
+        if model != "cam_clay":
+            raise _Located(f"{key}.geostatic", f"sets cam_clay's consolidated state; material '{b.material}' is "
+                                               f"{model} (give its initial stress with bodies[].stress)")
+        if b.stress is not None:
+            raise _Located(f"{key}.geostatic", "give either geostatic or stress, not both")
+        if not self.gravity[-1] < 0:
+            raise _Located(f"{key}.geostatic", f"needs gravity pointing down the last axis (solver.gravity's last "
+                                               f"component < 0), got {self.gravity}")
+        if b.geostatic.surface is not None:
+            top = float(geometry.bounds(b.shape, self.dim)[1][-1]) if not isinstance(b.shape, Mesh) else None
+            if top is not None and b.geostatic.surface < top:
+                raise _Located(f"{key}.geostatic.surface", f"the ground ({b.geostatic.surface:g} m) lies below the "
+                                                           f"body's top ({top:g} m): no particle may be above it")
 
     def _check_velocity_walls(self):
         """A velocity wall's vector has the scene's dimension."""

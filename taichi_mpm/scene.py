@@ -52,6 +52,8 @@ class Scene:
     stress: Optional[np.ndarray] = None   # (N, d, d) initial Cauchy stress (bodies[].stress); None: no body has one
     loads: list = field(default_factory=list)   # Load per bodies[].tractions entry, in body order
     grips: list = field(default_factory=list)   # Grip per bodies[].prescribed_velocity entry, in body order
+    # (particles, F, material state) per bodies[].geostatic: cam_clay's K0 start (materials.cam_clay.geostatic_state)
+    geostatic: list = field(default_factory=list)
 
     @property
     def n(self) -> int:
@@ -535,7 +537,26 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     return dict(x=pts, v=v, volume=vol, mass=vol * mat.density, body=np.full(len(pts), bi, np.int32),
                 material=np.full(len(pts), mat_names.index(body.material), np.int32),
                 damage=dmg, interface=iface, spacing=np.full(len(pts), h),
-                stress=_initial_stress(body.stress, d, coords, f"{key}.stress"), loads=loads, grips=grips)
+                stress=_initial_stress(body.stress, d, coords, f"{key}.stress"), loads=loads, grips=grips,
+                geostatic=_geostatic(cfg, body, pts, key, base_dir))
+
+
+def _geostatic(cfg, body, pts, key, base_dir):
+    """bodies[].geostatic: (F, material state) of the body's particles consolidated under its own weight (K0):
+    vertical effective stress rho |g| (surface - height), height along the last axis; None without the key."""
+    spec = body.geostatic
+    if spec is None:
+        return None
+    from .materials.cam_clay import geostatic_state
+
+    mat = cfg.materials[body.material]
+    surface = spec.surface if spec.surface is not None else float(shape_bounds(body.shape, cfg.dim, base_dir,
+                                                                               f"{key}.shape")[1][-1])
+    sigma_v = mat.density * abs(cfg.gravity[-1]) * (surface - pts[:, -1])
+    if not (sigma_v > 0).all():
+        raise ConfigError(f"particles of the body lie at or above the ground ({surface:g} m; the highest at "
+                          f"{pts[:, -1].max():g} m): raise the surface", key=f"{key}.geostatic.surface")
+    return geostatic_state(mat, cfg.dim, sigma_v, spec.k0, spec.ocr)
 
 
 def _inside_map(cfg, bi, pts):
@@ -604,7 +625,7 @@ def build_scene(cfg: Config, seed: int = 0) -> Scene:
     parts = [_body_particles(cfg, bi, body, mat_names, base_dir, rng) for bi, body in enumerate(cfg.bodies)]
     for bi, p in enumerate(parts):
         _inside_map(cfg, bi, p["x"])
-    special = ("stress", "loads", "grips")
+    special = ("stress", "loads", "grips", "geostatic")
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k not in special}
     offsets = np.cumsum([0] + [len(p["x"]) for p in parts])
     stress = None
@@ -614,4 +635,6 @@ def build_scene(cfg: Config, seed: int = 0) -> Scene:
                                  for p in parts])
     loads = [Load(l.particles + off, l.force, l.ramp, l.key) for p, off in zip(parts, offsets) for l in p["loads"]]
     grips = [Grip(g.particles + off, g.velocity, g.key) for p, off in zip(parts, offsets) for g in p["grips"]]
-    return Scene(materials=mat_names, stress=stress, loads=loads, grips=grips, **cat)
+    geostatic = [(np.arange(len(p["x"])) + off, *p["geostatic"]) for p, off in zip(parts, offsets)
+                 if p["geostatic"] is not None]
+    return Scene(materials=mat_names, stress=stress, loads=loads, grips=grips, geostatic=geostatic, **cat)

@@ -236,8 +236,13 @@ class Simulation:
     def _upload(self):
         s, d, n = self.scene, self.dim, self.n
         self._perm = self._block_order()
+        F = np.broadcast_to(np.eye(d), (n, d, d))
+        if s.geostatic:   # bodies[].geostatic: the elastic F of their K0 stress
+            F = F.copy()
+            for particles, Fg, _ in s.geostatic:
+                F[particles] = Fg
         pairs = [(self.x, self._to_solver(s.x)), (self.v, self._to_solver(s.v)),
-                 (self.F, np.broadcast_to(np.eye(d), (n, d, d))), (self.vol0, self._to_solver(s.volume))]
+                 (self.F, self._to_solver(F)), (self.vol0, self._to_solver(s.volume))]
         if self.C is not None:
             pairs.append((self.C, np.zeros((n, d, d))))
         if self.mat is not None:
@@ -767,12 +772,15 @@ class Simulation:
 
     # ------------------------------------------------------------------ material state (materials/: State)
     def _initial_state(self) -> np.ndarray:
-        """(N, n_state) initial material state in creation order: each material's State.init in its slots."""
+        """(N, n_state) initial material state in creation order: each material's State.init in its slots, a
+        geostatic body's consolidated state in its model's (bodies[].geostatic)."""
         q = np.zeros((self.n, self.n_state))
         for k, layout in enumerate(self.state_layout):
             sel = self.scene.material == k
             for j, st in enumerate(layout):
                 q[sel, j] = st.init
+        for particles, _, qg in self.scene.geostatic:
+            q[particles, :qg.shape[1]] = qg
         return q
 
     def _material_state(self) -> np.ndarray:

@@ -35,9 +35,9 @@ LAYERS = {
     "commands": ("cli", "__main__", ""),   # "": the package's __init__ (the public API)
 }
 # the physics core, and the modules it may never import (issue 26)
-PHYSICS = ("solver", "bases", "grid", "materials", "extensions", "sums", "host_copy", "host_scalars", "traced", "jit", "scene", "loads",
-           "analytic", "budget", "backend", "states", "causes", "step", "fields", "layout", "field_decl", "schemes",
-           "friction", "tearing")
+PHYSICS = ("solver", "bases", "grid", "materials", "extensions", "sums", "host_copy", "host_scalars", "traced", "jit",
+           "scene", "loads", "analytic", "budget", "backend", "states", "causes", "step", "fields", "layout",
+           "field_decl", "schemes", "friction", "tearing")
 TOOLS = ("cli", "io", "tools", "probes")
 
 

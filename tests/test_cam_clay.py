@@ -246,15 +246,9 @@ def test_k0_geostatic_layer_stays_at_rest_in_a_scene():
     The Kirchhoff stress (V0 tau is the solver's force) is what geostatic_state sets: the Cauchy output is tau / J."""
     import taichi_mpm as tm
     from taichi_mpm.config import load_config
-    from conftest import make_cfg
 
     rho, g, H = 1800.0, 9.81, 0.5
-    cfg = make_cfg(2, precision="f64", dx=0.025, lower=[0.0, 0.0], upper=[H, H], end_time=1.0)
-    cfg["domain"]["upper"] = [H, 2 * H]
-    cfg["domain"]["boundaries"] = dict(default="slip", y_min="sticky", y_max="free")
-    cfg["solver"]["gravity"] = [0.0, -g]
-    cfg["materials"]["m"] = dict(model="cam_clay", density=rho, shear_modulus=1e6, lambda_star=0.1,
-                                 kappa_star=0.02, critical_state_slope=1.0, initial_pressure=1e4)
+    cfg = _layer_config(H)
     m = load_config(cfg).materials["m"]
     k0 = 1 - 3 * m.critical_state_slope / (6 + m.critical_state_slope)
     sim = tm.Simulation(cfg)
@@ -274,6 +268,70 @@ def test_k0_geostatic_layer_stays_at_rest_in_a_scene():
 
 
 @pytest.mark.slow
+def _layer_config(H=0.5, **geostatic):
+    """The K0 layer above (0.5 x 0.5 m, dx 2.5 cm, sticky floor), with bodies[0].geostatic when given."""
+    from conftest import make_cfg
+
+    cfg = make_cfg(2, precision="f64", dx=0.025, lower=[0.0, 0.0], upper=[H, H], end_time=1.0)
+    cfg["domain"]["upper"] = [H, 2 * H]
+    cfg["domain"]["boundaries"] = dict(default="slip", y_min="sticky", y_max="free")
+    cfg["solver"]["gravity"] = [0.0, -9.81]
+    cfg["materials"]["m"] = dict(model="cam_clay", density=1800.0, shear_modulus=1e6, lambda_star=0.1,
+                                 kappa_star=0.02, critical_state_slope=1.0, initial_pressure=1e4)
+    if geostatic:
+        cfg["bodies"][0]["geostatic"] = geostatic
+    return cfg
+
+
+def test_geostatic_start_from_the_config_is_the_api_one():
+    """bodies[].geostatic sets at t = 0 the F and material state geostatic_state gives (the path of the test above,
+    which measured the layer at rest from it), bit for bit; the stress is rho g (surface - y) down and K0 times it
+    across (the Kirchhoff stress, 1e-9 relative; 0.3 % off at the top if the depth were measured from the wrong
+    surface). With ocr 2 the state differs (p_c doubled) and the stress does not."""
+    import taichi_mpm as tm
+    from taichi_mpm.config import load_config
+
+    k0 = 1 - 3.0 / 7.0
+    sim = tm.Simulation(_layer_config())
+    m = load_config(_layer_config()).materials["m"]
+    y = sim.particles()["x"][:, 1]
+    state = sim.get_state()
+    state["F"], state["material_state"] = geostatic_state(m, 2, 1800.0 * 9.81 * (0.5 - y), k0)
+    by_config = tm.Simulation(_layer_config(k0=k0)).get_state()
+    assert np.array_equal(by_config["F"], state["F"])
+    assert np.array_equal(by_config["material_state"], state["material_state"])
+    stiff = tm.Simulation(_layer_config(k0=k0, ocr=2.0, surface=0.5))
+    assert np.array_equal(stiff.get_state()["F"], state["F"])
+    assert not np.array_equal(stiff.get_state()["material_state"], state["material_state"])
+    p = stiff.particles()
+    tau = p["stress"] * (p["volume"] / stiff.scene.volume)[:, None, None]   # the Cauchy output is tau / J
+    sv = 1800.0 * 9.81 * (0.5 - y)
+    assert np.allclose(tau[:, 1, 1], -sv, rtol=1e-9) and np.allclose(tau[:, 0, 0], -k0 * sv, rtol=1e-9)
+
+
+@pytest.mark.parametrize("change, key, words", [
+    (dict(material="elastic"), "bodies.0.geostatic", "cam_clay"),
+    (dict(gravity=[0.0, 9.81]), "bodies.0.geostatic", "gravity"),
+    (dict(surface=0.3), "bodies.0.geostatic.surface", "below"),
+    (dict(stress=[0.0, 0.0, 0.0]), "bodies.0.geostatic", "not both"),
+])
+def test_geostatic_refusals_name_the_key(change, key, words):
+    """A geostatic start is for cam_clay, under gravity down the last axis, below its ground, without a stress."""
+    import taichi_mpm as tm
+
+    cfg = _layer_config(k0=0.5, surface=change.get("surface"))
+    if "material" in change:
+        cfg["materials"]["elastic"] = dict(model="neo_hookean", E=1e6, density=1800.0)
+        cfg["bodies"][0]["material"] = "elastic"
+    if "gravity" in change:
+        cfg["solver"]["gravity"] = change["gravity"]
+    if "stress" in change:
+        cfg["bodies"][0]["stress"] = change["stress"]
+    with pytest.raises(tm.ConfigError) as e:
+        tm.load_config(cfg)
+    assert e.value.key == key and words in str(e.value), (e.value.key, str(e.value))
+
+
 def test_normally_consolidated_vertical_cut_fails_under_its_own_weight():
     """A vertical cut in normally consolidated clay (2D, 0.3 m wide and 0.4 m high against a slip wall, sticky floor,
     dx 2 cm, 1200 particles, M = 1, G = 2 MPa, p0 = 10 kPa) started from the K0 geostatic state: without cohesion

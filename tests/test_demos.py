@@ -13,7 +13,7 @@ import taichi_mpm as tm
 ROOT = Path(__file__).resolve().parents[1]
 DEMOS = {"sphere_impact": 3, "colliding_disks": 2, "vibrating_bar": 1, "cantilever": 2, "dam_break": 2,
          "jelly_drop": 3, "granular_collapse": 2, "sand_pile": 2, "snowball": 2, "necking": 2,
-         "granular_collapse_3d": 3, "round_tank": 2}
+         "granular_collapse_3d": 3, "round_tank": 2, "clay_slope": 2}
 
 
 def load_demo(name):
@@ -157,6 +157,16 @@ def test_granular_collapse_quick(tmp_path):
     assert x[:, 0].max() > 0.15                      # spread half a column width beyond it (measured 0.18)
     assert x[:, 1].max() < 0.9 * 0.2                 # and the top came down
     assert p["plastic_strain"].max() > 0.1 and p["Jp"].min() > 0
+
+
+def test_clay_slope_quick(tmp_path):
+    """The cut at dx 0.05 (6 x 8 cells, 192 particles) for 0.3 s slumps: the toe moves out past the cut (measured
+    0.43 m against 0.3), the crest comes down (0.33 m against 0.4), every particle finite and above the floor. The
+    geostatic start itself is checked in test_cam_clay.py."""
+    sim = load_demo("clay_slope").main(quick(tmp_path, 0.05, 0.3))
+    x = sim.particles()["x"]
+    assert np.all(np.isfinite(x)) and x[:, 1].min() > -1e-6
+    assert x[:, 0].max() > 0.35 and x[:, 1].max() < 0.38
 
 
 @pytest.mark.slow   # two kernel sets (Cartesian and polar) and a full period at 24 cells: ~40 s on 2 cores

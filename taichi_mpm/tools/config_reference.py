@@ -213,6 +213,15 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "bodies[].damage_regions[].value": ("1", "initial damage of the particles inside"),
     "bodies[].overlap": ("", "particles of this body inside an earlier body: error (refuse), skip (leave them out) "
                              "or allow (keep both, doubling the mass there)"),
+    "bodies[].geostatic": ("", "cam_clay bodies: start consolidated under the body's own weight (K0 conditions): "
+                               "vertical effective stress rho |g| (surface - height) along the last axis (gravity "
+                               "must point down it), k0 times it across, the yield surface through it (docs/"
+                               "materials.md); null: the material's initial_pressure everywhere"),
+    "bodies[].geostatic.k0": ("1", "horizontal over vertical effective stress (Jaky: 1 - sin phi)"),
+    "bodies[].geostatic.ocr": ("1", "overconsolidation: p_c over the p_c of the yield surface through the stress "
+                                    "(1: normally consolidated)"),
+    "bodies[].geostatic.surface": ("m", "height of the ground surface the depth is measured from; null: the "
+                                        "top of the body's shape"),
     "limits": ("", "resource limits checked before anything is allocated"),
     "limits.memory_gb": ("GB", "largest estimated memory of a run; null: half of this machine's physical memory"),
     "limits.particles": ("", "largest particle count; null: only the memory limit"),
