@@ -468,9 +468,9 @@ class Geostatic(Strict):
     """bodies[].geostatic: a cam_clay body starts consolidated under its own weight (K0 conditions,
     materials.cam_clay.geostatic_state): vertical effective stress rho |g| (surface - height) along the last axis,
     k0 times it across, p_c from ocr."""
-    k0: Annotated[float, Field(gt=0, le=3)]            # sigma_h / sigma_v (Jaky: 1 - sin phi)
-    ocr: Annotated[float, Field(ge=1, le=1e6)] = 1.0    # p_c / the p_c of the yield surface through the stress
-    surface: Optional[float] = None                     # m, the ground's height; null: the body's top
+    k0: Annotated[Real, Field(gt=0, le=3)]             # sigma_h / sigma_v (Jaky: 1 - sin phi)
+    ocr: Annotated[Real, Field(ge=1, le=1e6)] = 1.0     # p_c / the p_c of the yield surface through the stress
+    surface: Optional[Real] = None                      # m, the ground's height; null: the body's top
 
 
 class Body(Strict):

@@ -1,7 +1,7 @@
 """The solver's runtime parameters and its per-step status: 0-D and small Taichi fields the kernels read, which the
 host sets and reads through one kernel each way. A field's own accessors (`field[None] = x`) compile a kernel per
-field and vector component on first use, ~30 ms each on a cold kernel cache: a plain 2D scene's parameters and
-status flags took 0.4 s of its first step that way (nine writes, four reads)."""
+field and vector component on first use, ~30 ms each on a cold kernel cache: a plain 2D scene's parameters, status
+flags and accumulators took 0.5 s of its first steps that way (13 accessors; docs/performance.md)."""
 
 import numpy as np
 import taichi as ti
