@@ -267,7 +267,6 @@ def test_k0_geostatic_layer_stays_at_rest_in_a_scene():
     assert np.median(tau[deep, 0, 0] / tau[deep, 1, 1]) == pytest.approx(k0, rel=0.01)
 
 
-@pytest.mark.slow
 def _layer_config(H=0.5, **geostatic):
     """The K0 layer above (0.5 x 0.5 m, dx 2.5 cm, sticky floor), with bodies[0].geostatic when given."""
     from conftest import make_cfg
@@ -332,6 +331,7 @@ def test_geostatic_refusals_name_the_key(change, key, words):
     assert e.value.key == key and words in str(e.value), (e.value.key, str(e.value))
 
 
+@pytest.mark.slow
 def test_normally_consolidated_vertical_cut_fails_under_its_own_weight():
     """A vertical cut in normally consolidated clay (2D, 0.3 m wide and 0.4 m high against a slip wall, sticky floor,
     dx 2 cm, 1200 particles, M = 1, G = 2 MPa, p0 = 10 kPa) started from the K0 geostatic state: without cohesion
