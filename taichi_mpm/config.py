@@ -727,9 +727,9 @@ class Config(Strict):
         if not self.gravity[-1] < 0:
             raise _Located(f"{key}.geostatic", f"needs gravity pointing down the last axis (solver.gravity's last "
                                                f"component < 0), got {self.gravity}")
-        if b.geostatic.surface is not None:
-            top = float(geometry.bounds(b.shape, self.dim)[1][-1]) if not isinstance(b.shape, Mesh) else None
-            if top is not None and b.geostatic.surface < top:
+        if b.geostatic.surface is not None and not isinstance(b.shape, Mesh):   # a mesh's: at scene set-up
+            top = float(geometry.bounds(b.shape, self.dim)[1][-1])
+            if b.geostatic.surface < top:
                 raise _Located(f"{key}.geostatic.surface", f"the ground ({b.geostatic.surface:g} m) lies below the "
                                                            f"body's top ({top:g} m): no particle may be above it")
 
