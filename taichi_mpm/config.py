@@ -329,6 +329,10 @@ class Solver(Strict):
     # knot span averaged over its domain of the initial spacing: cubic keeps second order at sticky walls;
     # docs/accuracy.md, "Cubic B-splines at sticky walls")
     quadrature: Literal["point", "domain"] = "point"
+    # the nodal force from each particle's stress minus the average stress at the node (the local stress
+    # difference, Perez, Barclay & Zhang 2023): the particles' quadrature error under a uniform stress vanishes
+    # inside a body (extensions/stress_difference.py; docs/accuracy.md, "The local stress difference")
+    stress_difference: bool = False
     cpdi: Cpdi = Cpdi()
     cfl: PositiveFloat = 0.4
     dt: Optional[PositiveFloat] = None
@@ -660,6 +664,7 @@ class Config(Strict):
         self._check_transfer()
         self._check_unused_settings()
         self._check_cpdi2()
+        self._check_stress_difference()
         self._check_probes()
         self._check_ranges()
         return self
@@ -883,6 +888,24 @@ class Config(Strict):
             if getattr(m, "fracture_energy", None) is not None and getattr(m, "tensile_strength", None) is None:
                 raise _Located(f"materials.{name}.fracture_energy", f"material '{name}': the softening needs "
                                                                     "tensile_strength (where damage starts)")
+
+    def _check_stress_difference(self):
+        """solver.stress_difference needs the standard transfers of a tensor-product basis on the box grid."""
+        if not self.solver.stress_difference:
+            return
+        spec = bases.get(self.solver.basis)
+        why = None
+        if spec.stress_difference is not None:
+            why = f"refuses basis {self.solver.basis}: {spec.stress_difference}"
+        elif self.domain.map is not None:
+            why = "takes the box grid (or domain.knots), not domain.map"
+        elif self.crack is not None:
+            why = ("cannot be combined with the crack finder (section 'crack'): its modified transfers sum their "
+                   "own forces")
+        elif self.contact is not None:
+            why = "cannot be combined with multi-field contact (section 'contact'): each body field gets its own force"
+        if why:
+            raise _Located("solver.stress_difference", f"the local stress difference {why}")
 
     def _check_knots(self):
         if self.domain.knots is None:

@@ -44,6 +44,7 @@ class Needs:
     crack: CrackNeeds | None
     contact: ContactNeeds | None = None   # multi-field contact's node fields (its velocity fields)
     cpdi2: bool = False         # cpdi2's corners, each particle's own (extensions/domain_corners.py)
+    stress_difference: bool = False   # the nodal stress sums (extensions/stress_difference.py)
 
     @classmethod
     def of_simulation(cls, sim, feat, coloured: bool) -> "Needs":
@@ -82,7 +83,8 @@ def _common(cfg, coloured: bool) -> dict:
     spec = bases.get(cfg.solver.basis)   # the basis' declaration (bases/registry.py)
     return dict(fbar=cfg.solver.volumetric == "fbar" and cfg.dim > 1, fbar_linear=spec.fbar_linear_grid,
                 ddmp=spec.prepass_grid, coloured=coloured,
-                cpdi2=spec.stencil_kind == "corners" and cfg.solver.cpdi.variant == "cpdi2")
+                cpdi2=spec.stencil_kind == "corners" and cfg.solver.cpdi.variant == "cpdi2",
+                stress_difference=cfg.solver.stress_difference)
 
 
 def solver_particle_fields(n: Needs) -> list[FieldDecl]:
@@ -152,6 +154,9 @@ def main_grid(n: Needs) -> GridDecl:
     vec += ("grip",) if n.grips else ()   # component 0: the grip (from 1) whose particles touch the node
     apart: tuple[str, ...] = ()
     scalars: tuple[str, ...] = ()
+    if n.stress_difference:   # every node with mass: the sums of V sigma w (by rows), V grad w and V w
+        vec += STRESS_DIFFERENCE_ROWS[:n.dim] + ("lsd_g",)
+        scalars += ("lsd_v",)
     if n.crack is not None:   # the crack finder's node fields: few particles touch them
         apart, scalars = tuple(n.crack.grid_vectors), tuple(n.crack.grid_scalars)
     if n.contact is not None:   # multi-field contact's body fields: mass, momentum, mass gradient (FLIP: v_old)
@@ -161,6 +166,7 @@ def main_grid(n: Needs) -> GridDecl:
 
 
 DDMP_VOLUMES = GridDecl("ddmp nodal volumes")
+STRESS_DIFFERENCE_ROWS = ("lsd_t0", "lsd_t1", "lsd_t2")   # the rows of sum V sigma w at a node
 
 
 def fbar_grid(n: Needs) -> GridDecl:

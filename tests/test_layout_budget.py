@@ -241,6 +241,9 @@ CASES = {
     "2d multi_field contact": lambda: _contact(make_cfg(2, dx=0.05), friction=0.3),
     "2d multi_field flip": lambda: _contact(make_cfg(2, transfer="flip", dx=0.05)),
     "3d multi_field dense f32": lambda: _contact(_dense(make_cfg(3, precision="f32", dx=0.1))),
+    # the local stress difference's node sums (stress rows, V grad w, V w)
+    "2d stress_difference": lambda: make_cfg(2, stress_difference=True),
+    "3d stress_difference dense f32": lambda: _dense(make_cfg(3, precision="f32", dx=0.1, stress_difference=True)),
 }
 BODY_FORCE = {"2d body force": lambda: make_cfg(2)}
 

@@ -32,6 +32,9 @@ class Spec:
     knots: bool = False         # takes domain.knots (a knot vector of `degree` per axis)
     map: bool = False           # is the basis of domain.map's mapped grid
     crack: Optional[str] = None     # why the crack finder refuses it (measured); None: the finder supports it
+    # why solver.stress_difference refuses it (measured); None: its force gradient is its weights' derivative, whose
+    # integral over a node's support the local stress difference takes from the walls' values
+    stress_difference: Optional[str] = None
     fbar: bool = True           # takes solver.volumetric fbar
     fbar_linear_grid: bool = False  # F-bar averages on the linear grid, one degree below the velocity space
     particle_domains: bool = False  # each particle has a domain whose half-width comes from its spacing
@@ -113,6 +116,10 @@ _LINEAR_INVERSION = ("the linear basis inverts particles that cross a cell bound
                      "solver.update: musl")
 _DDMP_CRACK = ("two interface blocks pulled apart kept only 0.185 of their 0.2 m/s (measured; the finder's "
                "separation bound is 5 %)")
+_DDMP_LSD = ("ddmp's blended gradient is not its weights' derivative: near a free surface or a wall its integral over "
+             "a node's support is not the walls' values, and the fixed-free bar's error grew 15-fold with it "
+             "(measured; docs/accuracy.md)")
+_CORNERS_LSD = "cpdi's corner stencil has no per-axis functions to integrate a node's support from"
 
 BUILT_IN = tuple(register(s).name for s in (
     Spec("linear", "linear B-splines (hat functions)", _SF + "make_bspline_basis", 1, 2, "bspline",
@@ -125,7 +132,8 @@ BUILT_IN = tuple(register(s).name for s in (
          knots=True, options=("quadrature",), fbar_linear_grid=True, accuracy=4),
     Spec("cpdi", "CPDI1, the linear hats sampled at the corners of each particle's deformed domain", _SF + "make_cpdi",
          1, 3, "bspline", stencil_kind="corners", particle_domains=True, options=("cpdi",),
+         stress_difference=_CORNERS_LSD,
          inversion_hint="the particle's CPDI domain (half-edges F r0) inverted: det F <= 0; fix: lower solver.cfl"),
     Spec("ddmp", "DDMP, linear weights with the gradient blended with its dual-domain average", _SF + "make_ddmp",
-         1, 4, "ghost", crack=_DDMP_CRACK, prepass_grid=True),
+         1, 4, "ghost", crack=_DDMP_CRACK, prepass_grid=True, stress_difference=_DDMP_LSD),
 ))

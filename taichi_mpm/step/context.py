@@ -42,10 +42,12 @@ class StepContext(KernelContext):
     particle_transfer: Optional[Any] = None   # step.moments.ParticleTransfer: one extension's, or None
     degradation: Optional[Any] = None         # step.moments.Degradation, or None
     node_fields: Optional[Any] = None         # step.moments.NodeFields, or None
+    force_sums: Optional[Any] = None          # step.moments.ForceSums, or None
     grid_solve: list = field(default_factory=list)   # step.moments.GridSolve parts, in the extensions' order
 
     def contribute(self, name: str, value):
-        """Set a contribution only one extension may make (particle_transfer, degradation, node_fields)."""
+        """Set a contribution only one extension may make (particle_transfer, degradation, node_fields,
+        force_sums)."""
         if getattr(self, name) is not None:
             raise ValueError(f"two extensions contribute {name}: only one may")
         setattr(self, name, value)

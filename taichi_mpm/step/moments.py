@@ -16,7 +16,7 @@ The moments, in the order a simulation meets them (`Simulation`):
                              particles inside of)
     build(ctx)               its kernels from the step context (step.StepContext), before the solver's own; this is
                              where it adds contributions the solver's kernels compile in (ctx.particle_transfer,
-                             ctx.degradation, ctx.node_fields, ctx.grid_solve)
+                             ctx.degradation, ctx.node_fields, ctx.force_sums, ctx.grid_solve)
     upload()                 the scene's initial values into its fields (after the solver's own)
     before_step(t, dt, lag)  a step from time t by dt begins (lag: the leapfrog velocities' half step behind t):
                              this step's values of time functions (tractions' ramps, grip and wall velocities)
@@ -171,6 +171,15 @@ class NodeFields:
     scatter: Callable        # (p, I, w, gw, r = x_i - x_p, mp, momentum, momentum_old): P2G's node contribution
     velocity: Callable       # (p, I) -> the node velocity G2P gives particle p (v_i, and grad v from it)
     velocity_old: Callable   # (p, I) -> FLIP's v_old_i for particle p
+
+
+@dataclass(frozen=True)
+class ForceSums:
+    """Node sums of what P2G's internal force integrates (the local stress difference): the solver's standard
+    transfer calls `scatter` for every node of a particle's stencil."""
+    # (p, I, w, force_gradient, stress_volume, volume): stress_volume = V_p sigma_p (= V0 tau), the particle's
+    # (degraded) stress times its volume; force_gradient the gradient its force term multiplies (grad w, or MLS's)
+    scatter: Callable
 
 
 @dataclass(frozen=True)

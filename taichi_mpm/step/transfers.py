@@ -75,8 +75,8 @@ def make_p2g(ctx, mf, af, external_force):
     outer, inner = sten.outer, sten.inner
     gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
     flip, viscosity, taken, degraded = ctx.feat.flip, ctx.feat.viscosity, pt is not None, dg is not None
-    asflip, nf = ctx.feat.asflip, ctx.node_fields
-    own = nf is not None
+    asflip, nf, fs = ctx.feat.asflip, ctx.node_fields, ctx.force_sums
+    own, sums = nf is not None, fs is not None
     density, kirchhoff, viscous_power = mf.density, mf.kirchhoff, mf.viscous_power
     affine, node_momentum = af.affine, af.node_momentum
     grad = make_gradient(sten, ctx.feat.mls)   # grad w, or MLS-MPM's w D_p^-1 r
@@ -93,6 +93,9 @@ def make_p2g(ctx, mf, af, external_force):
         vp = v[p]
         Ap = affine(p, st)
         force_density = external_force(p)  # body force + tractions (loads.py: traction x area x ramp)
+        volume = 0.0
+        if ti.static(sums):   # the current volume, for the local stress difference's node sums
+            volume = vol0[p] * Fp.determinant()
         if ti.static(viscosity):
             work[1][None] += kick * vol0[p] * viscous_power(p, Fp)
         modified = False
@@ -106,8 +109,11 @@ def make_p2g(ctx, mf, af, external_force):
                 I, w, gw, r = sten.node(st, o + inner[k])
                 add(gm, I, w * mp)
                 mom = node_momentum(vp, Ap, r)
-                value = w * mp * mom + kick * (stress @ grad.force(M, w, gw, r) + w * force_density)
+                gf = grad.force(M, w, gw, r)
+                value = w * mp * mom + kick * (stress @ gf + w * force_density)
                 add(gv, I, value)
+                if ti.static(sums):   # the local stress difference's node sums (extensions/stress_difference.py)
+                    fs.scatter(p, I, w, gf, -stress, volume)
                 old = w * mp * vp
                 if ti.static(flip and asflip):   # ASFLIP's v_old: the grid velocity before forces, affine part too
                     old = w * mp * mom

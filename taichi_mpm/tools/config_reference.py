@@ -107,6 +107,12 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                               "and gradients at the particle) or domain (the particle's knot span averaged over "
                               "its domain of the initial spacing; cubic keeps second order at sticky walls with 2 "
                               "particles per cell, docs/accuracy.md)"),
+    "solver.stress_difference": ("", "the nodal force from each particle's stress minus the average stress at the "
+                                     "node (the local stress difference of Perez, Barclay & Zhang 2023): inside a "
+                                     "body the particles' quadrature error under a uniform stress vanishes and the "
+                                     "1D convergence of every tensor-product basis rises to about second order at "
+                                     "2 particles per cell; linear momentum is then kept only approximately "
+                                     "(docs/accuracy.md, \"The local stress difference\")"),
     "solver.cfl": ("1", "adaptive time step: the smallest of cfl dx / (wave speed + max speed), cfl sqrt(dx / max "
                         "acceleration) for gravity and body forces, cfl rho dx^2 / (2 d mu) for viscosity"),
     "solver.dt": ("s", "fixed time step instead of the CFL rule; null: adaptive"),
