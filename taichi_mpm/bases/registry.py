@@ -116,9 +116,9 @@ _LINEAR_INVERSION = ("the linear basis inverts particles that cross a cell bound
                      "solver.update: musl")
 _DDMP_CRACK = ("two interface blocks pulled apart kept only 0.185 of their 0.2 m/s (measured; the finder's "
                "separation bound is 5 %)")
-_DDMP_LSD = ("ddmp's blended gradient is not its weights' derivative: near a free surface or a wall its integral over "
-             "a node's support is not the walls' values, and the fixed-free bar's error grew 15-fold with it "
-             "(measured; docs/accuracy.md)")
+_DDMP_LSD = ("ddmp's blended gradient is not its weights' derivative: near a free surface (where its blend turns to "
+             "linear's) its integral over a node's support is not what the correction assumes, and the 1D manufactured "
+             "solution with free ends grew 3-13-fold in error with it (measured; docs/accuracy.md)")
 _CORNERS_LSD = "cpdi's corner stencil has no per-axis functions to integrate a node's support from"
 
 BUILT_IN = tuple(register(s).name for s in (
