@@ -34,6 +34,9 @@ from ..step.moments import Extension, ForceSums, GridSolve
 # nodes stay above 0.85 with particles moved off their lattice by 0.2 spacings (tests/test_stress_difference.py).
 FILL_LOW, FILL_HIGH = 0.7, 0.85
 SAMPLES = 16   # midpoint samples per cell for a node's support volume (it only sets the ramp)
+# a node whose function has less than this integral inside the box (grid units, per axis) is a ghost beyond a wall
+# (gimp's: about lp^2 / 12); the smallest real one is cubic's wall control point, 1/4
+GHOST_SUPPORT = 0.2
 # gimp's functions at the walls: its hats' values, which the particles' averaged gradients telescope to (a particle
 # half-width this small; B-splines ignore it)
 END_HALF_WIDTH = 1e-6
@@ -118,9 +121,9 @@ class StressDifference(Extension):
         @ti.func
         def inside(I):
             """1 where every node within the stencil's reach is (nearly) filled by particles (then node I's own
-            support lies inside the material or the box), 0 near a free surface, a ramp between. Nodes whose
-            functions reach into a wall cell do not count: the particles' fill of those is not a free surface's
-            sign (B-splines transfer a wall layer from inside the face, a ghost node has no particles)."""
+            support lies inside the material or the box), 0 near a free surface, a ramp between (also one between
+            a body and a wall, whose wall node is then short of particles). A ghost node beyond a wall, whose
+            function hardly reaches into the box, does not count."""
             c = 1.0
             for o in ti.grouped(ti.ndrange(*([(-reach, reach + 1)] * d))):
                 J = I + o
@@ -128,7 +131,7 @@ class StressDifference(Extension):
                 for a in ti.static(range(d)):
                     within = within and 0 <= J[a] < shape[a]
                     if within:
-                        within = edge[a][J[a]] == 0
+                        within = support[a][J[a]] >= GHOST_SUPPORT
                 if within:
                     full = full_volume(J)
                     if full > 0:
