@@ -59,7 +59,6 @@ class StressDifference(Extension):
         shape = g.m.shape
         self.support = [ti.field(float, shape[a]) for a in range(d)]   # int_box S_i du per axis (grid units)
         self.ends = [ti.field(float, shape[a]) for a in range(d)]      # S_i(upper wall) - S_i(lower wall)
-        self.edge = [ti.field(ti.i32, shape[a]) for a in range(d)]     # 1: S_i is nonzero in a wall cell
 
     def build(self, ctx):
         self._tables = [self._table_kernel(ctx, a) for a in range(self.dim)]
@@ -70,14 +69,13 @@ class StressDifference(Extension):
         for a, table in enumerate(self._tables):
             self.support[a].fill(0)
             self.ends[a].fill(0)
-            self.edge[a].fill(0)
             table()
 
     def _table_kernel(self, ctx, a: int):
         """A kernel that fills axis a's tables from the basis' 1D functions: the support integral by the midpoint
         rule (SAMPLES per cell), the end values exactly."""
         basis, n, lp = ctx.basis.axis(a), int(self.n_cells[a]), ctx.domain_lp0
-        support, ends, edge, S = self.support[a], self.ends[a], self.edge[a], ctx.basis.stencil
+        support, ends, S = self.support[a], self.ends[a], ctx.basis.stencil
 
         @ti.kernel
         def fill():
@@ -86,8 +84,6 @@ class StressDifference(Extension):
                 first, W, _ = basis.weights_1d((k + 0.5) / SAMPLES, n, lp)
                 for j in ti.static(range(S)):
                     support[first + j] += W[j] / SAMPLES
-                    if (k < SAMPLES or k >= (n - 1) * SAMPLES) and W[j] != 0:
-                        edge[first + j] = 1
             for side in ti.static(range(2)):   # the functions themselves at the walls (gimp: not averaged)
                 first, W, _ = basis.weights_1d(ti.cast(side * n, float), n, END_HALF_WIDTH)
                 for j in ti.static(range(S)):
@@ -107,7 +103,7 @@ class StressDifference(Extension):
 
     def _correction(self, ctx):
         d, dx, rows, g_sum, v_sum = self.dim, self.dx, self.rows, self.g_sum, self.v_sum
-        support, ends, edge = self.support, self.ends, self.edge
+        support, ends = self.support, self.ends
         ramp, reach = 1.0 / (FILL_HIGH - FILL_LOW), (ctx.basis.stencil + 1) // 2
         shape = tuple(self.v_sum.shape)
 
