@@ -21,7 +21,6 @@ Linear momentum is kept only approximately: sum_i sigma_i g_i is not zero where 
 Physics code only: no CLI, rendering or file I/O here.
 """
 
-import numpy as np
 import taichi as ti
 
 from ..layout import STRESS_DIFFERENCE_ROWS
@@ -147,9 +146,3 @@ class StressDifference(Extension):
                 vel += (kick_before + kick_after) * c * (sigma @ (g_sum[I] - G)) / m
             return vel
         return correction
-
-    def node_stress(self) -> np.ndarray:
-        """The nodal stresses sigma_i of the last P2G at the grid's nodes (dense; zero where no particle)."""
-        V = self.v_sum.to_numpy()
-        T = np.stack([r.to_numpy() for r in self.rows], axis=-2)
-        return np.where(V[..., None, None] > 0, T / np.where(V > 0, V, 1.0)[..., None, None], 0.0)
