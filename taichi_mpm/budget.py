@@ -149,8 +149,10 @@ class MapSize:
     key: str
 
     def field_floats(self) -> int:
-        """As MappedGrid.field_floats: control points (2) and weights (1) per control point, wall normals (8) per node."""
-        return 3 * math.prod(self.ctrl) + 8 * math.prod(self.shape)
+        """As MappedGrid.field_floats: control points (d) and weights (1) per control point, wall normals (2 d x d)
+        per node."""
+        d = len(self.ctrl)
+        return (d + 1) * math.prod(self.ctrl) + 2 * d * d * math.prod(self.shape)
 
     def knot_floats(self) -> int:
         """Per axis, the quadratic knot vector (control points + 3 knots) and its Greville abscissae (one per control
@@ -171,11 +173,15 @@ def map_size(cfg: Config) -> MapSize | None:
         periodic, key = m.angle >= 360.0, "domain.map.cells"
         angle, (n_angle, n_radial) = math.radians(m.angle), m.cells
         h_min = min(m.inner_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
+    elif m.type in ("cylinder", "shell"):
+        ctrl, cells = mapgeom.solid_shape(m.type, m.angle, m.cells, np.ptp(m.latitudes) if m.type == "shell" else 0.0)
+        periodic, key = m.angle >= 360.0, "domain.map.cells"
+        h_min = mapgeom.solid_map_cell_sizes(m)[0]
     else:
         ctrl, cells = mapgeom.refined_shape([m.knots.x, m.knots.y], m.refine)
         periodic, key = m.periodic, "domain.map.refine"
         h_min = _nurbs_h_min(m, cells)
-    shape = [ctrl[0] - 1 if periodic else ctrl[0], ctrl[1]]
+    shape = [ctrl[0] - 1 if periodic else ctrl[0]] + list(ctrl[1:])
     return MapSize(ctrl=ctrl, cells=cells, shape=shape, h_min=h_min, key=key)
 
 

@@ -147,6 +147,7 @@ class Cylinder(Strict):
     type: Literal["cylinder"]
     center: Vec
     radius: PositiveFloat
+    inner_radius: Annotated[float, Field(ge=0)] = 0.0   # > 0: a tube (a thick-walled cylinder)
     height: PositiveFloat
     axis: Literal["x", "y", "z"] = "y"
     rotation: Optional[Union[Real, Vec]] = None
@@ -266,6 +267,36 @@ class AnnulusMap(Strict):
     cells: list[Annotated[int, Field(gt=0, le=MAX_INDEX)]]
 
 
+class CylinderMap(Strict):
+    """domain.map (3D): a thick-walled cylinder (or a sector of one) about an axis along +z, exact circles through
+    NURBS weights (taichi_mpm/bases/mapgeom.py, cylinder_net); the parameter faces are x_min / x_max (the flat
+    ends of the sector at angle 0 and `angle`, none for a full cylinder), y_min / y_max (the inner and outer
+    cylinders) and z_min / z_max (the flat ends at the base and at base + length)."""
+    type: Literal["cylinder"]
+    inner_radius: PositiveFloat
+    outer_radius: PositiveFloat
+    length: PositiveFloat                                   # m along +z from the centre
+    angle: Annotated[float, Field(gt=0, le=360)] = 360.0    # degrees, counter-clockwise about +z from +x
+    center: Vec = [0.0, 0.0, 0.0]                           # the axis' point at the base
+    # [along the angle, across the wall, along the axis]; sized by the budget as the annulus' cells
+    cells: list[Annotated[int, Field(gt=0, le=MAX_INDEX)]]
+
+
+class ShellMap(Strict):
+    """domain.map (3D): a spherical shell between two latitudes (the poles left out), exact spheres through NURBS
+    weights (taichi_mpm/bases/mapgeom.py, shell_net); the parameter faces are x_min / x_max (the meridian planes
+    at longitude 0 and `angle`, none for a full turn), y_min / y_max (the inner and outer spheres) and z_min /
+    z_max (the cones at the lower and upper latitude)."""
+    type: Literal["shell"]
+    inner_radius: PositiveFloat
+    outer_radius: PositiveFloat
+    angle: Annotated[float, Field(gt=0, le=360)] = 360.0    # degrees of longitude, counter-clockwise about +z
+    latitudes: list[Annotated[float, Field(gt=-90, lt=90)]] = [-60.0, 60.0]   # degrees, south to north
+    center: Vec = [0.0, 0.0, 0.0]
+    # [along the longitude, across the shell, along the latitude]
+    cells: list[Annotated[int, Field(gt=0, le=MAX_INDEX)]]
+
+
 class MapKnots(Strict):
     """The two parameter knot vectors of a nurbs map (any scale: they are scaled to cells)."""
     x: list[Real]
@@ -291,7 +322,7 @@ class Domain(Strict):
     sparse: bool = True
     boundaries: Boundaries = Boundaries()
     knots: Optional[Knots] = None
-    map: Optional[Annotated[Union[AnnulusMap, NurbsMap], Field(discriminator="type")]] = None
+    map: Optional[Annotated[Union[AnnulusMap, NurbsMap, CylinderMap, ShellMap], Field(discriminator="type")]] = None
 
 
 class Cpdi(Strict):
@@ -928,8 +959,10 @@ class Config(Strict):
         m = self.domain.map
         if m is None:
             return
-        if self.dim != 2:
-            raise _Located("domain.map", f"mapped grids are 2D (the scene is {self.dim}D)")
+        solid = m.type in ("cylinder", "shell")
+        if self.dim != (3 if solid else 2):
+            raise _Located("domain.map.type", f"a {m.type} map is {3 if solid else 2}D (the scene is {self.dim}D; "
+                           f"2D maps: annulus, nurbs; 3D maps: cylinder, shell)")
         if not bases.get(self.solver.basis).map:
             mapped = bases.listed(bases.names(map=True))
             raise _Located("domain.map", f"mapped grids are {mapped}: use solver.basis {mapped}, not "
@@ -941,9 +974,11 @@ class Config(Strict):
                                                 "domain.knots); a mapped grid's rational basis takes point only")
         if m.type == "nurbs":
             self._check_nurbs_map(m)
+        elif solid:
+            self._check_solid_map(m)
         else:
             self._check_annulus_map(m)
-        for a in range(2):
+        for a in range(self.dim):
             for side in (0, 1):
                 face = FACES[2 * a + side]
                 if self.domain.boundaries.face(a, side) == "velocity":
@@ -965,6 +1000,34 @@ class Config(Strict):
             if self.domain.lower[a] > lo or self.domain.upper[a] < hi:
                 raise _Located("domain.upper", f"the domain box must hold the annulus: [{lo:g}, {hi:g}] along "
                                                f"{'xy'[a]}")
+
+    def _check_solid_map(self, m):
+        from .bases import mapgeom
+        _need_len("domain.map.center", m.center, 3)
+        _need_len("domain.map.cells", m.cells, 3)
+        if m.outer_radius <= m.inner_radius:
+            raise _Located("domain.map.outer_radius", "must exceed inner_radius")
+        arcs = [("the angle", m.angle, 0)]
+        if m.type == "shell":
+            _need_len("domain.map.latitudes", m.latitudes, 2)
+            if m.latitudes[1] <= m.latitudes[0]:
+                raise _Located("domain.map.latitudes", "the upper latitude must exceed the lower")
+            arcs.append(("the latitude", m.latitudes[1] - m.latitudes[0], 2))
+        for what, degrees, a in arcs:
+            pieces = max(1, math.ceil(degrees / 90.0 - 1e-9))
+            if m.cells[a] % pieces:
+                raise _Located("domain.map.cells", f"an arc of {degrees:g} degrees is {pieces} rational pieces: "
+                                                   f"the cells along {what} must be a multiple of {pieces}")
+        ctrl = mapgeom.solid_shape(m.type, m.angle, m.cells, np.ptp(m.latitudes) if m.type == "shell" else 0.0)[0]
+        if math.prod(ctrl) > MAX_INDEX:
+            raise _Located("domain.map.cells", f"{math.prod(ctrl)} control points: more than Taichi can index")
+        r, c = m.outer_radius, m.center
+        lo = [c[0] - r, c[1] - r, c[2] + (0.0 if m.type == "cylinder" else -r)]
+        hi = [c[0] + r, c[1] + r, c[2] + (m.length if m.type == "cylinder" else r)]
+        for a in range(3):
+            if self.domain.lower[a] > lo[a] or self.domain.upper[a] < hi[a]:
+                raise _Located("domain.upper", f"the domain box must hold the {m.type}: [{lo[a]:g}, {hi[a]:g}] "
+                                               f"along {'xyz'[a]}")
 
     def _check_nurbs_map(self, m):
         from .bases import mapgeom
@@ -1281,6 +1344,8 @@ def _check_shape(key, s, d):
         raise _Located(f"{key}.type", "a ring needs dim 2 or 3")
     if isinstance(s, Cylinder) and d != 3:
         raise _Located(f"{key}.type", "a cylinder needs dim 3 (use box or sphere in 1D/2D)")
+    if isinstance(s, Cylinder) and s.inner_radius >= s.radius:
+        raise _Located(f"{key}.inner_radius", "inner_radius must be smaller than radius")
     if isinstance(s, Mesh) and d == 1:
         raise _Located(f"{key}.type", "a mesh needs dim 2 or 3")
     if isinstance(s, Mesh) and isinstance(s.scale, list) and len(s.scale) not in (d, 3):

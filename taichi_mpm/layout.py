@@ -128,7 +128,9 @@ def scatter_fixed_bytes(dim: int, entries: int) -> int:
     return entries * nbytes(scatter_block_list(dim), "f32") + tables
 
 
-MAPPED_XI = FieldDecl("xi", "real", (2,), "domain.map")     # each particle's parametric coordinates
+def MAPPED_XI(dim: int) -> FieldDecl:
+    """domain.map: each particle's parametric coordinates."""
+    return FieldDecl("xi", "real", (dim,), "domain.map")
 FBAR_J = FieldDecl("J_start", "real", (), "fbar")            # det F at the start of the step
 
 
@@ -142,7 +144,7 @@ def particle_fields(n: Needs) -> list[FieldDecl]:
     cpdi2's corners and the crack finder's."""
     out = solver_particle_fields(n)
     out += scatter_particle_fields(n.dim) if n.coloured else []
-    out += [MAPPED_XI] if n.mapped else []
+    out += [MAPPED_XI(n.dim)] if n.mapped else []
     out += [FBAR_J] if n.fbar else []
     out += [cpdi2_corners(n.dim)] if n.cpdi2 else []
     out += n.crack.particle_fields(n.dim) if n.crack is not None else []

@@ -87,7 +87,7 @@ def shape_volume(shape, d, base_dir=None, key="shape") -> float:
     if isinstance(shape, Ring):
         return ball * (shape.outer_radius**d - shape.inner_radius**d)
     if isinstance(shape, Cylinder):
-        return np.pi * shape.radius**2 * shape.height
+        return np.pi * (shape.radius**2 - shape.inner_radius**2) * shape.height
     if isinstance(shape, Mesh):
         return load_mesh(shape, d, base_dir, key).volume
     raise TypeError(shape)
@@ -111,7 +111,8 @@ def inside(shape, pts: np.ndarray, base_dir=None, key="shape") -> np.ndarray:
         local = (pts - shape.center) @ R
         a = "xyz".index(shape.axis)
         radial = np.delete(local, a, axis=1)
-        return (np.sum(radial**2, axis=1) <= shape.radius**2) & (np.abs(local[:, a]) <= shape.height / 2)
+        r2 = np.sum(radial**2, axis=1)
+        return (r2 <= shape.radius**2) & (r2 >= shape.inner_radius**2) & (np.abs(local[:, a]) <= shape.height / 2)
     if isinstance(shape, Mesh):
         return load_mesh(shape, d, base_dir, key).inside(pts)
     raise TypeError(shape)
@@ -565,14 +566,26 @@ def _inside_map(cfg, bi, pts):
     m = cfg.domain.map
     if m is None or not len(pts):
         return
-    c = np.asarray(m.center if m.type == "annulus" else [0.0, 0.0], float)
-    if m.type == "annulus":
-        r = np.linalg.norm(pts - c, axis=1)
-        angle = np.degrees(np.arctan2(pts[:, 1] - c[1], pts[:, 0] - c[0])) % 360.0
+    c = np.asarray(m.center if m.type != "nurbs" else [0.0, 0.0], float)
+    if m.type != "nurbs":
         tol = 1e-9 * m.outer_radius
+        rel = pts - c
+        r = np.linalg.norm(rel if m.type == "shell" else rel[:, :2], axis=1)
+        angle = np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) % 360.0
         out = (r < m.inner_radius - tol) | (r > m.outer_radius + tol)
         if m.angle < 360.0:
             out |= (angle > m.angle + 1e-9) & (angle < 360.0 - 1e-9)
+        if m.type == "cylinder":
+            out |= (rel[:, 2] < -tol) | (rel[:, 2] > m.length + tol)
+        if m.type == "shell":
+            lat = np.degrees(np.arcsin(np.clip(rel[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0)))
+            out |= (lat < m.latitudes[0] - 1e-9) | (lat > m.latitudes[1] + 1e-9)
+    if m.type in ("cylinder", "shell"):
+        what = (f"the {m.type} of domain.map (radii {m.inner_radius:g} to {m.outer_radius:g} about {m.center}"
+                + (f", 0 to {m.angle:g} degrees" if m.angle < 360.0 else "")
+                + (f", z from 0 to {m.length:g} above it)" if m.type == "cylinder" else
+                   f", latitudes {m.latitudes[0]:g} to {m.latitudes[1]:g} degrees)"))
+    elif m.type == "annulus":
         what = (f"the annulus of domain.map (radii {m.inner_radius:g} to {m.outer_radius:g} about "
                 f"{m.center}" + (f", 0 to {m.angle:g} degrees)" if m.angle < 360.0 else ")"))
     else:

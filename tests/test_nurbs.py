@@ -29,11 +29,11 @@ def evaluate(mp: Map, xi: np.ndarray):
             X: ti.types.ndarray(), J: ti.types.ndarray()):
         for m in range(xi.shape[0]):
             q = ti.Vector([xi[m, 0], xi[m, 1]])
-            b, r, r0, r1 = mp.rational(q)
+            b, r, g = mp.rational(q)
             for i, j in ti.static(ti.ndrange(S0, S1)):
-                R[m, b[0] + i, b[1] + j] = r[i, j]
-                D0[m, b[0] + i, b[1] + j] = r0[i, j]
-                D1[m, b[0] + i, b[1] + j] = r1[i, j]
+                R[m, b[0] + i, b[1] + j] = r[i * S1 + j]
+                D0[m, b[0] + i, b[1] + j] = g[i * S1 + j, 0]
+                D1[m, b[0] + i, b[1] + j] = g[i * S1 + j, 1]
             x, Jm = mp.point(q)
             for c in ti.static(range(2)):
                 X[m, c] = x[c]

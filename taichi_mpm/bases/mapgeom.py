@@ -1,10 +1,12 @@
-"""Host-side (numpy only, no Taichi) geometry of 2D NURBS maps x(xi) = sum_i R_i(xi) P_i: B-spline values and
+"""Host-side (numpy only, no Taichi) geometry of 2D and 3D NURBS maps x(xi) = sum_i R_i(xi) P_i: B-spline values and
 derivatives, the map and its Jacobian at parameter points, the checks a map given in the config must pass (the
 map does not fold: det J > 0), the outward wall normal at each control point of a parameter face, and the cell
 sizes the CFL rule reads. Used by config validation (without Taichi) and by mapped.py when it builds a grid.
 
 Parameter coordinates are in cells: knots from 0 to the number of nonzero knot spans (`cell_knots`).
 """
+
+import math
 
 import numpy as np
 
@@ -110,6 +112,133 @@ def refined_shape(knots, per_span) -> tuple[list[int], list[int]]:
     return ctrl, cells
 
 
+def arc(angle: float, n_cells: int):
+    """A unit-radius circular arc from angle 0 to `angle` (<= 2 pi) as a quadratic NURBS on parameters
+    [0, n_cells]: one rational Bezier piece (weights 1, cos(d/2), 1) per at most a quarter turn, joined by
+    double knots (C0 in the parameter, the circle itself stays smooth), then uniform knot insertion up to
+    n_cells spans. Returns (knots, control points (n, 2), weights (n,))."""
+    pieces = max(1, math.ceil(angle / (0.5 * math.pi) - 1e-9))
+    if n_cells % pieces:
+        raise ValueError(f"an arc of {math.degrees(angle):g} degrees is {pieces} rational pieces: its number of "
+                         f"cells must be a multiple of {pieces}, got {n_cells}")
+    d = angle / pieces
+    P, w = [[1.0, 0.0]], [1.0]
+    for k in range(pieces):
+        mid, end = (k + 0.5) * d, (k + 1) * d
+        P += [[math.cos(mid) / math.cos(d / 2), math.sin(mid) / math.cos(d / 2)], [math.cos(end), math.sin(end)]]
+        w += [math.cos(d / 2), 1.0]
+    per = n_cells // pieces
+    t = np.array([0.0] * 3 + [float(k * per) for k in range(1, pieces) for _ in range(2)] + [float(n_cells)] * 3)
+    Pw = homogeneous(np.array(P), np.array(w))
+    for k in range(pieces):
+        for j in range(1, per):
+            t, Pw = insert_knot(t, 2, Pw, float(k * per + j))
+    P, w = cartesian(Pw)
+    return t, P, w
+
+
+def open_knots(n_cells: int) -> np.ndarray:
+    """The open uniform quadratic knot vector of n_cells unit spans (ends 3 times)."""
+    return np.array([0.0] * 3 + [float(k) for k in range(1, n_cells)] + [float(n_cells)] * 3)
+
+
+def radii(r_inner: float, r_outer: float, n_radial: int):
+    """(knots, radius of each control point) across a wall of n_radial cells: the control points at the Greville
+    abscissae of the open uniform knots, where linear functions are reproduced (so r is linear in the parameter)."""
+    t = open_knots(n_radial)
+    return t, r_inner + (r_outer - r_inner) * greville(t, 2) / n_radial
+
+
+def cylinder_net(r_inner, r_outer, angle, length, cells, centre):
+    """The thick-walled cylinder (or a sector of it) as a 3D NURBS volume, quadratic in each parameter: xi0 along
+    the angle (counter-clockwise about +z from +x), xi1 across the wall, xi2 along the axis (+z, from the base
+    circle's centre `centre`). Every surface of constant xi1 is an exact circular cylinder; the net is the
+    annulus' times a line. Returns (knots, P (n0, n1, n2, 3), w (n0, n1, n2))."""
+    n_angle, n_radial, n_axial = cells
+    t0, Q, wq = arc(angle, n_angle)
+    t1, r = radii(r_inner, r_outer, n_radial)
+    t2 = open_knots(n_axial)
+    z = length * greville(t2, 2) / n_axial
+    P = np.empty((len(wq), len(r), len(z), 3))
+    P[..., :2] = Q[:, None, None, :] * r[None, :, None, None]
+    P[..., 2] = z[None, None, :]
+    P += np.asarray(centre, float)
+    w = np.broadcast_to(wq[:, None, None], P.shape[:3]).copy()
+    return [t0, t1, t2], P, w
+
+
+def meridian(latitudes, n_cells: int):
+    """A unit meridian arc from latitude latitudes[0] to latitudes[1] (radians, inside (-pi/2, pi/2)) as
+    (knots, (rho, z) control points, weights): `arc` turned to start at the first latitude."""
+    lo, hi = latitudes
+    t, Q, w = arc(hi - lo, n_cells)
+    c, s = np.cos(lo), np.sin(lo)
+    return t, np.stack([c * Q[:, 0] - s * Q[:, 1], s * Q[:, 0] + c * Q[:, 1]], -1), w
+
+
+def shell_net(r_inner, r_outer, angle, latitudes, cells, centre):
+    """A spherical shell between two latitudes as a 3D NURBS volume (the surface of revolution of a meridian
+    arc, The NURBS Book 8.5, times the radius): xi0 along the longitude (counter-clockwise about +z from +x),
+    xi1 across the shell, xi2 along the latitude (south to north). Every surface of constant xi1 is an exact
+    sphere; the poles are left out (det J = 0 there). Returns (knots, P (n0, n1, n2, 3), w (n0, n1, n2))."""
+    n_lon, n_radial, n_lat = cells
+    t0, C, wc = arc(angle, n_lon)
+    t1, r = radii(r_inner, r_outer, n_radial)
+    t2, M, wm = meridian(latitudes, n_lat)
+    S = np.empty((len(wc), len(wm), 3))                          # the unit sphere's net
+    S[..., :2] = C[:, None, :] * M[None, :, 0, None]
+    S[..., 2] = M[None, :, 1]
+    P = r[None, :, None, None] * S[:, None, :, :] + np.asarray(centre, float)
+    w = np.broadcast_to((wc[:, None] * wm[None, :])[:, None, :], P.shape[:3]).copy()
+    return [t0, t1, t2], P, w
+
+
+def arc_chords(angle: float, n_cells: int, per_cell: int = 1) -> np.ndarray:
+    """Chords between neighbouring knot points of the unit `arc` (its cells' edges, the rational pieces'
+    uneven split included)."""
+    t, Q, w = arc(angle, n_cells)
+    u = np.unique(t)
+    N = bspline_values(t, 2, u) * w[None, :]
+    pts = (N @ Q) / N.sum(axis=1, keepdims=True)
+    return np.linalg.norm(np.diff(pts, axis=0), axis=1)
+
+
+def solid_cell_sizes(kind: str, r_inner, r_outer, angle, cells, length=None, latitudes=None):
+    """(smallest, largest) cell edge of the built-in cylinder or shell: the edges of a tensor-product net of
+    circles are chords of its unit arcs times their radii, so the extremes are products of 1D extremes."""
+    n_angle, n_radial, n_axial = cells
+    ring = arc_chords(angle, n_angle)
+    radial = (r_outer - r_inner) / n_radial
+    if kind == "cylinder":
+        sizes = [r_inner * ring.min(), r_outer * ring.max(), radial, length / n_axial]
+        return min(sizes), max(sizes)
+    t, M, wm = meridian(latitudes, n_axial)
+    u = np.unique(t)
+    N = bspline_values(t, 2, u) * wm[None, :]
+    rho = (N @ M)[:, 0] / N.sum(axis=1)                  # distance from the axis of each latitude corner
+    along = np.linalg.norm(np.diff((N @ M) / N.sum(axis=1, keepdims=True), axis=0), axis=1)
+    lo = min(r_inner * rho.min() * ring.min(), r_inner * along.min(), radial)
+    hi = max(r_outer * rho.max() * ring.max(), r_outer * along.max(), radial)
+    return lo, hi
+
+
+def solid_map_cell_sizes(m):
+    """(smallest, largest) cell edge of a `cylinder` or `shell` domain.map config (solid_cell_sizes)."""
+    return solid_cell_sizes(m.type, m.inner_radius, m.outer_radius, math.radians(m.angle), m.cells,
+                            length=getattr(m, "length", None),
+                            latitudes=np.radians(m.latitudes) if m.type == "shell" else None)
+
+
+def solid_shape(kind: str, angle_deg: float, cells, span_deg: float = 0.0) -> tuple[list[int], list[int]]:
+    """(control points, cells) per axis of the built-in cylinder or shell from its config alone: the annulus'
+    two axes, then the axial line (n + 2) or the meridian arc (like the angle's, its own rational pieces)."""
+    ctrl, cells2 = annulus_shape(angle_deg, cells[:2])
+    if kind == "cylinder":
+        return ctrl + [int(cells[2]) + 2], cells2 + [int(cells[2])]
+    pieces = max(1, int(np.ceil(span_deg / 90.0 - 1e-9)))
+    return ctrl + [int(cells[2]) + pieces + 1], cells2 + [int(cells[2])]
+
+
 def annulus_shape(angle_deg: float, cells) -> tuple[list[int], list[int]]:
     """(control points, cells) per axis of the built-in annulus (nurbs.annulus), from its config alone: the arc
     is one rational piece per quarter turn (double knots between them), n_angle + pieces + 1 control points;
@@ -169,25 +298,37 @@ def local_basis(t, p: int, u):
     return k - p, N, dN
 
 
+def _outer(factors):
+    """The per-point outer product of one factor (M, n_a) per axis: (M, n_0, ..., n_{d-1}), in axis order."""
+    d = len(factors)
+    out = factors[0].reshape(factors[0].shape + (1,) * (d - 1))
+    for a in range(1, d):
+        out = out * factors[a].reshape((len(factors[a]),) + (1,) * a + (factors[a].shape[1],) + (1,) * (d - 1 - a))
+    return out
+
+
 def surface(knots, degrees, P, w, xi):
-    """x(xi) (M, 2) and J = dx/dxi (M, 2, 2) at parameter points xi (M, 2), by the quotient rule. Each point
-    reads only its (p0 + 1) x (p1 + 1) control points (local_basis): memory and time grow with the points, not
-    with the points times the net."""
-    xi = np.atleast_2d(np.asarray(xi, float))
+    """x(xi) (M, d) and J = dx/dxi (M, d, d) at parameter points xi (M, d), by the quotient rule (2D and 3D
+    maps). Each point reads only its prod (p_a + 1) control points (local_basis): memory and time grow with the
+    points, not with the points times the net."""
     P, w = np.asarray(P, float), np.asarray(w, float)
-    (i0, N0, dN0), (i1, N1, dN1) = (local_basis(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(knots, degrees)))
-    I0 = i0[:, None] + np.arange(N0.shape[1])
-    I1 = i1[:, None] + np.arange(N1.shape[1])
-    wl = w[I0[:, :, None], I1[:, None, :]]                      # (M, p0 + 1, p1 + 1)
-    Pl = P[I0[:, :, None], I1[:, None, :]]                      # (M, p0 + 1, p1 + 1, 2)
-    Nw = N0[:, :, None] * N1[:, None, :] * wl
-    D0 = dN0[:, :, None] * N1[:, None, :] * wl
-    D1 = N0[:, :, None] * dN1[:, None, :] * wl
-    W, W0, W1 = Nw.sum(axis=(1, 2)), D0.sum(axis=(1, 2)), D1.sum(axis=(1, 2))
-    x = np.einsum("mij,mijc->mc", Nw, Pl) / W[:, None]
-    J = np.empty((len(xi), 2, 2))
-    J[:, :, 0] = (np.einsum("mij,mijc->mc", D0, Pl) - W0[:, None] * x) / W[:, None]
-    J[:, :, 1] = (np.einsum("mij,mijc->mc", D1, Pl) - W1[:, None] * x) / W[:, None]
+    d = w.ndim
+    xi = np.asarray(xi, float).reshape(-1, d)
+    local = [local_basis(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(knots, degrees))]
+    index = tuple((i[:, None] + np.arange(N.shape[1])).reshape((len(xi),) + (1,) * a + (N.shape[1],)
+                                                               + (1,) * (d - 1 - a))
+                  for a, (i, N, _) in enumerate(local))
+    wl = w[index]                                               # (M, p0 + 1, ...)
+    Pl = P[index]                                               # (M, p0 + 1, ..., d)
+    Nw = _outer([N for _, N, _ in local]) * wl
+    Dw = [_outer([dN if b == a else N for b, (_, N, dN) in enumerate(local)]) * wl for a in range(d)]
+    axes = tuple(range(1, d + 1))
+    W = Nw.sum(axis=axes)
+    sub = "ijk"[:d]
+    x = np.einsum(f"m{sub},m{sub}c->mc", Nw, Pl) / W[:, None]
+    J = np.empty((len(xi), d, d))
+    for a in range(d):
+        J[:, :, a] = (np.einsum(f"m{sub},m{sub}c->mc", Dw[a], Pl) - Dw[a].sum(axis=axes)[:, None] * x) / W[:, None]
     return x, J
 
 
@@ -197,16 +338,17 @@ def _samples(t, k):
     return np.unique(np.concatenate([np.linspace(b[i], b[i + 1], k + 1) for i in range(len(b) - 1)]))
 
 
-def fold(knots, degrees, P, w, per_span=(DET_SAMPLES, DET_SAMPLES)):
+def fold(knots, degrees, P, w, per_span=None):
     """(min s det J / |J|^2, the parameter point where it is smallest) over DET_SAMPLES + 1 points per cell and
     axis, s the sign of det J at most samples (either orientation is a grid: the annulus, angle first, has
     det J < 0): a map that folds or pinches (that value <= 0 somewhere) is not a grid."""
+    per_span = [DET_SAMPLES] * len(knots) if per_span is None else per_span
     s = [_samples(t, k) for t, k in zip(knots, per_span)]
-    xi = np.stack(np.meshgrid(*s, indexing="ij"), -1).reshape(-1, 2)
+    xi = np.stack(np.meshgrid(*s, indexing="ij"), -1).reshape(-1, len(s))
     _, J = surface(knots, degrees, P, w, xi)
     det = np.linalg.det(J)
     det *= 1.0 if np.median(det) >= 0 else -1.0
-    scale = np.abs(J).max(axis=(1, 2)) ** 2
+    scale = np.abs(J).max(axis=(1, 2)) ** J.shape[-1]
     k = int(np.argmin(det / scale))
     return det[k] / scale[k], xi[k]
 
@@ -217,6 +359,14 @@ def greville(t, p) -> np.ndarray:
 
 
 def face_normals(knots, degrees, P, w, periodic=False) -> np.ndarray:
+    """Outward unit normals (n0, n1[, n2], 2 d, d) per control point and parameter face (x_min, x_max, y_min,
+    y_max[, z_min, z_max]), zero off the face; 2D below, 3D in `_face_normals_3d` (the same rule)."""
+    if w.ndim == 3:
+        return _face_normals_3d(knots, degrees, P, w, periodic)
+    return _face_normals_2d(knots, degrees, P, w, periodic)
+
+
+def _face_normals_2d(knots, degrees, P, w, periodic=False) -> np.ndarray:
     """Outward unit normals (n0, n1, 4, 2) per control point and parameter face (x_min, x_max, y_min, y_max),
     zero off the face. A face's normal at control point P_i is the curve's normal at the point of the face
     nearest to P_i (Newton on (x(s) - P_i) . x'(s) = 0 from its Greville abscissa): on a circle that is the
@@ -261,6 +411,60 @@ def face_normals(knots, degrees, P, w, periodic=False) -> np.ndarray:
             out[0 if k == 0 else -1, :, k] = n
         else:
             out[:, 0 if k == 2 else -1, k] = n
+    return out
+
+
+def _face_normals_3d(knots, degrees, P, w, periodic=False) -> np.ndarray:
+    """3D maps: per control point of each parameter face, the face surface's unit normal at the point of the face
+    nearest to it (Newton on (x(s) - P_i) . dx/ds_k = 0 for the face's two parameters, from its Greville
+    abscissae; the second derivatives by central differences), turned outward. On a cylinder or a sphere that
+    is the radial direction through the control point, so a slip impulse there exerts no torque about the axis
+    or the centre. A periodic map (x wraps) has no x faces."""
+    shape = w.shape
+    out = np.zeros(shape + (6, 3))
+    hi = [float(t[-1]) for t in knots]
+    for k in range(6):
+        axis = k // 2
+        if axis == 0 and periodic:
+            continue
+        along = [a for a in range(3) if a != axis]
+        at = 0.0 if k % 2 == 0 else hi[axis]
+        nodes = np.take(P, 0 if k % 2 == 0 else -1, axis=axis).reshape(-1, 3)
+        g = [greville(knots[a], degrees[a]) for a in along]
+        s = np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 2)
+        top = np.array([hi[a] for a in along])
+
+        def point(s):
+            xi = np.empty((len(s), 3))
+            xi[:, along[0]], xi[:, along[1]], xi[:, axis] = s[:, 0], s[:, 1], at
+            x, J = surface(knots, degrees, P, w, xi)
+            return x, J[:, :, along]
+
+        for _ in range(60):
+            x, T = point(s)
+            f = np.einsum("mc,mck->mk", x - nodes, T)
+            H = np.einsum("mck,mcl->mkl", T, T)
+            for l in range(2):
+                h = 1e-6 * top[l]
+                e = np.zeros(2)
+                e[l] = h
+                up, dn = np.minimum(s + e, top), np.maximum(s - e, 0.0)
+                dT = (point(up)[1] - point(dn)[1]) / (up[:, l] - dn[:, l])[:, None, None]
+                H[:, :, l] += np.einsum("mc,mck->mk", x - nodes, dT)
+            step = np.linalg.solve(H, f[..., None])[..., 0]
+            s = np.clip(s - step, 0.0, top)
+            if np.abs(step).max() < 1e-15 * top.max():
+                break
+        _, T = point(s)
+        n = np.cross(T[:, :, 0], T[:, :, 1])
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        xi = np.empty((len(s), 3))
+        xi[:, along[0]], xi[:, along[1]], xi[:, axis] = s[:, 0], s[:, 1], at
+        across = surface(knots, degrees, P, w, xi)[1][:, :, axis]
+        n *= np.sign((n * across).sum(-1) * (1.0 if k % 2 else -1.0))[:, None]
+        index = [slice(None)] * 3
+        index[axis] = 0 if k % 2 == 0 else -1
+        out[tuple(index) + (k,)] = n.reshape(out[tuple(index) + (k,)].shape)
     return out
 
 

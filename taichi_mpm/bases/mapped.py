@@ -21,6 +21,7 @@ Coulomb friction on slip and roller faces. Bodies are given in physical space.
 Physics code only: no CLI, rendering or file I/O here.
 """
 
+import itertools
 import math
 
 import numpy as np
@@ -29,18 +30,25 @@ import taichi as ti
 from . import registry
 from .shape_functions import Basis, make_bspline
 from . import mapgeom
-from .nurbs import Map, annulus
+from .nurbs import Map, annulus, cylinder, shell
 
 LOCATE_TOL = {"f32": 1e-4, "f64": 1e-13}      # Newton's residual |x(xi) - x_p|, relative to the smallest cell (f32: sums of 9 terms of ~|x| carry ~1e-7 |x| of round-off)
 
 
 def build_map(m):
-    """(nurbs.Map, periodic) of a `domain.map` config: the built-in annulus, or a `nurbs` map given as knots,
-    control points and weights (degree 2 per axis), refined by knot insertion (`refine`), knots scaled to cells."""
+    """(nurbs.Map, periodic) of a `domain.map` config: the built-in annulus, cylinder or shell, or a `nurbs` map
+    given as knots, control points and weights (degree 2 per axis), refined by knot insertion (`refine`), knots
+    scaled to cells."""
     if m.type == "annulus":
         angle = math.radians(m.angle)
         n_angle, n_radial = m.cells
         return annulus(m.inner_radius, m.outer_radius, angle, n_angle, n_radial, tuple(m.center)), m.angle >= 360.0
+    if m.type == "cylinder":
+        return (cylinder(m.inner_radius, m.outer_radius, math.radians(m.angle), m.length, m.cells, m.center),
+                m.angle >= 360.0)
+    if m.type == "shell":
+        return (shell(m.inner_radius, m.outer_radius, math.radians(m.angle), np.radians(m.latitudes), m.cells,
+                      m.center), m.angle >= 360.0)
     w = np.ones(np.shape(m.control_points)[:2]) if m.weights is None else np.asarray(m.weights, float)
     knots, P, w = mapgeom.refine([m.knots.x, m.knots.y], m.control_points, w, m.refine)
     return Map(knots, [2, 2], P, w), m.periodic
@@ -55,10 +63,13 @@ class MappedGrid:
         self.cfg = cfg
         self.map, self.periodic = build_map(m)
         self.map.periodic = self.periodic
-        n0, n1 = self.map.w.shape
-        self.shape = [n0 - 1 if self.periodic else n0, n1]   # the seam column is the first one
+        n0, *rest = self.map.w.shape
+        self.dim = self.map.dim
+        self.shape = [n0 - 1 if self.periodic else n0] + rest   # the seam column is the first one
         mp = self.map
-        if m.type == "annulus":
+        if m.type in ("cylinder", "shell"):
+            self.h_min, self.h_max = mapgeom.solid_map_cell_sizes(m)
+        elif m.type == "annulus":
             # an inner arc of one angular cell, or one radial cell (the annulus' own sizes, as the CFL rule used
             # before the generic map: its measured runs keep their steps)
             angle = math.radians(m.angle)
@@ -81,29 +92,26 @@ class MappedGrid:
 
     def materialize(self):
         self.map.materialize()
-        self.normal = ti.Vector.field(2, float, tuple(self.shape) + (4,))
+        self.normal = ti.Vector.field(self.dim, float, tuple(self.shape) + (2 * self.dim,))
         self.normal.from_numpy(self.normals)
 
     def allocate_particles(self, n: int):
         from ..layout import MAPPED_XI   # its declaration (budget counts the same)
-        self.xi = MAPPED_XI.allocate(max(n, 1))
-
-    PARTICLE_FLOATS = 2    # xi_p, per particle (budget.py counts it)
+        self.xi = MAPPED_XI(self.dim).allocate(max(n, 1))
 
     def field_floats(self) -> int:
-        """Floats of the map's own fields: control points (2) and weights (1) per control point, the wall normals
-        (4 faces x 2 per node); the knot vectors' few floats are left out. budget.py counts them."""
-        return 3 * int(np.prod(self.map.w.shape)) + 8 * int(np.prod(self.shape))
+        """Floats of the map's own fields: control points (d) and weights (1) per control point, the wall normals
+        (2 d faces x d per node); the knot vectors' few floats are left out. budget.py counts them."""
+        d = self.dim
+        return (d + 1) * int(np.prod(self.map.w.shape)) + 2 * d * d * int(np.prod(self.shape))
 
     def initial_guess(self, x: np.ndarray) -> np.ndarray:
-        """Per physical point, the parameters of the nearest of 3 x 3 samples per cell (Newton starts there,
-        within a third of a cell of the answer). Points are sorted into the cells of a coarse box grid first, and
-        each is compared with the samples of its own box cell and the neighbouring ones only."""
-        n0, n1 = self.map.n_cells
-        k = 3
-        s0 = (np.arange(int(k * n0)) + 0.5) / k
-        s1 = (np.arange(int(k * n1)) + 0.5) / k
-        xi = np.stack(np.meshgrid(s0, s1, indexing="ij"), -1).reshape(-1, 2)
+        """Per physical point, the parameters of the nearest of 3^d samples per cell (Newton starts there, within
+        a third of a cell of the answer). Points are sorted into the cells of a coarse box grid first, and each is
+        compared with the samples of its own box cell and the neighbouring ones only."""
+        d, k = self.dim, 3
+        s = [(np.arange(int(k * n)) + 0.5) / k for n in self.map.n_cells]
+        xi = np.stack(np.meshgrid(*s, indexing="ij"), -1).reshape(-1, d)
         pts = self.map.evaluate(xi)
         lo = np.minimum(pts.min(axis=0), x.min(axis=0)) if len(x) else pts.min(axis=0)
         h = 2.0 * self.h_max
@@ -111,17 +119,18 @@ class MappedGrid:
         buckets = {}
         for i, c in enumerate(map(tuple, key(pts))):
             buckets.setdefault(c, []).append(i)
-        out = np.empty((len(x), 2))
+        out = np.empty((len(x), d))
         cells = key(x)
+        around = list(itertools.product((-1, 0, 1), repeat=d))
         for c in set(map(tuple, cells)):
             mine = np.nonzero((cells == c).all(axis=1))[0]
-            near = [i for d0 in (-1, 0, 1) for d1 in (-1, 0, 1) for i in buckets.get((c[0] + d0, c[1] + d1), [])]
-            if not near:        # far from the annulus: any start; Newton will report it
+            near = [i for o in around for i in buckets.get(tuple(a + b for a, b in zip(c, o)), [])]
+            if not near:        # far from the map: any start; Newton will report it
                 out[mine] = xi[0]
                 continue
             near = np.asarray(near)
-            d = ((x[mine, None, :] - pts[None, near]) ** 2).sum(-1)
-            out[mine] = xi[near[d.argmin(axis=1)]]
+            dist = ((x[mine, None, :] - pts[None, near]) ** 2).sum(-1)
+            out[mine] = xi[near[dist.argmin(axis=1)]]
         return out
 
 
@@ -129,7 +138,7 @@ def make_locate(ctx, mapped: MappedGrid, fail, n_codes: int, code: int):
     """Kernels: `locate()` finds every particle's xi again after its position update (Newton from the old xi);
     a failure sets the fail flag with `code`. `start(guess)` does it from host guesses at upload and returns
     how many particles were not found."""
-    mp, xi, x = mapped.map, mapped.xi, ctx.x
+    mp, xi, x, d = mapped.map, mapped.xi, ctx.x, mapped.dim
     tol = LOCATE_TOL[ctx.precision] * mapped.h_min
     missed = ti.field(ti.i32, ())
 
@@ -144,7 +153,10 @@ def make_locate(ctx, mapped: MappedGrid, fail, n_codes: int, code: int):
     @ti.kernel
     def start_kernel(guess: ti.types.ndarray()):
         for p in x:
-            q, ok = mp.invert(x[p], ti.Vector([guess[p, 0], guess[p, 1]]), tol)
+            g = ti.Vector.zero(float, d)
+            for a in ti.static(range(d)):
+                g[a] = guess[p, a]
+            q, ok = mp.invert(x[p], g, tol)
             xi[p] = q
             if not ok:
                 missed[None] += 1

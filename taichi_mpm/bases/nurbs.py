@@ -1,5 +1,6 @@
-"""NURBS: rational B-splines with control-point weights, knot insertion, and 2D geometry maps x(xi) built from
-them (the `annulus` map: exact circles through the weights). Issue 12, steps 2 and the map half of 3.
+"""NURBS: rational B-splines with control-point weights, knot insertion, and 2D and 3D geometry maps x(xi) built
+from them (the `annulus`, `cylinder` and `shell` maps: exact circles and spheres through the weights). Issue 12,
+steps 2 and the map half of 3; 3D maps issue 32.
 
 Rational basis (The NURBS Book, eq. 4.2): with B-splines N_i of the knot vectors (basis.make_knot_bspline) and
 weights w_i > 0,
@@ -14,38 +15,13 @@ construction (knot insertion, the annulus). Kernel side: `Map.materialize()` the
 Physics code only: no CLI, rendering or file I/O here.
 """
 
-import math
+import itertools
 
 import numpy as np
 import taichi as ti
 
 from .shape_functions import make_knot_bspline
-from .mapgeom import bspline_values, cartesian, homogeneous, insert_knot, surface  # noqa: F401 (re-exported)
-
-
-def arc(angle: float, n_cells: int):
-    """A unit-radius circular arc from angle 0 to `angle` (<= 2 pi) as a quadratic NURBS on parameters
-    [0, n_cells]: one rational Bezier piece (weights 1, cos(d/2), 1) per at most a quarter turn, joined by
-    double knots (C0 in the parameter, the circle itself stays smooth), then uniform knot insertion up to
-    n_cells spans. Returns (knots, control points (n, 2), weights (n,))."""
-    pieces = max(1, math.ceil(angle / (0.5 * math.pi) - 1e-9))
-    if n_cells % pieces:
-        raise ValueError(f"an arc of {math.degrees(angle):g} degrees is {pieces} rational pieces: its number of "
-                         f"cells must be a multiple of {pieces}, got {n_cells}")
-    d = angle / pieces
-    P, w = [[1.0, 0.0]], [1.0]
-    for k in range(pieces):
-        mid, end = (k + 0.5) * d, (k + 1) * d
-        P += [[math.cos(mid) / math.cos(d / 2), math.sin(mid) / math.cos(d / 2)], [math.cos(end), math.sin(end)]]
-        w += [math.cos(d / 2), 1.0]
-    per = n_cells // pieces
-    t = np.array([0.0] * 3 + [float(k * per) for k in range(1, pieces) for _ in range(2)] + [float(n_cells)] * 3)
-    Pw = homogeneous(np.array(P), np.array(w))
-    for k in range(pieces):
-        for j in range(1, per):
-            t, Pw = insert_knot(t, 2, Pw, float(k * per + j))
-    P, w = cartesian(Pw)
-    return t, P, w
+from .mapgeom import arc, bspline_values, cartesian, cylinder_net, homogeneous, insert_knot, shell_net, surface  # noqa: F401 (re-exported)
 
 
 def annulus(r_inner: float, r_outer: float, angle: float, n_angle: int, n_radial: int, centre=(0.0, 0.0)):
@@ -62,23 +38,38 @@ def annulus(r_inner: float, r_outer: float, angle: float, n_angle: int, n_radial
     return Map([t0, t1], [2, 2], P, w)
 
 
+def cylinder(r_inner: float, r_outer: float, angle: float, length: float, cells, centre=(0.0, 0.0, 0.0)):
+    """The thick-walled cylinder map (3D, quadratic per parameter; mapgeom.cylinder_net). Returns a `Map`."""
+    knots, P, w = cylinder_net(r_inner, r_outer, angle, length, cells, centre)
+    return Map(knots, [2, 2, 2], P, w)
+
+
+def shell(r_inner: float, r_outer: float, angle: float, latitudes, cells, centre=(0.0, 0.0, 0.0)):
+    """The spherical shell map between two latitudes (3D, quadratic per parameter; mapgeom.shell_net)."""
+    knots, P, w = shell_net(r_inner, r_outer, angle, latitudes, cells, centre)
+    return Map(knots, [2, 2, 2], P, w)
+
+
 class Map:
-    """A 2D NURBS geometry map: knot vectors per parameter axis (cells), degrees, control points P (n0, n1, 2)
-    and weights w (n0, n1). After `materialize()` (Taichi fields; after ti.init) its @ti.func's are
-    `rational(xi)`, `point(xi)` and `invert(x, xi0)`."""
+    """A 2D or 3D NURBS geometry map: knot vectors per parameter axis (cells), degrees, control points P
+    (n0, n1[, n2], d) and weights w (n0, n1[, n2]). After `materialize()` (Taichi fields; after ti.init) its
+    @ti.func's are `rational(xi)`, `point(xi)` and `invert(x, xi0)`. A particle's (p + 1)^d functions are kept
+    flat, the last axis fastest (stencil_parts.flat_index)."""
 
     def __init__(self, knots, degrees, P, w):
         self.knots = [np.asarray(t, float) for t in knots]
         self.degrees = list(degrees)
+        self.dim = len(self.knots)
         self.P, self.w = np.asarray(P, float), np.asarray(w, float)
         shape = tuple(len(t) - p - 1 for t, p in zip(self.knots, self.degrees))
-        if self.P.shape != shape + (2,) or self.w.shape != shape:
+        if self.P.shape != shape + (self.dim,) or self.w.shape != shape:
             raise ValueError(f"control points {self.P.shape} and weights {self.w.shape} do not match the knot "
                              f"vectors ({shape} control points)")
         if not (self.w > 0).all():
             raise ValueError("NURBS weights must be positive")
         self.n_cells = [float(t[-1] - t[0]) for t in self.knots]
         self.axes = [make_knot_bspline(p, "nurbs", t) for t, p in zip(self.knots, self.degrees)]
+        self.span = [p + 1 for p in self.degrees]     # functions per axis at a point
         self.ctrl = self.weight = None
         self.periodic = False      # a full ring: xi[0] wraps around instead of stopping at the ends
         self._build()
@@ -87,53 +78,91 @@ class Map:
         if self.ctrl is None:
             for b in self.axes:
                 b.materialize()
-            self.ctrl = ti.Vector.field(2, float, self.w.shape)
+            self.ctrl = ti.Vector.field(self.dim, float, self.w.shape)
             self.weight = ti.field(float, self.w.shape)
             self.ctrl.from_numpy(self.P)
             self.weight.from_numpy(self.w)
 
     def _build(self):
-        ax0, ax1 = self.axes
-        S0, S1 = self.degrees[0] + 1, self.degrees[1] + 1
+        D, span, axes = self.dim, self.span, self.axes
+        S = max(span)
+        terms = list(itertools.product(*[range(s) for s in span]))   # flat order: the last axis fastest
+        K = len(terms)
         hi = ti.Vector(self.n_cells)
         this = self
 
         @ti.func
+        def term(k):
+            """The multi-index (p + 1 per axis, the last axis fastest) of flat function number k."""
+            I = ti.Vector.zero(ti.i32, D)
+            rest = k
+            for c in ti.static(range(D)):
+                a = ti.static(D - 1 - c)
+                I[a] = rest % span[a]
+                rest //= span[a]
+            return I
+
+        @ti.func
+        def product(N, dN, I, a: ti.template()):
+            """prod_c N_c(I_c), with the derivative in place of axis a's factor (a = -1: none), in axis order."""
+            v = dN[0, I[0]] if ti.static(a == 0) else N[0, I[0]]
+            for c in ti.static(range(1, D)):
+                v *= dN[c, I[c]] if ti.static(a == c) else N[c, I[c]]
+            return v
+
+        # The sums over a point's (p + 1)^d functions run as loops, not unrolled: in 3D, 27 unrolled terms (each
+        # with d + 1 products) made Newton's inversion, which evaluates them per iteration, take a minute to compile.
+        @ti.func
         def rational(xi):
-            """(first control point (2,), R (S0 x S1), dR/dxi0, dR/dxi1) at parameters xi."""
+            """(first control point (d,), R ((p+1)^d,), dR/dxi ((p+1)^d, d)) at parameters xi."""
             w = ti.static(this.weight)
-            b0, N0, dN0 = ax0.weights_1d(xi[0], 0, 0.0)
-            b1, N1, dN1 = ax1.weights_1d(xi[1], 0, 0.0)
-            W, W0, W1 = 0.0, 0.0, 0.0
-            for i, j in ti.static(ti.ndrange(S0, S1)):
-                wij = w[b0 + i, b1 + j]
-                W += N0[i] * N1[j] * wij
-                W0 += dN0[i] * N1[j] * wij
-                W1 += N0[i] * dN1[j] * wij
-            R = ti.Matrix.zero(float, S0, S1)
-            R0 = ti.Matrix.zero(float, S0, S1)
-            R1 = ti.Matrix.zero(float, S0, S1)
-            for i, j in ti.static(ti.ndrange(S0, S1)):
-                wij = w[b0 + i, b1 + j] / W
-                R[i, j] = N0[i] * N1[j] * wij
-                R0[i, j] = dN0[i] * N1[j] * wij - R[i, j] * W0 / W
-                R1[i, j] = N0[i] * dN1[j] * wij - R[i, j] * W1 / W
-            return ti.Vector([b0, b1]), R, R0, R1
+            b = ti.Vector.zero(ti.i32, D)
+            N = ti.Matrix.zero(float, D, S)
+            dN = ti.Matrix.zero(float, D, S)
+            for a in ti.static(range(D)):
+                ba, Na, dNa = ti.static(axes)[a].weights_1d(xi[a], 0, 0.0)
+                b[a] = ba
+                for i in ti.static(range(span[a])):
+                    N[a, i], dN[a, i] = Na[i], dNa[i]
+            W = 0.0
+            Wd = ti.Vector.zero(float, D)
+            for k in range(K):
+                I = term(k)
+                wI = w[b + I]
+                W += product(N, dN, I, -1) * wI
+                for a in ti.static(range(D)):
+                    Wd[a] += product(N, dN, I, a) * wI
+            R = ti.Vector.zero(float, K)
+            G = ti.Matrix.zero(float, K, D)
+            for k in range(K):
+                I = term(k)
+                wI = w[b + I] / W
+                R[k] = product(N, dN, I, -1) * wI
+                for a in ti.static(range(D)):
+                    G[k, a] = product(N, dN, I, a) * wI - R[k] * Wd[a] / W
+            return b, R, G
+
+        @ti.func
+        def jacobian(b, G):
+            """J = dx/dxi = sum_k P_k (x) dR_k/dxi (columns: the parameter directions)."""
+            P = ti.static(this.ctrl)
+            J = ti.Matrix.zero(float, D, D)
+            for k in range(K):
+                Pk = P[b + term(k)]
+                for c in ti.static(range(D)):
+                    for a in ti.static(range(D)):
+                        J[c, a] += G[k, a] * Pk[c]
+            return J
 
         @ti.func
         def point(xi):
-            """x(xi) and the Jacobian J = dx/dxi (columns: the two parameter directions)."""
+            """x(xi) and the Jacobian J = dx/dxi."""
             P = ti.static(this.ctrl)
-            b, R, R0, R1 = rational(xi)
-            x = ti.Vector.zero(float, 2)
-            J = ti.Matrix.zero(float, 2, 2)
-            for i, j in ti.static(ti.ndrange(S0, S1)):
-                Pij = P[b[0] + i, b[1] + j]
-                x += R[i, j] * Pij
-                for c in ti.static(range(2)):
-                    J[c, 0] += R0[i, j] * Pij[c]
-                    J[c, 1] += R1[i, j] * Pij[c]
-            return x, J
+            b, R, G = rational(xi)
+            x = ti.Vector.zero(float, D)
+            for k in range(K):
+                x += R[k] * P[b + term(k)]
+            return x, jacobian(b, G)
 
         @ti.func
         def invert(x, xi0, tol):
@@ -154,27 +183,31 @@ class Map:
                 nxt = xi - J.inverse() @ r
                 if ti.static(this.periodic):
                     nxt[0] -= ti.floor(nxt[0] / hi[0]) * hi[0]
-                    nxt[1] = ti.min(ti.max(nxt[1], 0.0), hi[1])
+                    for a in ti.static(range(1, D)):
+                        nxt[a] = ti.min(ti.max(nxt[a], 0.0), hi[a])
                 else:
                     nxt = ti.min(ti.max(nxt, 0.0), hi)
                 xi = nxt
             return xi, ok
 
-        self.rational, self.point, self.invert = rational, point, invert
+        self.terms = terms
+        self.term = term
+        self.rational, self.jacobian, self.point, self.invert = rational, jacobian, point, invert
 
     # ---------------------------------------------------------------- host side (numpy), for setup and plots
     def rational_host(self, xi: np.ndarray) -> np.ndarray:
-        """All rational functions R (M, n0, n1) at parameter points (M, 2), numpy (tests, drawing)."""
+        """All rational functions R (M, n0, n1[, n2]) at parameter points (M, d), numpy (tests, drawing)."""
         N = [bspline_values(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(self.knots, self.degrees))]
-        Nw = np.einsum("mi,mj,ij->mij", N[0], N[1], self.w)
-        return Nw / Nw.sum(axis=(1, 2))[:, None, None]
+        Nw = np.einsum("mi,mj,ij->mij", N[0], N[1], self.w) if self.dim == 2 else \
+            np.einsum("mi,mj,mk,ijk->mijk", N[0], N[1], N[2], self.w)
+        return Nw / Nw.sum(axis=tuple(range(1, self.dim + 1))).reshape((-1,) + (1,) * self.dim)
 
     def surface_host(self, xi: np.ndarray):
-        """x(xi) (M, 2) and the Jacobian (M, 2, 2), numpy (mapgeom.surface)."""
+        """x(xi) (M, d) and the Jacobian (M, d, d), numpy (mapgeom.surface)."""
         return surface(self.knots, self.degrees, self.P, self.w, xi)
 
     def evaluate(self, xi: np.ndarray) -> np.ndarray:
-        """x(xi) for parameter points (M, 2): the nonzero B-splines of each axis from the Cox-de Boor recursion in
+        """x(xi) for parameter points (M, d): the nonzero B-splines of each axis from the Cox-de Boor recursion in
         numpy (mapgeom.surface; independent of the kernel's code path; for setup, tests and drawing). Its memory
         grows with the points only (rational_host, every function at every point, grows with points x net)."""
         return surface(self.knots, self.degrees, self.P, self.w, xi)[0]

@@ -293,46 +293,46 @@ def _dual_domain_fill(ctx: KernelContext, span: list):
 
 
 def _mapped_stencil(ctx: KernelContext) -> Stencil:
-    """domain.map: the mapped grid's contributions, 3 x 3 control points per particle (mapped.MappedGrid, given
+    """domain.map: the mapped grid's contributions, 3^d control points per particle (mapped.MappedGrid, given
     as ctx.extra["mapped"]: its map, the particles' xi and the smallest cell)."""
     mapped = ctx.extra["mapped"]
-    mp, xi, x = mapped.map, mapped.xi, ctx.x
+    mp, xi, x, d = mapped.map, mapped.xi, ctx.x, mapped.dim
     periodic, n_seam = mapped.periodic, mapped.shape[0]
     d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * mapped.h_min ** 2
-    span = [3, 3]
+    span = mp.span
+    count = len(mp.terms)
+    index = flat_index(span)
 
     @ti.func
     def at(p):
-        ctrl = ti.static(mp.ctrl)
-        b, R, R0, R1 = mp.rational(xi[p])
-        J = ti.Matrix.zero(float, 2, 2)
-        for i, j in ti.static(ti.ndrange(3, 3)):
-            Pij = ctrl[b[0] + i, b[1] + j]
-            for c in ti.static(range(2)):
-                J[c, 0] += R0[i, j] * Pij[c]
-                J[c, 1] += R1[i, j] * Pij[c]
-        return b, R, R0, R1, J.inverse().transpose(), x[p]
+        b, R, G = mp.rational(xi[p])
+        J = mp.jacobian(b, G)
+        return b, R, G, J.inverse().transpose(), x[p]
 
     @ti.func
     def node(st, off):
         ctrl = ti.static(mp.ctrl)
-        b, R, R0, R1, JiT, xp = st
+        b, R, G, JiT, xp = st
         I = b + off
         r = ctrl[I] - xp
-        grad = JiT @ ti.Vector([R0[off[0], off[1]], R1[off[0], off[1]]])
+        k = index(off)
+        g = ti.Vector.zero(float, d)
+        for a in ti.static(range(d)):
+            g[a] = G[k, a]
+        grad = JiT @ g
         if ti.static(periodic):
             if I[0] >= n_seam:
                 I[0] -= n_seam
-        return I, R[off[0], off[1]], grad, r
+        return I, R[k], grad, r
 
     @ti.func
     def inertia(st):
         ctrl = ti.static(mp.ctrl)
-        b, R, R0, R1, JiT, xp = st
-        D = ti.Matrix.zero(float, 2, 2)
-        for i, j in ti.static(ti.ndrange(3, 3)):
-            r = ctrl[b[0] + i, b[1] + j] - xp
-            D += R[i, j] * r.outer_product(r)
+        b, R, G, JiT, xp = st
+        D = ti.Matrix.zero(float, d, d)
+        for k in range(count):
+            r = ctrl[b + mp.term(k)] - xp
+            D += R[k] * r.outer_product(r)
         return D
 
     @ti.func
@@ -341,8 +341,9 @@ def _mapped_stencil(ctx: KernelContext) -> Stencil:
         the wall's row of nodes, D_p has no radial extent there, and B_p none either."""
         D = inertia(st)
         if D.determinant() < d_min * (D.trace() + d_min):
-            D += ti.Matrix.identity(float, 2) * d_min
+            D += ti.Matrix.identity(float, d) * d_min
         return D.inverse()
 
     outer, inner = loops(span, ctx.unroll)
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), 9)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, index, count)
+

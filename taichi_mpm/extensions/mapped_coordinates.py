@@ -22,7 +22,7 @@ class MappedCoordinates(Extension):
         return cls(setup.mapped, setup.x, setup.n, setup.precision) if setup.mapped is not None else None
 
     def bytes_per_particle(self) -> int:
-        return layout.MAPPED_XI.nbytes(self.precision)   # declared in layout.py (budget reads it)
+        return layout.MAPPED_XI(self.mapped.dim).nbytes(self.precision)   # declared in layout.py (budget reads it)
 
     def build(self, ctx):
         self.locate, self.locate_from = make_locate(ctx, self.mapped, ctx.fail, ctx.fail_codes, self.FAIL_CODE)
@@ -37,4 +37,4 @@ class MappedCoordinates(Extension):
         missed = self.locate_from(self.mapped.initial_guess(x))
         if missed:
             raise ConfigError(f"{missed} particles lie outside the mapped grid (domain.map): bodies must lie inside "
-                              "the annulus", key="domain.map")
+                              "the map's image", key="domain.map")

@@ -51,13 +51,18 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                   "p + 1 times (p: 1, 2, 3 for linear, quadratic, cubic), interior knots at most p "
                                   "times (multiplicity k leaves the basis C^(p-k)); the CFL step follows the "
                                   "shortest span") for a in "xyz"},
-    "domain.map": ("", "a curvilinear (mapped) grid, 2D, solver.basis quadratic (docs/isogeometric.md); "
+    "domain.map": ("", "a curvilinear (mapped) grid, 2D (annulus, nurbs) or 3D (cylinder, shell), solver.basis "
+                       "quadratic (docs/isogeometric.md); "
                        "domain.lower/upper must hold it and domain.dx sets the particle spacing only"),
     "domain.map.type": ("", "annulus: exact circles through NURBS weights; faces x_min/x_max are the straight "
                             "edges at angle 0 and `angle` (none for a full ring), y_min/y_max the inner and outer "
                             "circles. nurbs: a quadratic NURBS patch given as knots, control points and weights; "
                             "faces x_min/x_max are the first and last row of control points, y_min/y_max the first "
-                            "and last column"),
+                            "and last column. cylinder (3D): a thick-walled cylinder about an axis along +z; x_min/"
+                            "x_max the flat ends of a sector, y_min/y_max the inner and outer cylinders, z_min/z_max "
+                            "the flat ends. shell (3D): a spherical shell between two latitudes; x_min/x_max the "
+                            "meridian planes of a sector, y_min/y_max the inner and outer spheres, z_min/z_max the "
+                            "cones at the lower and upper latitude"),
     "domain.map.knots": ("", "the patch's two open quadratic knot vectors (each end 3 times, interior knots at most "
                              "twice); any parameter scale: they are scaled so that a span is a cell"),
     "domain.map.knots.x": ("", "knots of the first parameter (the rows of control_points)"),
@@ -73,13 +78,18 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                               "checked against limits.memory_gb before anything is built (docs/reliability.md)"),
     "domain.map.periodic": ("", "the first parameter wraps around (a full ring): the last row of control points "
                                 "and weights must equal the first, and there are no x_min/x_max faces"),
-    "domain.map.inner_radius": ("m", "radius of the inner circle"),
-    "domain.map.outer_radius": ("m", "radius of the outer circle"),
-    "domain.map.angle": ("deg", "angular span counter-clockwise from +x; 360: a full ring, periodic in the angle"),
-    "domain.map.center": ("m", "centre of the circles"),
-    "domain.map.cells": ("", "[cells along the angle, cells across the radius]; the first a multiple of the "
-                             "number of quarter turns (rational pieces) the angle spans; sized against "
-                             "limits.memory_gb before anything is built (docs/reliability.md)"),
+    "domain.map.inner_radius": ("m", "radius of the inner circle, cylinder or sphere"),
+    "domain.map.outer_radius": ("m", "radius of the outer circle, cylinder or sphere"),
+    "domain.map.angle": ("deg", "angular span counter-clockwise from +x (about +z in 3D); 360: a full turn, periodic "
+                                "in the angle"),
+    "domain.map.center": ("m", "centre of the circles (annulus, shell); cylinder: the axis' point at its base"),
+    "domain.map.cells": ("", "[cells along the angle, cells across the radius] (annulus); 3D: and cells along the "
+                             "axis (cylinder) or the latitude (shell); each arc's cells a multiple of the number "
+                             "of quarter turns (rational pieces) it spans; sized against limits.memory_gb before "
+                             "anything is built (docs/reliability.md)"),
+    "domain.map.length": ("m", "cylinder: its length along +z from `center`"),
+    "domain.map.latitudes": ("deg", "shell: [lower, upper] latitude, inside (-90, 90) (the poles are left out: "
+                                    "det J = 0 there)"),
     "solver": ("", "time integration and the MPM scheme"),
     "solver.basis": ("", "shape functions (docs/bases.md): " + "; ".join(
         f"{n}: {bases.get(n).description}" for n in bases.names())),
@@ -177,7 +187,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "bodies[].shape.rotation": ("deg", "rotation about the centre: a scalar in 2D, Euler angles [rx, ry, rz] in 3D"),
     "bodies[].shape.center": ("m", "centre point"),
     "bodies[].shape.radius": ("m", "radius"),
-    "bodies[].shape.inner_radius": ("m", "inner radius of the ring (0: a full disk or ball)"),
+    "bodies[].shape.inner_radius": ("m", "inner radius of the ring (0: a full disk or ball) or of the cylinder "
+                                         "(> 0: a tube)"),
     "bodies[].shape.outer_radius": ("m", "outer radius of the ring"),
     "bodies[].shape.height": ("m", "length of the cylinder along its axis"),
     "bodies[].shape.axis": ("", "axis of the cylinder"),
