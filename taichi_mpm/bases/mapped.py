@@ -153,7 +153,7 @@ def make_locate(ctx, mapped: MappedGrid, fail, n_codes: int, code: int):
     @ti.kernel
     def start_kernel(guess: ti.types.ndarray()):
         for p in x:
-            g = ti.Vector.zero(float, d)
+            g = ti.Vector.zero(ti.f64, d)      # the host's f64 guess as it is (f32 runs start Newton from it)
             for a in ti.static(range(d)):
                 g[a] = guess[p, a]
             q, ok = mp.invert(x[p], g, tol)

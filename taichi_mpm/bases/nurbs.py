@@ -50,6 +50,9 @@ def shell(r_inner: float, r_outer: float, angle: float, latitudes, cells, centre
     return Map(knots, [2, 2, 2], P, w)
 
 
+UNROLL_TERMS = 9     # a point's functions are unrolled up to this many (2D quadratic), else looped (3D)
+
+
 class Map:
     """A 2D or 3D NURBS geometry map: knot vectors per parameter axis (cells), degrees, control points P
     (n0, n1[, n2], d) and weights w (n0, n1[, n2]). After `materialize()` (Taichi fields; after ti.init) its
@@ -88,7 +91,6 @@ class Map:
         S = max(span)
         terms = list(itertools.product(*[range(s) for s in span]))   # flat order: the last axis fastest
         K = len(terms)
-        hi = ti.Vector(self.n_cells)
         this = self
 
         @ti.func
@@ -110,12 +112,39 @@ class Map:
                 v *= dN[c, I[c]] if ti.static(a == c) else N[c, I[c]]
             return v
 
-        # The sums over a point's (p + 1)^d functions run as loops, not unrolled: in 3D, 27 unrolled terms (each
-        # with d + 1 products) made Newton's inversion, which evaluates them per iteration, take a minute to compile.
+        # A 2D point's 9 functions are unrolled (kept in registers); 3D's 27 run as a loop: unrolled, each with
+        # d + 1 products, they made Newton's inversion (which evaluates them per iteration) take a minute to
+        # compile. The sums keep the same order either way.
+        unrolled = K <= UNROLL_TERMS
+
+        @ti.func
+        def weight_term(N, dN, b, k):
+            """w_k prod N and its parameter derivatives, for W = sum_k N_k w_k and dW/dxi."""
+            I = term(k)
+            wI = w_field()[b + I]
+            sd = ti.Vector.zero(float, D)
+            for a in ti.static(range(D)):
+                sd[a] = product(N, dN, I, a) * wI
+            return product(N, dN, I, -1) * wI, sd
+
+        @ti.func
+        def basis_term(N, dN, b, k, W, Wd):
+            """R_k and dR_k/dxi by the quotient rule."""
+            I = term(k)
+            wI = w_field()[b + I] / W
+            r = product(N, dN, I, -1) * wI
+            g = ti.Vector.zero(float, D)
+            for a in ti.static(range(D)):
+                g[a] = product(N, dN, I, a) * wI - r * Wd[a] / W
+            return r, g
+
+        @ti.func
+        def w_field():
+            return ti.static(this.weight)
+
         @ti.func
         def rational(xi):
             """(first control point (d,), R ((p+1)^d,), dR/dxi ((p+1)^d, d)) at parameters xi."""
-            w = ti.static(this.weight)
             b = ti.Vector.zero(ti.i32, D)
             N = ti.Matrix.zero(float, D, S)
             dN = ti.Matrix.zero(float, D, S)
@@ -126,32 +155,57 @@ class Map:
                     N[a, i], dN[a, i] = Na[i], dNa[i]
             W = 0.0
             Wd = ti.Vector.zero(float, D)
-            for k in range(K):
-                I = term(k)
-                wI = w[b + I]
-                W += product(N, dN, I, -1) * wI
-                for a in ti.static(range(D)):
-                    Wd[a] += product(N, dN, I, a) * wI
             R = ti.Vector.zero(float, K)
             G = ti.Matrix.zero(float, K, D)
-            for k in range(K):
-                I = term(k)
-                wI = w[b + I] / W
-                R[k] = product(N, dN, I, -1) * wI
-                for a in ti.static(range(D)):
-                    G[k, a] = product(N, dN, I, a) * wI - R[k] * Wd[a] / W
+            if ti.static(unrolled):
+                for k in ti.static(range(K)):
+                    s, sd = weight_term(N, dN, b, k)
+                    W += s
+                    Wd += sd
+                for k in ti.static(range(K)):
+                    R[k], g = basis_term(N, dN, b, k, W, Wd)
+                    for a in ti.static(range(D)):
+                        G[k, a] = g[a]
+            else:
+                for k in range(K):
+                    s, sd = weight_term(N, dN, b, k)
+                    W += s
+                    Wd += sd
+                for k in range(K):
+                    R[k], g = basis_term(N, dN, b, k, W, Wd)
+                    for a in ti.static(range(D)):
+                        G[k, a] = g[a]
             return b, R, G
+
+        self.terms = terms
+        self.term, self.rational = term, rational
+        self.jacobian, self.point = self._build_point(K, unrolled)
+        self.invert = self._build_invert()
+
+    def _build_point(self, K, unrolled):
+        """The funcs jacobian(b, G) and point(xi) -> (x, J)."""
+        D, term, rational, this = self.dim, self.term, self.rational, self
+
+        @ti.func
+        def jacobian_term(b, G, k):
+            """P_k (x) dR_k/dxi."""
+            Pk = ti.static(this.ctrl)[b + term(k)]
+            J = ti.Matrix.zero(float, D, D)
+            for c in ti.static(range(D)):
+                for a in ti.static(range(D)):
+                    J[c, a] = G[k, a] * Pk[c]
+            return J
 
         @ti.func
         def jacobian(b, G):
             """J = dx/dxi = sum_k P_k (x) dR_k/dxi (columns: the parameter directions)."""
-            P = ti.static(this.ctrl)
             J = ti.Matrix.zero(float, D, D)
-            for k in range(K):
-                Pk = P[b + term(k)]
-                for c in ti.static(range(D)):
-                    for a in ti.static(range(D)):
-                        J[c, a] += G[k, a] * Pk[c]
+            if ti.static(unrolled):
+                for k in ti.static(range(K)):
+                    J += jacobian_term(b, G, k)
+            else:
+                for k in range(K):
+                    J += jacobian_term(b, G, k)
             return J
 
         @ti.func
@@ -160,9 +214,19 @@ class Map:
             P = ti.static(this.ctrl)
             b, R, G = rational(xi)
             x = ti.Vector.zero(float, D)
-            for k in range(K):
-                x += R[k] * P[b + term(k)]
+            if ti.static(unrolled):
+                for k in ti.static(range(K)):
+                    x += R[k] * P[b + term(k)]
+            else:
+                for k in range(K):
+                    x += R[k] * P[b + term(k)]
             return x, jacobian(b, G)
+
+        return jacobian, point
+
+    def _build_invert(self):
+        D, point, this = self.dim, self.point, self
+        hi = ti.Vector(self.n_cells)
 
         @ti.func
         def invert(x, xi0, tol):
@@ -190,9 +254,7 @@ class Map:
                 xi = nxt
             return xi, ok
 
-        self.terms = terms
-        self.term = term
-        self.rational, self.jacobian, self.point, self.invert = rational, jacobian, point, invert
+        return invert
 
     # ---------------------------------------------------------------- host side (numpy), for setup and plots
     def rational_host(self, xi: np.ndarray) -> np.ndarray:

@@ -31,6 +31,7 @@ from taichi.lang.matrix import make_matrix
 
 from .. import traced
 from .corners import cpdi_stencil
+from .nurbs import UNROLL_TERMS
 from .stencil_parts import (AUTO_INNER, KernelContext, Stencil, domain_half_width, flat_index,  # noqa: F401
                             loops)
 
@@ -330,9 +331,14 @@ def _mapped_stencil(ctx: KernelContext) -> Stencil:
         ctrl = ti.static(mp.ctrl)
         b, R, G, JiT, xp = st
         D = ti.Matrix.zero(float, d, d)
-        for k in range(count):
-            r = ctrl[b + mp.term(k)] - xp
-            D += R[k] * r.outer_product(r)
+        if ti.static(count <= UNROLL_TERMS):
+            for k in ti.static(range(count)):
+                r = ctrl[b + mp.term(k)] - xp
+                D += R[k] * r.outer_product(r)
+        else:
+            for k in range(count):
+                r = ctrl[b + mp.term(k)] - xp
+                D += R[k] * r.outer_product(r)
         return D
 
     @ti.func
