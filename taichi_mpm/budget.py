@@ -178,7 +178,7 @@ def map_size(cfg: Config) -> MapSize | None:
         periodic, key = m.angle >= 360.0, "domain.map.cells"
         h_min = mapgeom.solid_map_cell_sizes(m)[0]
     else:
-        ctrl, cells = mapgeom.refined_shape([m.knots.x, m.knots.y], m.refine)
+        ctrl, cells = mapgeom.refined_shape(mapgeom.config_net(m)[0], m.refine)
         periodic, key = m.periodic, "domain.map.refine"
         h_min = _nurbs_h_min(m, cells)
     shape = [ctrl[0] - 1 if periodic else ctrl[0]] + list(ctrl[1:])
@@ -188,23 +188,23 @@ def map_size(cfg: Config) -> MapSize | None:
 def _nurbs_h_min(m, cells) -> float:
     """The smallest refined cell edge (MappedGrid's h_min) on the given net: the chords between the refined
     corners (the same points: refinement does not change the map) up to EXACT_CORNERS of them; beyond, cells
-    are so fine that a chord is |dx/dxi| x its parameter width, sampled at FOLD_SAMPLES^2 points."""
+    are so fine that a chord is |dx/dxi| x its parameter width, sampled at FOLD_SAMPLES points per axis."""
     from .config import FOLD_SAMPLES
 
-    knots = [mapgeom.scaled_knots(t, n) for t, n in zip((m.knots.x, m.knots.y), cells)]
-    P = np.asarray(m.control_points, float)
-    w = np.ones(P.shape[:2]) if m.weights is None else np.asarray(m.weights, float)
+    given, P, w = mapgeom.config_net(m)
+    d = len(given)
+    knots = [mapgeom.scaled_knots(t, n) for t, n in zip(given, cells)]
     if math.prod(n + 1 for n in cells) <= EXACT_CORNERS:
         breaks = []
         for t, k in zip(knots, m.refine):
             b = np.unique(t)
             breaks.append(np.unique(np.concatenate([np.linspace(lo, hi, k + 1) for lo, hi in zip(b[:-1], b[1:])])))
-        return mapgeom.cell_sizes(knots, [2, 2], P, w, breaks)[0]
-    s = [np.linspace(0.0, n, FOLD_SAMPLES + 1) for n in cells]
-    xi = np.stack(np.meshgrid(*s, indexing="ij"), -1).reshape(-1, 2)
-    _, J = mapgeom.surface(knots, [2, 2], P, w, xi)
+        return mapgeom.cell_sizes(knots, [2] * d, P, w, breaks)[0]
+    s = [np.linspace(0.0, n, (FOLD_SAMPLES if d == 2 else 16) + 1) for n in cells]
+    xi = np.stack(np.meshgrid(*s, indexing="ij"), -1).reshape(-1, d)
+    _, J = mapgeom.surface(knots, [2] * d, P, w, xi)
     width = [float(np.diff(np.unique(t)).min()) / k for t, k in zip(knots, m.refine)]   # the narrowest refined span
-    return float(min((np.linalg.norm(J[:, :, a], axis=1) * width[a]).min() for a in range(2)))
+    return float(min((np.linalg.norm(J[:, :, a], axis=1) * width[a]).min() for a in range(d)))
 
 
 def grid_layout(cfg: Config, mapped: MapSize | None = None) -> dict:

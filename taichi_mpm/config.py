@@ -91,6 +91,7 @@ MAX_INDEX = 2**31 - 1   # Taichi indexes fields with i32 (budget.MAX_ELEMENTS): 
 # cells per axis (beyond, per span of the given net: the same map), its faces at 8 points per cell up to
 # EDGE_SAMPLES; a check costs at most ~FOLD_SAMPLES^2 DET_SAMPLES^2 evaluations whatever `refine` says
 FOLD_SAMPLES, EDGE_SAMPLES = 64, 8192
+FOLD_SAMPLES_3D, FACE_SAMPLES_3D = 16, 256     # 3D: cells per axis sampled for folds; face points per axis
 
 # magnitudes an input may have in each precision (0 aside): the solver squares them (norms, energies, the yield
 # checks) and multiplies two of them (stress x volume / dx, mass x velocity), so they stay within the square root
@@ -298,19 +299,31 @@ class ShellMap(Strict):
 
 
 class MapKnots(Strict):
-    """The two parameter knot vectors of a nurbs map (any scale: they are scaled to cells)."""
+    """The parameter knot vectors of a nurbs map, two in 2D, three in 3D (any scale: they are scaled to cells)."""
     x: list[Real]
     y: list[Real]
+    z: Optional[list[Real]] = None
+
+
+class NurbsPatch(Strict):
+    """One patch of a nurbs map given as several (domain.map.patches): its knots, control points and weights as
+    for a single patch."""
+    knots: MapKnots
+    control_points: Union[list[list[Vec]], list[list[list[Vec]]]]
+    weights: Optional[Union[list[list[Real]], list[list[list[Real]]]]] = None
 
 
 class NurbsMap(Strict):
-    """domain.map of type nurbs: a quadratic x quadratic NURBS patch given as data (taichi_mpm/bases/mapgeom.py):
-    control_points[i][j] = [x, y], i along the knots x (faces x_min / x_max: i first and last), j along y."""
+    """domain.map of type nurbs: a quadratic NURBS patch (2D) or volume (3D) given as data
+    (taichi_mpm/bases/mapgeom.py): control_points[i][j] = [x, y] (3D: [i][j][k] = [x, y, z]), i along the knots x
+    (faces x_min / x_max: i first and last), j along y, k along z. Or `patches`: several such patches joined in
+    order along x, each one's last layer of control points the next one's first (a C0 joint)."""
     type: Literal["nurbs"]
-    knots: MapKnots
-    control_points: list[list[Vec]]
-    weights: Optional[list[list[Real]]] = None        # null: all 1 (a B-spline map)
-    periodic: bool = False                             # x wraps around: the last column is the first
+    knots: Optional[MapKnots] = None
+    control_points: Optional[Union[list[list[Vec]], list[list[list[Vec]]]]] = None
+    weights: Optional[Union[list[list[Real]], list[list[list[Real]]]]] = None   # null: all 1 (a B-spline map)
+    patches: Optional[list[NurbsPatch]] = None         # instead of knots / control_points / weights
+    periodic: bool = False                             # x wraps around: the last layer is the first
     # cells per knot span (knot insertion); the refined net is sized by the budget as the annulus' cells
     refine: list[Annotated[int, Field(gt=0, le=MAX_INDEX)]] = [1, 1]
 
@@ -960,9 +973,9 @@ class Config(Strict):
         if m is None:
             return
         solid = m.type in ("cylinder", "shell")
-        if self.dim != (3 if solid else 2):
-            raise _Located("domain.map.type", f"a {m.type} map is {3 if solid else 2}D (the scene is {self.dim}D; "
-                           f"2D maps: annulus, nurbs; 3D maps: cylinder, shell)")
+        if self.dim == 1 or (m.type != "nurbs" and self.dim != (3 if solid else 2)):
+            raise _Located("domain.map.type", f"a{'' if self.dim == 1 else ' ' + m.type} map is not {self.dim}D "
+                           f"(2D maps: annulus, nurbs; 3D maps: cylinder, shell, nurbs)")
         if not bases.get(self.solver.basis).map:
             mapped = bases.listed(bases.names(map=True))
             raise _Located("domain.map", f"mapped grids are {mapped}: use solver.basis {mapped}, not "
@@ -1031,52 +1044,74 @@ class Config(Strict):
 
     def _check_nurbs_map(self, m):
         from .bases import mapgeom
-        for axis in "xy":
-            t = getattr(m.knots, axis)
-            problem = knot_problem(t, 2, t[0], t[-1]) if t else "is empty"
-            if problem:
-                raise _Located(f"domain.map.knots.{axis}", f"{problem} (a nurbs map is quadratic: p = 2)")
-        shape = (len(m.knots.x) - 3, len(m.knots.y) - 3)
-        _need_rows("domain.map.control_points", m.control_points, shape)
-        for i, row in enumerate(m.control_points):
-            for j, p in enumerate(row):
-                _need_len(f"domain.map.control_points.{i}.{j}", p, 2)
-        P = np.asarray(m.control_points, float)
-        if m.weights is not None:
-            _need_rows("domain.map.weights", m.weights, shape)
-            for i, row in enumerate(m.weights):
-                for j, wij in enumerate(row):
-                    if not wij > 0:
-                        raise _Located(f"domain.map.weights.{i}.{j}", f"NURBS weights must be positive, got {wij:g} "
-                                       f"(control point [{i}][{j}])")
-        w = np.ones(shape) if m.weights is None else np.asarray(m.weights, float)
+        d = self.dim
+        knots, P, w = self._nurbs_net(m)
         if m.periodic:
-            size = np.ptp(P.reshape(-1, 2), axis=0).max()
+            size = np.ptp(P.reshape(-1, d), axis=0).max()
             if np.abs(P[0] - P[-1]).max() > 1e-12 * size or np.abs(w[0] - w[-1]).max() > 1e-12 * w.max():
                 raise _Located("domain.map.periodic", "a periodic map closes on itself: its last row of control "
                                "points and weights must equal the first")
-        _need_len("domain.map.refine", m.refine, 2)
+        _need_len("domain.map.refine", m.refine, d)
         # the refined map is the given one (knot insertion changes the grid, not the map): checked on the given
         # net with its knots scaled to the refined cells, so the check costs the same at any `refine` (the
         # refined net's size is budget.py's to estimate and refuse, before anything is built)
-        _, cells = mapgeom.refined_shape([m.knots.x, m.knots.y], m.refine)
-        knots = [mapgeom.scaled_knots(t, n) for t, n in zip((m.knots.x, m.knots.y), cells)]
-        det, where = mapgeom.fold(knots, [2, 2], P, w, [mapgeom.DET_SAMPLES * min(k, max(1, FOLD_SAMPLES * k // n))
-                                                      for k, n in zip(m.refine, cells)])
+        _, cells = mapgeom.refined_shape(knots, m.refine)
+        scaled = [mapgeom.scaled_knots(t, n) for t, n in zip(knots, cells)]
+        most = FOLD_SAMPLES if d == 2 else FOLD_SAMPLES_3D
+        det, where = mapgeom.fold(scaled, [2] * d, P, w, [mapgeom.DET_SAMPLES * min(k, max(1, most * k // n))
+                                                          for k, n in zip(m.refine, cells)])
         if det <= 1e-9:
             raise _Located("domain.map.control_points", f"the map folds or pinches: det J = {det:.3g} (relative) at "
-                           f"parameters ({where[0]:g}, {where[1]:g}) cells; control points must keep each cell "
-                           "turning the same way (det J of one sign everywhere)")
-        # a map that does not fold is one-to-one, so its extremes lie on its boundary: sample the four faces
-        s = [np.linspace(0.0, n, min(8 * n, EDGE_SAMPLES) + 1) for n in cells]
-        edges = [np.stack([s[0], np.full_like(s[0], e)], -1) for e in (0.0, cells[1])]
-        edges += [np.stack([np.full_like(s[1], e), s[1]], -1) for e in (0.0, cells[0])]
-        pts = mapgeom.surface(knots, [2, 2], P, w, np.concatenate(edges))[0]
-        for a in range(2):
+                           f"parameters ({', '.join(f'{v:g}' for v in where)}) cells; control points must keep "
+                           "each cell turning the same way (det J of one sign everywhere)")
+        # a map that does not fold is one-to-one, so its extremes lie on its boundary: sample its faces
+        per = EDGE_SAMPLES if d == 2 else FACE_SAMPLES_3D
+        pts = mapgeom.surface(scaled, [2] * d, P, w, mapgeom.face_samples(cells, per))[0]
+        for a in range(d):
             lo, hi = pts[:, a].min(), pts[:, a].max()
             if self.domain.lower[a] > lo or self.domain.upper[a] < hi:
                 raise _Located("domain.upper", f"the domain box must hold the map: [{lo:g}, {hi:g}] along "
-                                               f"{'xy'[a]}")
+                                               f"{'xyz'[a]}")
+
+    def _nurbs_net(self, m):
+        """(knots per axis, control points, weights) of a nurbs map: its one patch, or its patches joined (each
+        checked under its own key)."""
+        from .bases import mapgeom
+        single = m.knots is not None or m.control_points is not None or m.weights is not None
+        if (m.patches is None) == (not single) or (single and (m.knots is None or m.control_points is None)):
+            raise _Located("domain.map", "give a nurbs map's knots and control_points (and optionally weights), "
+                                         "or its `patches`, not both")
+        if m.patches is None:
+            return self._nurbs_patch("domain.map", m)
+        nets = [self._nurbs_patch(f"domain.map.patches.{i}", p) for i, p in enumerate(m.patches)]
+        try:
+            return mapgeom.join_patches(nets)
+        except mapgeom.JoinError as e:
+            raise _Located(f"domain.map.patches.{e.patch}{e.where}", str(e)) from None
+
+    def _nurbs_patch(self, key, m):
+        d = self.dim
+        for a, axis in enumerate("xyz"):
+            t = getattr(m.knots, axis)
+            if a >= d:
+                if t is not None:
+                    raise _Located(f"{key}.knots.{axis}", f"the scene is {d}D: a map has {d} knot vectors")
+                continue
+            problem = knot_problem(t, 2, t[0], t[-1]) if t else "is empty"
+            if problem:
+                raise _Located(f"{key}.knots.{axis}", f"{problem} (a nurbs map is quadratic: p = 2)")
+        shape = tuple(len(getattr(m.knots, axis)) - 3 for axis in "xyz"[:d])
+        _need_table(f"{key}.control_points", m.control_points, shape,
+                    lambda k, p: _need_len(k, p, d))
+        P = np.asarray(m.control_points, float)
+        if m.weights is not None:
+            def positive(k, wk):
+                if not wk > 0:
+                    raise _Located(k, f"NURBS weights must be positive, got {wk:g} (control point "
+                                      f"[{']['.join(k.split('.')[-d:])}])")
+            _need_table(f"{key}.weights", m.weights, shape, positive)
+        w = np.ones(shape) if m.weights is None else np.asarray(m.weights, float)
+        return [np.asarray(getattr(m.knots, axis), float) for axis in "xyz"[:d]], P, w
 
     def _check_ranges(self):
         """Inputs (and the sizes they give) whose magnitude the precision cannot carry through a step: a density
@@ -1210,12 +1245,24 @@ def _keep_explicit_nulls(model: BaseModel, out: dict) -> dict:
     return out
 
 
-def _need_rows(key, rows, shape):
-    """A nurbs map's per-control-point table: shape[0] rows of shape[1] entries (knots - 3 per axis)."""
-    lengths = [len(r) for r in rows]
-    if len(lengths) != shape[0] or any(n != shape[1] for n in lengths):
-        raise _Located(key, f"the knots give {shape[0]} x {shape[1]} control points (number of knots - 3 per axis): "
-                            f"{shape[0]} rows of {shape[1]}, got {len(lengths)} rows of {sorted(set(lengths))}")
+def _need_table(key, table, shape, entry):
+    """A nurbs map's per-control-point table: nested lists of `shape` (knots - 3 per axis), the counts refused
+    under `key`; then entry(key.i.j[.k], value) checks each entry."""
+    def counts(node, level):
+        if level == len(shape):
+            return
+        if not isinstance(node, list) or len(node) != shape[level]:
+            got = len(node) if isinstance(node, list) else repr(node)
+            raise _Located(key, f"the knots give {' x '.join(map(str, shape))} control points (number of knots - 3 "
+                                f"per axis): {shape[level]} entries at depth {level + 1}, got {got}")
+        for c in node:
+            counts(c, level + 1)
+    counts(table, 0)
+    for index in np.ndindex(*shape):
+        value = table
+        for i in index:
+            value = value[i]
+        entry(key + "".join(f".{i}" for i in index), value)
 
 
 def _need_len(key, v, d):

@@ -591,13 +591,15 @@ def _inside_map(cfg, bi, pts):
     else:
         from .bases import mapgeom
 
-        _, cells = mapgeom.refined_shape([m.knots.x, m.knots.y], m.refine)
-        knots = [mapgeom.scaled_knots(t, n) for t, n in zip((m.knots.x, m.knots.y), cells)]
-        P = np.asarray(m.control_points, float)
-        w = np.ones(P.shape[:2]) if m.weights is None else np.asarray(m.weights, float)
-        poly = mapgeom.boundary(knots, [2, 2], P, w)
-        size = float(np.ptp(poly, axis=0).max())
-        out = mapgeom.outside(poly, pts, 1e-6 * size)
+        given, P, w = mapgeom.config_net(m)
+        _, cells = mapgeom.refined_shape(given, m.refine)
+        knots = [mapgeom.scaled_knots(t, n) for t, n in zip(given, cells)]
+        if len(knots) == 2:
+            poly = mapgeom.boundary(knots, [2, 2], P, w)
+            out = mapgeom.outside(poly, pts, 1e-6 * float(np.ptp(poly, axis=0).max()))
+        else:     # within 1e-6 of the net's size of the map counts as inside, as for the 2D outline
+            size = float(np.ptp(P.reshape(-1, 3), axis=0).max())
+            out = ~mapgeom.locate_host(knots, [2, 2, 2], P, w, pts, 1e-6 * size, m.periodic)[1]
         what = "the nurbs map of domain.map (its image, not the domain box)"
     if out.any():
         first = pts[np.flatnonzero(out)[0]]

@@ -239,6 +239,65 @@ def solid_shape(kind: str, angle_deg: float, cells, span_deg: float = 0.0) -> tu
     return ctrl + [int(cells[2]) + pieces + 1], cells2 + [int(cells[2])]
 
 
+class JoinError(ValueError):
+    """Patches that do not join: `patch` is the index of the later one, `where` the key below it (".knots.y")."""
+
+    def __init__(self, patch: int, where: str, message: str):
+        super().__init__(message)
+        self.patch, self.where = patch, where
+
+
+def join_patches(nets, tol: float = 1e-12):
+    """Several quadratic patches (knots per axis, control points, weights) joined in order along the first
+    parameter into one patch: each one's knots scaled to cells and shifted to follow the previous one's, the
+    shared layer of control points stored once, so the joint is a double knot (C0, like the rational pieces of
+    the built-in arcs). The patches must be conforming: equal knots (in cells) along the other axes, and the
+    last layer of control points and weights of each equal to the first of the next (to `tol` of the net's size).
+    Returns (knots, P, w)."""
+    knots = [cell_knots(t) for t in nets[0][0]]
+    P, w = nets[0][1], nets[0][2]
+    size = max(float(np.ptp(n[1].reshape(-1, n[1].shape[-1]), axis=0).max()) for n in nets)
+    axes = "xyz"
+    for i, (t_next, P_next, w_next) in enumerate(nets[1:], start=1):
+        t_next = [cell_knots(t) for t in t_next]
+        for a in range(1, len(knots)):
+            if len(t_next[a]) != len(knots[a]) or np.abs(t_next[a] - knots[a]).max() > 1e-12:
+                raise JoinError(i, f".knots.{axes[a]}", f"patch {i} does not conform to patch {i - 1}: its knots "
+                                f"along {axes[a]} (in cells) must equal theirs")
+        if np.abs(P_next[0] - P[-1]).max() > tol * size or np.abs(w_next[0] - w[-1]).max() > tol * w.max():
+            raise JoinError(i, ".control_points", f"patch {i} does not join patch {i - 1}: its first layer of "
+                            "control points and weights must equal the last layer of the patch before it")
+        t0, start = knots[0], knots[0][-1]
+        knots[0] = np.concatenate([t0[:-1], t_next[0][3:] + start])     # ends: 3 -> the joint twice
+        P = np.concatenate([P, P_next[1:]])
+        w = np.concatenate([w, w_next[1:]])
+    return knots, P, w
+
+
+def config_net(m):
+    """(knots per axis, control points, weights) of a `nurbs` domain.map config as given (one patch: its knots in
+    any scale; several: joined, knots in cells). The config has checked it (config._check_nurbs_map)."""
+    def one(p):
+        d = 2 if p.knots.z is None else 3
+        P = np.asarray(p.control_points, float)
+        w = np.ones(P.shape[:-1]) if p.weights is None else np.asarray(p.weights, float)
+        return [np.asarray(getattr(p.knots, a), float) for a in "xyz"[:d]], P, w
+    return one(m) if m.patches is None else join_patches([one(p) for p in m.patches])
+
+
+def face_samples(cells, per_axis_most: int) -> np.ndarray:
+    """Parameter points on every face of the box [0, cells]: 8 per cell along each face axis, at most
+    per_axis_most + 1 per axis."""
+    s = [np.linspace(0.0, n, min(8 * n, per_axis_most) + 1) for n in cells]
+    out = []
+    for a in range(len(cells)):
+        for end in (0.0, float(cells[a])):
+            grid = np.stack(np.meshgrid(*[s[b] if b != a else np.array([end]) for b in range(len(cells))],
+                                        indexing="ij"), -1)
+            out.append(grid.reshape(-1, len(cells)))
+    return np.concatenate(out)
+
+
 def annulus_shape(angle_deg: float, cells) -> tuple[list[int], list[int]]:
     """(control points, cells) per axis of the built-in annulus (nurbs.annulus), from its config alone: the arc
     is one rational piece per quarter turn (double knots between them), n_angle + pieces + 1 control points;
@@ -469,22 +528,21 @@ def _face_normals_3d(knots, degrees, P, w, periodic=False) -> np.ndarray:
 
 
 def cell_sizes(knots, degrees, P, w, breaks=None, rows=256):
-    """(smallest, largest) chord between neighbouring cell corners x(knot_a, knot_b): the edges of the
+    """(smallest, largest) chord between neighbouring cell corners x(knot_a, knot_b[, knot_c]): the edges of the
     physical cells (the annulus: an inner arc's chord and a radial cell). `breaks`: the corner parameters per
-    axis (default: the distinct knots; a refined map's on its coarse net: scaled_knots). Evaluated a few rows
-    of corners at a time (memory of `rows` rows' corners at most)."""
+    axis (default: the distinct knots; a refined map's on its coarse net: scaled_knots). Evaluated a few layers
+    of corners at a time (memory of about `rows` x 1024 corners)."""
     b = [np.unique(t) for t in knots] if breaks is None else [np.asarray(v, float) for v in breaks]
+    d = len(b)
     lo, hi, prev = np.inf, 0.0, None
-    step = max(1, rows * 1024 // max(len(b[1]), 1))
+    step = max(1, rows * 1024 // max(math.prod(len(v) for v in b[1:]), 1))
     for start in range(0, len(b[0]), step):
-        rows_xi = b[0][start:start + step]
-        xi = np.stack(np.meshgrid(rows_xi, b[1], indexing="ij"), -1)
-        x, _ = surface(knots, degrees, P, w, xi.reshape(-1, 2))
+        xi = np.stack(np.meshgrid(b[0][start:start + step], *b[1:], indexing="ij"), -1)
+        x, _ = surface(knots, degrees, P, w, xi.reshape(-1, d))
         x = x.reshape(xi.shape)
         if prev is not None:
             x = np.concatenate([prev[None], x])
-        edges = np.concatenate([np.linalg.norm(np.diff(x, axis=0), axis=-1).ravel(),
-                                np.linalg.norm(np.diff(x, axis=1), axis=-1).ravel()])
+        edges = np.concatenate([np.linalg.norm(np.diff(x, axis=a), axis=-1).ravel() for a in range(d)])
         if len(edges):
             lo, hi = min(lo, float(edges.min())), max(hi, float(edges.max()))
         prev = x[-1]
@@ -500,6 +558,33 @@ def boundary(knots, degrees, P, w, per_cell: int = 16, most: int = 16384) -> np.
     faces = [np.stack([s[0], np.zeros_like(s[0])], -1), np.stack([np.full_like(s[1], hi[0]), s[1]], -1),
              np.stack([s[0][::-1], np.full_like(s[0], hi[1])], -1), np.stack([np.zeros_like(s[1]), s[1][::-1]], -1)]
     return surface(knots, degrees, P, w, np.concatenate(faces))[0]
+
+
+def locate_host(knots, degrees, P, w, pts, tol, periodic=False, per_cell: int = 3):
+    """Parameters of physical points (M, d) by Newton's method on x(xi) = x from the nearest of per_cell^d samples
+    per cell, steps kept in the parameter box (wrapped along x when periodic): (xi (M, d), found (M,)), found
+    where |x(xi) - x| <= tol within 30 iterations. A point outside the map's image is not found. Host side (numpy,
+    scipy's k-d tree), for checks before anything is built."""
+    from scipy.spatial import cKDTree
+
+    hi = np.array([float(t[-1]) for t in knots])
+    d = len(knots)
+    s = [(np.arange(int(per_cell * n)) + 0.5) / per_cell for n in hi]
+    samples = np.stack(np.meshgrid(*s, indexing="ij"), -1).reshape(-1, d)
+    xi = samples[cKDTree(surface(knots, degrees, P, w, samples)[0]).query(pts)[1]]
+    found = np.zeros(len(pts), bool)
+    for _ in range(30):
+        x, J = surface(knots, degrees, P, w, xi)
+        r = x - pts
+        found = np.linalg.norm(r, axis=1) <= tol
+        if found.all():
+            break
+        step = np.linalg.solve(J, r[..., None])[..., 0]
+        xi = xi - np.where(found[:, None], 0.0, step)
+        if periodic:
+            xi[:, 0] %= hi[0]
+        xi = np.clip(xi, 0.0, hi)
+    return xi, found
 
 
 def outside(polygon: np.ndarray, pts: np.ndarray, tol: float) -> np.ndarray:

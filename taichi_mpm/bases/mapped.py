@@ -49,9 +49,9 @@ def build_map(m):
     if m.type == "shell":
         return (shell(m.inner_radius, m.outer_radius, math.radians(m.angle), np.radians(m.latitudes), m.cells,
                       m.center), m.angle >= 360.0)
-    w = np.ones(np.shape(m.control_points)[:2]) if m.weights is None else np.asarray(m.weights, float)
-    knots, P, w = mapgeom.refine([m.knots.x, m.knots.y], m.control_points, w, m.refine)
-    return Map(knots, [2, 2], P, w), m.periodic
+    knots, P, w = mapgeom.config_net(m)
+    knots, P, w = mapgeom.refine(knots, P, w, m.refine)
+    return Map(knots, [2] * len(knots), P, w), m.periodic
 
 
 class MappedGrid:

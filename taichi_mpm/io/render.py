@@ -603,7 +603,7 @@ def grid_lines(cfg, per_cell: int = 12):
     """The cell edges of a mapped grid (domain.map) as polylines in physical space: the parameter lines through
     every distinct knot, `per_cell` segments per cell (curved cells look curved). None without a map, and for a
     3D map (3D frames draw the particles only)."""
-    if cfg.domain.map is None or cfg.domain.map.type in ("cylinder", "shell"):
+    if cfg.domain.map is None or cfg.dim != 2:
         return None
     from ..bases.mapped import build_map
 

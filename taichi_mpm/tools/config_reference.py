@@ -67,9 +67,18 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                              "twice); any parameter scale: they are scaled so that a span is a cell"),
     "domain.map.knots.x": ("", "knots of the first parameter (the rows of control_points)"),
     "domain.map.knots.y": ("", "knots of the second parameter (the points within a row)"),
-    "domain.map.control_points": ("m", "control_points[i][j] = [x, y]: len(knots.x) - 3 rows of len(knots.y) - 3 "
-                                       "points; the map must not fold (det J of one sign, checked at 5 x 5 points "
-                                       "per cell, up to 64 cells per axis) and must lie inside domain.lower/upper; "
+    "domain.map.knots.z": ("", "3D: knots of the third parameter (the points within a column: control_points[i][j])"),
+    "domain.map.patches": ("", "instead of knots / control_points / weights: several patches joined in order along "
+                               "x, each one's last layer of control points and weights equal to the next one's "
+                               "first (stored once: a C0 joint); their knots along y (and z) must be equal in cells "
+                               "(conforming patches)"),
+    "domain.map.patches[].knots": ("", "the patch's knot vectors x, y (z), as domain.map.knots"),
+    "domain.map.patches[].control_points": ("m", "the patch's control points, as domain.map.control_points"),
+    "domain.map.patches[].weights": ("1", "the patch's weights, as domain.map.weights; null: all 1"),
+    "domain.map.control_points": ("m", "control_points[i][j] = [x, y] (3D: [i][j][k] = [x, y, z]): len(knots.x) - "
+                                       "3 rows of len(knots.y) - 3 points (of len(knots.z) - 3); the map must not "
+                                       "fold (det J of one sign, checked at 5 points per cell and axis, up to 64 "
+                                       "cells per axis in 2D, 16 in 3D) and must lie inside domain.lower/upper; "
                                        "bodies must lie inside the map"),
     "domain.map.weights": ("1", "one positive weight per control point, same layout; null: all 1 (a B-spline map)"),
     "domain.map.refine": ("", "[cells per knot span along x, along y]: each nonzero knot span is split evenly by "
