@@ -147,6 +147,7 @@ class MapSize:
     shape: list[int]
     h_min: float
     key: str
+    degree: int = 2
 
     def field_floats(self) -> int:
         """As MappedGrid.field_floats: control points (d) and weights (1) per control point, wall normals (2 d x d)
@@ -155,9 +156,9 @@ class MapSize:
         return (d + 1) * math.prod(self.ctrl) + 2 * d * d * math.prod(self.shape)
 
     def knot_floats(self) -> int:
-        """Per axis, the quadratic knot vector (control points + 3 knots) and its Greville abscissae (one per control
-        point: bases.shape_functions.KnotData), which MappedGrid.field_floats leaves out."""
-        return sum(2 * c + 3 for c in self.ctrl)
+        """Per axis, the knot vector (control points + p + 1 knots) and its Greville abscissae (one per control point:
+        bases.shape_functions.KnotData), which MappedGrid.field_floats leaves out."""
+        return sum(2 * c + self.degree + 1 for c in self.ctrl)
 
     def build_bytes(self) -> int:
         return MAP_BYTES_PER_CONTROL_POINT * math.prod(self.ctrl) + MAP_BYTES_PER_CELL * math.prod(self.cells)
@@ -168,21 +169,23 @@ def map_size(cfg: Config) -> MapSize | None:
     m = cfg.domain.map
     if m is None:
         return None
+    degree = bases.get(cfg.solver.basis).degree      # the map is raised to the basis' degree
     if m.type == "annulus":
-        ctrl, cells = mapgeom.annulus_shape(m.angle, m.cells)
+        ctrl, cells = mapgeom.annulus_shape(m.angle, m.cells, degree)
         periodic, key = m.angle >= 360.0, "domain.map.cells"
         angle, (n_angle, n_radial) = math.radians(m.angle), m.cells
         h_min = min(m.inner_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
     elif m.type in ("cylinder", "shell"):
-        ctrl, cells = mapgeom.solid_shape(m.type, m.angle, m.cells, np.ptp(m.latitudes) if m.type == "shell" else 0.0)
+        ctrl, cells = mapgeom.solid_shape(m.type, m.angle, m.cells, np.ptp(m.latitudes) if m.type == "shell" else 0.0,
+                                          degree)
         periodic, key = m.angle >= 360.0, "domain.map.cells"
         h_min = mapgeom.solid_map_cell_sizes(m)[0]
     else:
-        ctrl, cells = mapgeom.refined_shape(mapgeom.config_net(m)[0], m.refine)
+        ctrl, cells = mapgeom.refined_shape(mapgeom.config_net(m)[0], m.refine, degree)
         periodic, key = m.periodic, "domain.map.refine"
         h_min = _nurbs_h_min(m, cells)
     shape = [ctrl[0] - 1 if periodic else ctrl[0]] + list(ctrl[1:])
-    return MapSize(ctrl=ctrl, cells=cells, shape=shape, h_min=h_min, key=key)
+    return MapSize(ctrl=ctrl, cells=cells, shape=shape, h_min=h_min, key=key, degree=degree)
 
 
 def _nurbs_h_min(m, cells) -> float:

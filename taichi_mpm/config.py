@@ -314,7 +314,8 @@ class NurbsPatch(Strict):
 
 
 class NurbsMap(Strict):
-    """domain.map of type nurbs: a quadratic NURBS patch (2D) or volume (3D) given as data
+    """domain.map of type nurbs: a quadratic NURBS patch (2D) or volume (3D) given as data (raised to degree 3 for
+    solver.basis cubic)
     (taichi_mpm/bases/mapgeom.py): control_points[i][j] = [x, y] (3D: [i][j][k] = [x, y, z]), i along the knots x
     (faces x_min / x_max: i first and last), j along y, k along z. Or `patches`: several such patches joined in
     order along x, each one's last layer of control points the next one's first (a C0 joint)."""
@@ -1031,7 +1032,8 @@ class Config(Strict):
             if m.cells[a] % pieces:
                 raise _Located("domain.map.cells", f"an arc of {degrees:g} degrees is {pieces} rational pieces: "
                                                    f"the cells along {what} must be a multiple of {pieces}")
-        ctrl = mapgeom.solid_shape(m.type, m.angle, m.cells, np.ptp(m.latitudes) if m.type == "shell" else 0.0)[0]
+        ctrl = mapgeom.solid_shape(m.type, m.angle, m.cells, np.ptp(m.latitudes) if m.type == "shell" else 0.0,
+                                   bases.get(self.solver.basis).degree)[0]
         if math.prod(ctrl) > MAX_INDEX:
             raise _Located("domain.map.cells", f"{math.prod(ctrl)} control points: more than Taichi can index")
         r, c = m.outer_radius, m.center

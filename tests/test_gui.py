@@ -261,7 +261,8 @@ def mapped_scene():
 def test_session_on_a_mapped_grid_draws_its_cells_and_runs():
     """A mapped scene in the windowless session: the cell edges of the annulus (render.grid_lines: 25 spokes and
     5 circles) as window segments, which map back to the circles r = 0.5 .. 1.0 (1e-12: the view is affine);
-    frames advance, a drag pushes, and a basis switch the map refuses leaves the scene running with a message."""
+    frames advance, a drag pushes, the basis switch to cubic restarts it on the map raised to degree 3, and one the
+    map refuses (linear) leaves the scene running with a message."""
     import taichi as ti
 
     sim = tm.Simulation(mapped_scene())
@@ -279,10 +280,14 @@ def test_session_on_a_mapped_grid_draws_its_cells_and_runs():
     assert pos.shape == (sim.n, 2) and np.all((pos > 0) & (pos < 1))
     xs, _ = s.view.project(sim.particles()["x"])
     assert s.drag(xs[0], xs[0] + [0.02, 0.0]) > 0
-    assert s.press("b") and s.sim is sim                          # quadratic -> cubic: refused for a map
-    assert "not possible" in s.message and "quadratic" in s.message
+    assert s.press("b") and s.sim is not sim                      # quadratic -> cubic: the map raised to degree 3
+    assert s.sim.cfg.solver.basis == "cubic" and "restarted" in s.message
+    sim = s.sim
+    assert s.press("b") and s.sim is sim                          # cubic -> linear: refused for a map
+    assert "not possible" in s.message and "quadratic or cubic" in s.message
+    t = sim.time
     assert s.press(ti.GUI.SPACE) and s.paused
-    assert s.advance() is False and sim.time == pytest.approx(0.02)     # paused: the same scene, not moving
+    assert s.advance() is False and sim.time == t                 # paused: the same scene, not moving
     assert Session(tm.Simulation(make_cfg(2, dx=0.1)), (300, 300)).grid_segments is None   # no map: no cells
 
 

@@ -79,12 +79,12 @@ def cartesian(Pw: np.ndarray):
     return Pw[..., :-1] / Pw[..., -1:], Pw[..., -1]
 
 
-def refine(knots, P, w, per_span):
+def refine(knots, P, w, per_span, degree: int = 2):
     """The patch the solver's grid uses: every nonzero knot span of axis a split into per_span[a] equal spans by
-    knot insertion (degree 2 per axis), the knots then scaled to cells (cell_knots). The map is exactly the same;
-    only the grid is finer. The insertions are made once per axis on the identity (the refinement matrix of that
-    axis, refined rows x given rows), then applied to the net: the cost grows with the refined net, not with the
-    refined net times the number of knots inserted."""
+    knot insertion (of the net's degree per axis), the knots then scaled to cells (cell_knots). The map is exactly
+    the same; only the grid is finer. The insertions are made once per axis on the identity (the refinement
+    matrix of that axis, refined rows x given rows), then applied to the net: the cost grows with the refined net,
+    not with the refined net times the number of knots inserted."""
     Pw = homogeneous(np.asarray(P, float), np.asarray(w, float))
     knots = [np.asarray(t, float) for t in knots]
     for axis, k in enumerate(per_span):
@@ -92,22 +92,41 @@ def refine(knots, P, w, per_span):
         b = np.unique(t)
         for lo, hi in zip(b[:-1], b[1:]):
             for j in range(1, k):
-                t, T = insert_knot(t, 2, T, lo + (hi - lo) * j / k, 0)
+                t, T = insert_knot(t, degree, T, lo + (hi - lo) * j / k, 0)
         knots[axis] = t
         Pw = np.moveaxis(np.tensordot(T, Pw, axes=(1, axis)), 0, axis)
     P, w = cartesian(Pw)
     return [cell_knots(t) for t in knots], P, w
 
 
-def refined_shape(knots, per_span) -> tuple[list[int], list[int]]:
-    """(control points, cells) per axis of `refine(knots, ..., per_span)`, from the knots alone (nothing built):
-    each of the S nonzero spans of an axis gains per_span - 1 knots, so n + S (per_span - 1) control points and
-    S per_span cells."""
+def elevate(knots, P, w, degree: int):
+    """A quadratic net raised to `degree` along every axis (The NURBS Book 5.5, by another route): each distinct
+    knot once more, so the continuity at every knot stays what it was and the old B-splines lie in the new space;
+    their coefficients there solve the collocation at the new space's Greville abscissae (nonsingular by
+    Schoenberg-Whitney). The map does not change. Returns (knots, P, w)."""
+    Pw = homogeneous(np.asarray(P, float), np.asarray(w, float))
+    out = []
+    for axis, t in enumerate(knots):
+        t = np.asarray(t, float)
+        raised = np.sort(np.concatenate([t, np.unique(t)]))
+        u = greville(raised, degree)
+        T = np.linalg.solve(bspline_values(raised, degree, u), bspline_values(t, 2, u))
+        Pw = np.moveaxis(np.tensordot(T, Pw, axes=(1, axis)), 0, axis)
+        out.append(raised)
+    P, w = cartesian(Pw)
+    return out, P, w
+
+
+def refined_shape(knots, per_span, degree: int = 2) -> tuple[list[int], list[int]]:
+    """(control points, cells) per axis of `refine(knots, ..., per_span)` of the quadratic net (raised to `degree`
+    first: `elevate`), from the knots alone (nothing built): each of the S nonzero spans of an axis gains
+    per_span - 1 knots, and elevation one more control point per span, so n + S (per_span - 1) + (degree - 2) S
+    control points and S per_span cells."""
     ctrl, cells = [], []
     for t, k in zip(knots, per_span):
         t = np.asarray(t, float)
         spans = int(np.count_nonzero(np.diff(t) > 0))
-        ctrl.append(len(t) - 3 + spans * (int(k) - 1))
+        ctrl.append(len(t) - 3 + spans * (int(k) - 1) + (degree - 2) * spans)
         cells.append(spans * int(k))
     return ctrl, cells
 
@@ -229,14 +248,15 @@ def solid_map_cell_sizes(m):
                             latitudes=np.radians(m.latitudes) if m.type == "shell" else None)
 
 
-def solid_shape(kind: str, angle_deg: float, cells, span_deg: float = 0.0) -> tuple[list[int], list[int]]:
+def solid_shape(kind: str, angle_deg: float, cells, span_deg: float = 0.0,
+                degree: int = 2) -> tuple[list[int], list[int]]:
     """(control points, cells) per axis of the built-in cylinder or shell from its config alone: the annulus'
-    two axes, then the axial line (n + 2) or the meridian arc (like the angle's, its own rational pieces)."""
-    ctrl, cells2 = annulus_shape(angle_deg, cells[:2])
+    two axes, then the axial line (n + p) or the meridian arc (like the angle's, its own rational pieces)."""
+    ctrl, cells2 = annulus_shape(angle_deg, cells[:2], degree)
     if kind == "cylinder":
-        return ctrl + [int(cells[2]) + 2], cells2 + [int(cells[2])]
+        return ctrl + [int(cells[2]) + degree], cells2 + [int(cells[2])]
     pieces = max(1, int(np.ceil(span_deg / 90.0 - 1e-9)))
-    return ctrl + [int(cells[2]) + pieces + 1], cells2 + [int(cells[2])]
+    return ctrl + [int(cells[2]) + (degree - 1) * pieces + 1], cells2 + [int(cells[2])]
 
 
 class JoinError(ValueError):
@@ -298,13 +318,14 @@ def face_samples(cells, per_axis_most: int) -> np.ndarray:
     return np.concatenate(out)
 
 
-def annulus_shape(angle_deg: float, cells) -> tuple[list[int], list[int]]:
+def annulus_shape(angle_deg: float, cells, degree: int = 2) -> tuple[list[int], list[int]]:
     """(control points, cells) per axis of the built-in annulus (nurbs.annulus), from its config alone: the arc
-    is one rational piece per quarter turn (double knots between them), n_angle + pieces + 1 control points;
-    the radius n_radial + 2 (a full ring stores its seam column once: one fewer along the angle)."""
+    is one rational piece per quarter turn (joined by knots of multiplicity p), n_angle + (p - 1) pieces + 1
+    control points; the radius n_radial + p (a full ring stores its seam column once: one fewer along the
+    angle)."""
     pieces = max(1, int(np.ceil(angle_deg / 90.0 - 1e-9)))
     n_angle, n_radial = (int(c) for c in cells)
-    return [n_angle + pieces + 1, n_radial + 2], [n_angle, n_radial]
+    return [n_angle + (degree - 1) * pieces + 1, n_radial + degree], [n_angle, n_radial]
 
 
 def scaled_knots(t, cells: int) -> np.ndarray:

@@ -35,23 +35,38 @@ from .nurbs import Map, annulus, cylinder, shell
 LOCATE_TOL = {"f32": 1e-4, "f64": 1e-13}      # Newton's residual |x(xi) - x_p|, relative to the smallest cell (f32: sums of 9 terms of ~|x| carry ~1e-7 |x| of round-off)
 
 
-def build_map(m):
+def build_map(m, degree: int = 2):
     """(nurbs.Map, periodic) of a `domain.map` config: the built-in annulus, cylinder or shell, or a `nurbs` map
     given as knots, control points and weights (degree 2 per axis), refined by knot insertion (`refine`), knots
-    scaled to cells."""
+    scaled to cells. degree 3 (solver.basis cubic): the same map, its coarse net raised to degree 3 first
+    (`mapgeom.elevate`) and then refined, so it is C2 inside each piece (k-refinement)."""
+    periodic = m.periodic if m.type == "nurbs" else m.angle >= 360.0
+    if degree == 2 and m.type != "nurbs":
+        return _built_in(m, m.cells), periodic
+    if m.type == "nurbs":
+        knots, P, w = mapgeom.config_net(m)
+        per_span = m.refine
+    else:
+        pieces = [max(1, math.ceil(m.angle / 90.0 - 1e-9)), 1]
+        if m.type != "annulus":
+            pieces.append(max(1, math.ceil(np.ptp(m.latitudes) / 90.0 - 1e-9)) if m.type == "shell" else 1)
+        coarse = _built_in(m, pieces)
+        knots, P, w = coarse.knots, coarse.P, coarse.w
+        per_span = [n // k for n, k in zip(m.cells, pieces)]
+    if degree != 2:
+        knots, P, w = mapgeom.elevate(knots, P, w, degree)
+    knots, P, w = mapgeom.refine(knots, P, w, per_span, degree)
+    return Map(knots, [degree] * len(knots), P, w), periodic
+
+
+def _built_in(m, cells) -> Map:
+    """The built-in map of config `m` (quadratic) at `cells`."""
+    angle = math.radians(m.angle)
     if m.type == "annulus":
-        angle = math.radians(m.angle)
-        n_angle, n_radial = m.cells
-        return annulus(m.inner_radius, m.outer_radius, angle, n_angle, n_radial, tuple(m.center)), m.angle >= 360.0
+        return annulus(m.inner_radius, m.outer_radius, angle, cells[0], cells[1], tuple(m.center))
     if m.type == "cylinder":
-        return (cylinder(m.inner_radius, m.outer_radius, math.radians(m.angle), m.length, m.cells, m.center),
-                m.angle >= 360.0)
-    if m.type == "shell":
-        return (shell(m.inner_radius, m.outer_radius, math.radians(m.angle), np.radians(m.latitudes), m.cells,
-                      m.center), m.angle >= 360.0)
-    knots, P, w = mapgeom.config_net(m)
-    knots, P, w = mapgeom.refine(knots, P, w, m.refine)
-    return Map(knots, [2] * len(knots), P, w), m.periodic
+        return cylinder(m.inner_radius, m.outer_radius, angle, m.length, cells, m.center)
+    return shell(m.inner_radius, m.outer_radius, angle, np.radians(m.latitudes), cells, m.center)
 
 
 class MappedGrid:
@@ -61,7 +76,8 @@ class MappedGrid:
     def __init__(self, cfg):
         m = cfg.domain.map
         self.cfg = cfg
-        self.map, self.periodic = build_map(m)
+        self.degree = registry.get(cfg.solver.basis).degree
+        self.map, self.periodic = build_map(m, self.degree)
         self.map.periodic = self.periodic
         n0, *rest = self.map.w.shape
         self.dim = self.map.dim

@@ -129,7 +129,7 @@ BUILT_IN = tuple(register(s).name for s in (
     Spec("quadratic", "quadratic B-splines on open knot vectors", _SF + "make_bspline_basis", 2, 3, "bspline",
          knots=True, options=("quadrature",), map=True, fbar_linear_grid=True, accuracy=3),
     Spec("cubic", "cubic B-splines on open knot vectors", _SF + "make_bspline_basis", 3, 4, "bspline",
-         knots=True, options=("quadrature",), fbar_linear_grid=True, accuracy=4),
+         knots=True, options=("quadrature",), map=True, fbar_linear_grid=True, accuracy=4),
     Spec("cpdi", "CPDI1, the linear hats sampled at the corners of each particle's deformed domain", _SF + "make_cpdi",
          1, 3, "bspline", stencil_kind="corners", particle_domains=True, options=("cpdi",),
          stress_difference=_CORNERS_LSD,

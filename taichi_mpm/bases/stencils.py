@@ -20,7 +20,7 @@ contributions (CPDI: once per corner that reaches it); sums over contributions a
   no node without material receives force.
 - cpdi (CPDI1 and CPDI2): the linear grid functions sampled at the corners of each particle's domain, built in
   corners.py.
-- mapped (domain.map): the rational basis R_i at the particle's parametric coordinates, 3 x 3 control points, with
+- mapped (domain.map): the rational basis R_i at the particle's parametric coordinates, (p + 1)^d control points, with
   physical gradients J^-T grad_xi R_i (the grid itself, xi_p and its Newton search are in mapped.py).
 
 Physics code only: no CLI, rendering or file I/O here.

@@ -63,7 +63,7 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                             "the flat ends. shell (3D): a spherical shell between two latitudes; x_min/x_max the "
                             "meridian planes of a sector, y_min/y_max the inner and outer spheres, z_min/z_max the "
                             "cones at the lower and upper latitude"),
-    "domain.map.knots": ("", "the patch's two open quadratic knot vectors (each end 3 times, interior knots at most "
+    "domain.map.knots": ("", "the patch's open quadratic knot vectors, two in 2D, three in 3D (each end 3 times, interior knots at most "
                              "twice); any parameter scale: they are scaled so that a span is a cell"),
     "domain.map.knots.x": ("", "knots of the first parameter (the rows of control_points)"),
     "domain.map.knots.y": ("", "knots of the second parameter (the points within a row)"),
