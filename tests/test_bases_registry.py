@@ -25,7 +25,7 @@ def test_what_the_built_in_bases_declare():
     assert registry.names() == ("linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp")
     assert registry.swept() == ("linear", "gimp", "quadratic", "cubic")   # advise, the GUI switch, the CFL table
     assert registry.names(knots=True) == ("linear", "quadratic", "cubic")
-    assert registry.names(map=True) == ("quadratic",)
+    assert registry.names(map=True) == ("quadratic", "cubic")
     assert registry.names(particle_domains=True) == ("gimp", "cpdi")
     assert registry.names(fbar_linear_grid=True) == ("quadratic", "cubic")
     assert registry.names(crack=None) == ("linear", "gimp", "quadratic", "cubic", "cpdi")
