@@ -181,21 +181,28 @@ class Face(Strict):
     friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
     # type velocity: per axis a number or an expression of t (m/s), null leaves that component free
     velocity: Optional[list[FreeTimeExpr]] = None
+    # type velocity on a mapped grid's face: the face turns about +z through `center` (rad/s, a number or an
+    # expression of t): its nodes get omega e_z x (P_i - center) in x and y, added to `velocity`'s
+    angular_velocity: Optional[TimeExpr] = None
+    center: Optional[Vec] = None
 
     @model_validator(mode="after")
     def _friction_needs_contact(self):
         if self.friction > 0 and self.type not in ("slip", "roller"):
             raise _Located("friction", f"Coulomb friction needs a slip or roller wall, not {self.type}")
-        if self.type == "velocity" and self.velocity is None:
+        if self.type == "velocity" and self.velocity is None and self.angular_velocity is None:
             raise _Located("velocity", "a velocity wall needs `velocity`: one number, expression of t or null "
-                                       "(free) per axis")
-        if self.type != "velocity" and self.velocity is not None:
-            raise _Located("velocity", f"only a wall of type velocity takes `velocity` (this one is {self.type})")
+                                       "(free) per axis (or, on a mapped grid's face, `angular_velocity`)")
+        for key in ("velocity", "angular_velocity", "center"):
+            if self.type != "velocity" and getattr(self, key) is not None:
+                raise _Located(key, f"only a wall of type velocity takes `{key}` (this one is {self.type})")
+        if self.center is not None and self.angular_velocity is None:
+            raise _Located("center", "`center` is the axis of `angular_velocity`: give both")
         return self
 
     @model_serializer(mode="wrap")
     def _short(self, handler):
-        if self.friction == 0 and self.velocity is None:
+        if self.friction == 0 and self.velocity is None and self.angular_velocity is None:
             return self.type
         out = handler(self)
         return {k: v for k, v in out.items() if v is not None and not (k == "friction" and v == 0)}
@@ -788,12 +795,16 @@ class Config(Strict):
         for a in range(self.dim):
             for side in (0, 1):
                 face = FACES[2 * a + side]
-                vel = self.domain.boundaries.velocity(a, side)
-                if vel is None:
-                    continue
+                spec = self.domain.boundaries._get(a, side)
                 named = getattr(self.domain.boundaries, face) is not None
-                fkey = f"domain.boundaries.{face if named else 'default'}.velocity"
-                _need_len(fkey, vel, self.dim)
+                fkey = f"domain.boundaries.{face if named else 'default'}"
+                if spec.velocity is not None:
+                    _need_len(f"{fkey}.velocity", spec.velocity, self.dim)
+                if spec.angular_velocity is not None and self.domain.map is None:
+                    raise _Located(f"{fkey}.angular_velocity", "a turning wall needs a mapped grid's face "
+                                   "(domain.map): the box's faces are flat (use `velocity`)")
+                if spec.center is not None:
+                    _need_len(f"{fkey}.center", spec.center, self.dim)
 
     def _check_crack_combinations(self):
         """Options the crack finder cannot be combined with."""
@@ -994,11 +1005,13 @@ class Config(Strict):
             self._check_annulus_map(m)
         for a in range(self.dim):
             for side in (0, 1):
-                face = FACES[2 * a + side]
-                if self.domain.boundaries.face(a, side) == "velocity":
+                spec = self.domain.boundaries._get(a, side)
+                if spec.type == "velocity" and spec.angular_velocity is not None and m.type == "nurbs" and \
+                        spec.center is None:
+                    face = FACES[2 * a + side]
                     named = getattr(self.domain.boundaries, face) is not None
-                    raise _Located(f"domain.boundaries.{face if named else 'default'}", "walls of a mapped grid are "
-                                   "sticky, slip, roller or free (no velocity walls yet)")
+                    raise _Located(f"domain.boundaries.{face if named else 'default'}.center", "a nurbs map has no "
+                                   "centre of its own: give the axis of angular_velocity as `center`")
 
     def _check_annulus_map(self, m):
         _need_len("domain.map.center", m.center, 2)
@@ -1132,6 +1145,9 @@ class Config(Strict):
                 fkey = f"domain.boundaries.{face if getattr(self.domain.boundaries, face) is not None else 'default'}"
                 for c, v in enumerate(self.domain.boundaries.velocity(a, side) or []):
                     check(f"{fkey}.velocity.{c}", largest_magnitude(v, TIME, t=self._time_samples), "m/s")
+                w = self.domain.boundaries._get(a, side).angular_velocity
+                if w is not None:
+                    check(f"{fkey}.angular_velocity", largest_magnitude(w, TIME, t=self._time_samples), "1/s")
 
     def _check_body_range(self, check, i, b):
         """A body's initial fields (expressions sampled over its box), loads, grips, particle volume and mass."""

@@ -94,12 +94,14 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     not below zero (then the node sticks). A roller pulling a node back from outside the wall (tension) adds no
     friction.
 
-    velocity (moving wall, driven lid; box faces only): `moving = (given, values, work)`: given[2 axis + side] is a
+    velocity (moving wall, driven lid): `moving = (given, values, work, spin)`: given[2 axis + side] is a
     tuple of dim bools (the prescribed components; the others stay free), values a dim-vector field of 2 dim
     entries holding the current wall velocities (set by the solver each step), work the solver's accumulators
     (sums.Slots) whose slot 0 gets the work the wall does on the grid in the measured pass: the impulse
     m (v_after - v_before) times the wall velocity v_after. The face itself does not move: a normal component
-    pushes or pulls material through a fixed plane.
+    pushes or pulls material through a fixed plane. spin (mapped grids, or None): (a field of 2 dim angular
+    velocities, per face slot the point its axis +z passes through or None): a turning face's control point P_i
+    gets omega e_z x (P_i - point) in x and y on top of the given velocity (a cylinder or sphere turning in place).
     """
 
     on_box = mapped is None
@@ -108,7 +110,9 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
     codes = [(kind[lo], kind[hi]) for lo, hi in faces]
     mus = [(float(lo), float(hi)) for lo, hi in (friction or [(0.0, 0.0)] * dim)]
     measuring = reaction is not None
-    given, wall_v, work = moving if moving is not None else ([(False,) * dim] * (2 * dim), None, None)
+    given, wall_v, work, spin = moving if moving is not None else ([(False,) * dim] * (2 * dim), None, None, None)
+    wall_w, axes_at = spin if spin is not None else (None, [None] * (2 * dim))
+    turning = [a is not None for a in axes_at]
     # box faces: outward normals -e_a (lower) and +e_a (upper), constants of the kernel
     box_normal = [[(-1.0 if slot % 2 == 0 else 1.0) * (c == slot // 2) for c in range(dim)] for slot in range(2 * dim)]
     normal, periodic, last = (None, False, None) if on_box else (mapped.normal, mapped.periodic,
@@ -128,11 +132,16 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
         return v
 
     @ti.func
-    def prescribed(v, slot: ti.template()):
-        """Velocity wall: the given components take the wall's current velocity."""
+    def prescribed(I, v, slot: ti.template()):
+        """Velocity wall: the given components take the wall's current velocity; a turning face (mapped grids)
+        adds omega e_z x (P_i - axis point) at its control point P_i."""
         for c in ti.static(range(dim)):
             if ti.static(given[slot][c]):
                 v[c] = wall_v[slot][c]
+        if ti.static(turning[slot]):
+            r = mapped.map.ctrl[I] - ti.Vector(axes_at[slot], dt=float)
+            v[0] -= wall_w[slot] * r[1]
+            v[1] += wall_w[slot] * r[0]
         return v
 
     @ti.func
@@ -148,7 +157,7 @@ def make_wall_condition(dim: int, n_cells: list[int], faces: list[tuple[str, str
             else:
                 v = contact(v, normal[I, slot], code, mus[a][side])
         elif ti.static(code == 4):
-            v = prescribed(v, slot)
+            v = prescribed(I, v, slot)
         if ti.static(measure and measuring):
             reaction[slot] += m * (v - before)
         if ti.static(measure and code == 4):

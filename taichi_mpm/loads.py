@@ -45,14 +45,22 @@ class Loads:
         self.grips = [(grip, *_vector(grip.velocity, f"{grip.key}.velocity", cfg.dim)) for grip in scene.grips]
         walls = cfg.domain.boundaries
         self.walls = []  # (slot, given, values) of each velocity face
+        self.spins = {}  # slot -> (angular velocity, axis point) of each turning face (mapped grids)
         for a in range(cfg.dim):
             for side in (0, 1):
-                spec = walls.velocity(a, side)
-                if spec is not None:
-                    face = FACES[2 * a + side]
-                    named = getattr(walls, face) is not None
-                    key = f"domain.boundaries.{face if named else 'default'}.velocity"
-                    self.walls.append((2 * a + side, *_vector(spec, key, cfg.dim)))
+                face = walls._get(a, side)
+                if face.type != "velocity":
+                    continue
+                name = FACES[2 * a + side]
+                key = f"domain.boundaries.{name if getattr(walls, name) is not None else 'default'}"
+                given, values = _vector(face.velocity or [None] * cfg.dim, f"{key}.velocity", cfg.dim)
+                if face.angular_velocity is not None:
+                    # the config requires a mapped grid here, and `center` where the map has none (nurbs)
+                    centre = face.center if face.center is not None else getattr(cfg.domain.map, "center")
+                    self.spins[2 * a + side] = (_TimeValue(face.angular_velocity, f"{key}.angular_velocity"),
+                                                tuple(float(c) for c in centre))
+                    given = (True, True) + given[2:]        # the turn sets x and y
+                self.walls.append((2 * a + side, given, values))
 
     # ------------------------------------------------------------------ tractions
     @property
@@ -96,7 +104,20 @@ class Loads:
             out[slot] = [v(t) if v is not None else 0.0 for v in values]
         return out
 
+    def wall_spins(self, t: float) -> np.ndarray:
+        """(2 d,) angular velocities of the turning faces at time t (zero for the others)."""
+        out = np.zeros(2 * self.dim)
+        for slot, (w, _) in self.spins.items():
+            out[slot] = w(t)
+        return out
+
+    def wall_axes(self) -> list:
+        """Per face slot, the point the turning face turns about (its axis is +z), or None."""
+        return [self.spins[slot][1] if slot in self.spins else None for slot in range(2 * self.dim)]
+
     @property
     def motion_constant(self) -> bool:
         """Whether grip and wall velocities never change (then they are uploaded once)."""
-        return all(v is None or v.constant for _, _, vals in self.grips + self.walls for v in vals)
+        spins = [w for w, _ in self.spins.values()]
+        return all(v is None or v.constant for _, _, vals in self.grips + self.walls for v in vals) and \
+            all(w.constant for w in spins)

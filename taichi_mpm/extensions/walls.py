@@ -17,7 +17,7 @@ from ..step.moments import Extension, GridSolve
 
 def has_velocity_walls(cfg) -> bool:
     walls = cfg.domain.boundaries
-    return any(walls.velocity(a, side) is not None for a in range(cfg.dim) for side in (0, 1))
+    return any(walls.face(a, side) == "velocity" for a in range(cfg.dim) for side in (0, 1))
 
 
 def has_wall_probes(cfg) -> bool:
@@ -44,6 +44,7 @@ class Walls(Extension):
         if not self.moving:
             self.work_term = ""
         self.wall_v = ti.Vector.field(d, float, 2 * d) if self.moving else None
+        self.wall_w = ti.field(float, 2 * d) if self.loads.spins else None   # turning faces' angular velocities
         # impulse per face (x_min, x_max, y_min, ...), summed by the grid update; only for wall probes
         self.reaction = ti.Vector.field(d, ti.f64, 2 * d) if has_wall_probes(cfg) else None
         self._setup = setup
@@ -53,7 +54,8 @@ class Walls(Extension):
         s, walls, d = self._setup, self._setup.cfg.domain.boundaries, self.dim
         faces = [(walls.face(a, 0), walls.face(a, 1)) for a in range(d)]
         friction = [(walls.friction(a, 0), walls.friction(a, 1)) for a in range(d)]
-        moving = (self.loads.wall_given(), self.wall_v, s.work) if self.moving else None
+        spin = (self.wall_w, self.loads.wall_axes()) if self.wall_w is not None else None
+        moving = (self.loads.wall_given(), self.wall_v, s.work, spin) if self.moving else None
         # a mapped grid's walls act on its parameter faces, along their normals
         ctx.wall = make_wall_condition(d, s.n_cells, faces, s.basis, friction, self.reaction, moving, s.mapped)
         ctx.grid_solve.append(GridSolve(condition=self._condition(ctx.wall)))
@@ -71,15 +73,18 @@ class Walls(Extension):
         return condition
 
     def _values_kernel(self):
-        wall_v, d = self.wall_v, self.dim
+        wall_v, wall_w, d = self.wall_v, self.wall_w, self.dim
+        turning = wall_w is not None
 
         @ti.kernel
-        def set_values(values: ti.types.matrix(2 * d, d, float)):
-            """This step's velocities of the velocity faces (per face slot)."""
+        def set_values(values: ti.types.matrix(2 * d, d, float), spins: ti.types.vector(2 * d, float)):
+            """This step's velocities of the velocity faces (per face slot) and of the turning faces' spins."""
             for _ in range(1):
                 for slot in ti.static(range(2 * d)):
                     for c in ti.static(range(d)):
                         wall_v[slot][c] = values[slot, c]
+                    if ti.static(turning):
+                        wall_w[slot] = spins[slot]
         return set_values
 
     def upload(self):
@@ -93,7 +98,8 @@ class Walls(Extension):
         if not self.moving or (self._values_time is not None and self.loads.motion_constant):
             return
         t_mid = t + 0.5 * dt
-        self._set_values(ti.Matrix(self.loads.wall_velocities(t_mid).tolist()))
+        self._set_values(ti.Matrix(self.loads.wall_velocities(t_mid).tolist()),
+                         ti.Vector(self.loads.wall_spins(t_mid).tolist()))
         self._values_time = t_mid
 
     def impulse(self, reset: bool = True) -> np.ndarray:

@@ -41,6 +41,14 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "domain.boundaries.default.velocity": ("m/s", "velocity wall: per axis a number, an expression of t "
                                                   "(docs/loads.md) or null (that component free); the face itself "
                                                   "stays in place"),
+    "domain.boundaries.default.angular_velocity": ("1/s", "velocity wall on a mapped grid's face (domain.map): "
+                                                          "the face turns about +z through `center` (a number or "
+                                                          "an expression of t): each control point P of the face "
+                                                          "gets omega e_z x (P - center) in x and y, plus "
+                                                          "`velocity` where given (a turning cylinder or sphere; "
+                                                          "docs/isogeometric.md)"),
+    "domain.boundaries.default.center": ("m", "the point the turning face's axis (+z) passes through; default the "
+                                              "map's center (a nurbs map has none: give it)"),
     "domain.boundaries.default.friction": ("1", "Coulomb friction coefficient mu (slip and roller walls): the "
                                                 "tangential velocity drops by mu times the normal velocity removed"),
     **{f"domain.boundaries.{f}": ("", f"wall at the {'lower' if f.endswith('min') else 'upper'} {f[0]} face; null "
