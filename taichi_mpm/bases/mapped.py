@@ -10,14 +10,16 @@ found again by Newton's method on x(xi) = x_p from the old xi_p (`locate`); a pa
 region or whose iteration fails stops the run (InstabilityError, cause "particle left the mapped grid"). The
 stencil itself is built in stencils.py (kind `mapped`); this module holds the grid, xi_p and `locate`.
 
-The map is the built-in annulus or a `nurbs` patch given as data (`build_map`; host geometry in mapgeom.py). A
-full ring (or a `periodic` patch) wraps in its first parameter: its last control-point column coincides with the
-first and is stored as that same node (the seam is a C0 joint, like the rational pieces' double knots).
+The map is 2D or 3D: the built-in annulus, cylinder or shell, or a `nurbs` patch (or several joined along x) given
+as data (`build_map`; host geometry in mapgeom.py); with solver.basis cubic its net is raised to degree 3 before
+it is refined. A full turn (or a `periodic` patch) wraps in its first parameter: its last control-point layer
+coincides with the first and is stored as that same node (the seam is a C0 joint, like the rational pieces').
 
 Walls (grid.make_wall_condition) act on the control points of the parameter faces along their outward normals
-(`normal`, from mapgeom.face_normals; on a circle radial, so a slip or roller circle gives every node an impulse
-through the centre and no torque): sticky v = 0, slip: no outward normal velocity, roller: no normal velocity,
-Coulomb friction on slip and roller faces. Bodies are given in physical space.
+(`normal`, from mapgeom.face_normals; on a circle, cylinder or sphere radial, so a slip or roller wall gives every
+node an impulse through the axis or centre and no torque): sticky v = 0, slip: no outward normal velocity, roller:
+no normal velocity, Coulomb friction on slip and roller faces, velocity walls (which may turn about +z). Bodies
+are given in physical space.
 Physics code only: no CLI, rendering or file I/O here.
 """
 
