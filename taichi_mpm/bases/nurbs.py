@@ -105,33 +105,34 @@ class Map:
             return I
 
         @ti.func
-        def product(N, dN, I, a: ti.template()):
-            """prod_c N_c(I_c), with the derivative in place of axis a's factor (a = -1: none), in axis order."""
+        def product(N: ti.template(), dN: ti.template(), I: ti.template(), a: ti.template()):
+            """prod_c N_c(I_c), with the derivative in place of axis a's factor (a = -1: none), in axis order. I: a
+            tuple of ints (unrolled: the matrices are indexed at compile time) or a run-time index vector."""
             v = dN[0, I[0]] if ti.static(a == 0) else N[0, I[0]]
             for c in ti.static(range(1, D)):
                 v *= dN[c, I[c]] if ti.static(a == c) else N[c, I[c]]
             return v
 
-        # A 2D point's 9 functions are unrolled (kept in registers); 3D's 27 run as a loop: unrolled, each with
-        # d + 1 products, they made Newton's inversion (which evaluates them per iteration) take a minute to
-        # compile. The sums keep the same order either way.
+        # A 2D point's 9 functions are unrolled (kept in registers, indexed at compile time); 3D's 27 run as a
+        # loop: unrolled, each with d + 1 products, they made Newton's inversion (which evaluates them per
+        # iteration) take a minute to compile. The sums keep the same order either way.
         unrolled = K <= UNROLL_TERMS
+        offsets = [ti.Vector(list(t)) for t in terms]     # compile-time constants of the unrolled terms
 
         @ti.func
-        def weight_term(N, dN, b, k):
-            """w_k prod N and its parameter derivatives, for W = sum_k N_k w_k and dW/dxi."""
-            I = term(k)
-            wI = w_field()[b + I]
+        def weight_term(N: ti.template(), dN: ti.template(), b, I: ti.template(), off: ti.template()):
+            """w_k prod N and its parameter derivatives, for W = sum_k N_k w_k and dW/dxi (I: the term's
+            multi-index, off: it as a vector)."""
+            wI = w_field()[b + off]
             sd = ti.Vector.zero(float, D)
             for a in ti.static(range(D)):
                 sd[a] = product(N, dN, I, a) * wI
             return product(N, dN, I, -1) * wI, sd
 
         @ti.func
-        def basis_term(N, dN, b, k, W, Wd):
+        def basis_term(N: ti.template(), dN: ti.template(), b, I: ti.template(), off: ti.template(), W, Wd):
             """R_k and dR_k/dxi by the quotient rule."""
-            I = term(k)
-            wI = w_field()[b + I] / W
+            wI = w_field()[b + off] / W
             r = product(N, dN, I, -1) * wI
             g = ti.Vector.zero(float, D)
             for a in ti.static(range(D)):
@@ -158,38 +159,45 @@ class Map:
             R = ti.Vector.zero(float, K)
             G = ti.Matrix.zero(float, K, D)
             if ti.static(unrolled):
+                w = ti.static(this.weight)
                 for k in ti.static(range(K)):
-                    s, sd = weight_term(N, dN, b, k)
-                    W += s
-                    Wd += sd
-                for k in ti.static(range(K)):
-                    R[k], g = basis_term(N, dN, b, k, W, Wd)
+                    I = ti.static(terms[k])
+                    wI = w[b + ti.static(offsets)[k]]
+                    W += product(N, dN, I, -1) * wI
                     for a in ti.static(range(D)):
-                        G[k, a] = g[a]
+                        Wd[a] += product(N, dN, I, a) * wI
+                for k in ti.static(range(K)):
+                    I = ti.static(terms[k])
+                    wI = w[b + ti.static(offsets)[k]] / W
+                    R[k] = product(N, dN, I, -1) * wI
+                    for a in ti.static(range(D)):
+                        G[k, a] = product(N, dN, I, a) * wI - R[k] * Wd[a] / W
             else:
                 for k in range(K):
-                    s, sd = weight_term(N, dN, b, k)
+                    off = term(k)
+                    s, sd = weight_term(N, dN, b, off, off)
                     W += s
                     Wd += sd
                 for k in range(K):
-                    R[k], g = basis_term(N, dN, b, k, W, Wd)
+                    off = term(k)
+                    R[k], g = basis_term(N, dN, b, off, off, W, Wd)
                     for a in ti.static(range(D)):
                         G[k, a] = g[a]
             return b, R, G
 
-        self.terms = terms
+        self.terms, self.offsets = terms, offsets
         self.term, self.rational = term, rational
         self.jacobian, self.point = self._build_point(K, unrolled)
         self.invert = self._build_invert()
 
     def _build_point(self, K, unrolled):
         """The funcs jacobian(b, G) and point(xi) -> (x, J)."""
-        D, term, rational, this = self.dim, self.term, self.rational, self
+        D, term, rational, this, offsets = self.dim, self.term, self.rational, self, self.offsets
 
         @ti.func
-        def jacobian_term(b, G, k):
-            """P_k (x) dR_k/dxi."""
-            Pk = ti.static(this.ctrl)[b + term(k)]
+        def jacobian_term(b, G, k: ti.template(), off: ti.template()):
+            """P_k (x) dR_k/dxi (k: an int when unrolled, off: the term's index vector)."""
+            Pk = ti.static(this.ctrl)[b + off]
             J = ti.Matrix.zero(float, D, D)
             for c in ti.static(range(D)):
                 for a in ti.static(range(D)):
@@ -201,11 +209,15 @@ class Map:
             """J = dx/dxi = sum_k P_k (x) dR_k/dxi (columns: the parameter directions)."""
             J = ti.Matrix.zero(float, D, D)
             if ti.static(unrolled):
+                P = ti.static(this.ctrl)
                 for k in ti.static(range(K)):
-                    J += jacobian_term(b, G, k)
+                    Pk = P[b + ti.static(offsets)[k]]
+                    for c in ti.static(range(D)):
+                        for a in ti.static(range(D)):
+                            J[c, a] += G[k, a] * Pk[c]
             else:
                 for k in range(K):
-                    J += jacobian_term(b, G, k)
+                    J += jacobian_term(b, G, k, term(k))
             return J
 
         @ti.func
@@ -216,7 +228,7 @@ class Map:
             x = ti.Vector.zero(float, D)
             if ti.static(unrolled):
                 for k in ti.static(range(K)):
-                    x += R[k] * P[b + term(k)]
+                    x += R[k] * P[b + ti.static(offsets)[k]]
             else:
                 for k in range(K):
                     x += R[k] * P[b + term(k)]

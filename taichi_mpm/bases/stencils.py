@@ -333,7 +333,7 @@ def _mapped_stencil(ctx: KernelContext) -> Stencil:
         D = ti.Matrix.zero(float, d, d)
         if ti.static(count <= UNROLL_TERMS):
             for k in ti.static(range(count)):
-                r = ctrl[b + mp.term(k)] - xp
+                r = ctrl[b + ti.static(mp.offsets)[k]] - xp
                 D += R[k] * r.outer_product(r)
         else:
             for k in range(count):
