@@ -176,25 +176,25 @@ def map_size(cfg: Config) -> MapSize | None:
         angle, (n_angle, n_radial) = math.radians(m.angle), m.cells
         h_min = min(m.inner_radius * 2 * math.sin(0.5 * angle / n_angle), (m.outer_radius - m.inner_radius) / n_radial)
     elif m.type in ("cylinder", "shell"):
-        ctrl, cells = mapgeom.solid_shape(m.type, m.angle, m.cells, np.ptp(m.latitudes) if m.type == "shell" else 0.0,
-                                          degree)
+        ctrl, cells = mapgeom.solid_map_shape(m, degree)
         periodic, key = m.angle >= 360.0, "domain.map.cells"
         h_min = mapgeom.solid_map_cell_sizes(m)[0]
     else:
-        ctrl, cells = mapgeom.refined_shape(mapgeom.config_net(m)[0], m.refine, degree)
+        net = mapgeom.config_net(m)
+        ctrl, cells = mapgeom.refined_shape(net[0], m.refine, degree)
         periodic, key = m.periodic, "domain.map.refine"
-        h_min = _nurbs_h_min(m, cells)
+        h_min = _nurbs_h_min(m, net, cells)
     shape = [ctrl[0] - 1 if periodic else ctrl[0]] + list(ctrl[1:])
     return MapSize(ctrl=ctrl, cells=cells, shape=shape, h_min=h_min, key=key, degree=degree)
 
 
-def _nurbs_h_min(m, cells) -> float:
+def _nurbs_h_min(m, net, cells) -> float:
     """The smallest refined cell edge (MappedGrid's h_min) on the given net: the chords between the refined
     corners (the same points: refinement does not change the map) up to EXACT_CORNERS of them; beyond, cells
     are so fine that a chord is |dx/dxi| x its parameter width, sampled at FOLD_SAMPLES points per axis."""
     from .config import FOLD_SAMPLES
 
-    given, P, w = mapgeom.config_net(m)
+    given, P, w = net
     d = len(given)
     knots = [mapgeom.scaled_knots(t, n) for t, n in zip(given, cells)]
     if math.prod(n + 1 for n in cells) <= EXACT_CORNERS:

@@ -1016,9 +1016,10 @@ class Config(Strict):
     def _check_annulus_map(self, m):
         _need_len("domain.map.center", m.center, 2)
         _need_len("domain.map.cells", m.cells, 2)
+        from .bases import mapgeom
         if m.outer_radius <= m.inner_radius:
             raise _Located("domain.map.outer_radius", "must exceed inner_radius")
-        pieces = max(1, math.ceil(m.angle / 90.0 - 1e-9))
+        pieces = mapgeom.arc_pieces(m.angle)
         if m.cells[0] % pieces:
             raise _Located("domain.map.cells", f"an annulus of {m.angle:g} degrees is {pieces} rational pieces: "
                                                f"the cells along the angle must be a multiple of {pieces}")
@@ -1041,12 +1042,11 @@ class Config(Strict):
                 raise _Located("domain.map.latitudes", "the upper latitude must exceed the lower")
             arcs.append(("the latitude", m.latitudes[1] - m.latitudes[0], 2))
         for what, degrees, a in arcs:
-            pieces = max(1, math.ceil(degrees / 90.0 - 1e-9))
+            pieces = mapgeom.arc_pieces(degrees)
             if m.cells[a] % pieces:
                 raise _Located("domain.map.cells", f"an arc of {degrees:g} degrees is {pieces} rational pieces: "
                                                    f"the cells along {what} must be a multiple of {pieces}")
-        ctrl = mapgeom.solid_shape(m.type, m.angle, m.cells, np.ptp(m.latitudes) if m.type == "shell" else 0.0,
-                                   bases.get(self.solver.basis).degree)[0]
+        ctrl = mapgeom.solid_map_shape(m, bases.get(self.solver.basis).degree)[0]
         if math.prod(ctrl) > MAX_INDEX:
             raise _Located("domain.map.cells", f"{math.prod(ctrl)} control points: more than Taichi can index")
         r, c = m.outer_radius, m.center

@@ -566,10 +566,9 @@ def _inside_map(cfg, bi, pts):
     m = cfg.domain.map
     if m is None or not len(pts):
         return
-    c = np.asarray(m.center if m.type != "nurbs" else [0.0, 0.0], float)
     if m.type != "nurbs":
         tol = 1e-9 * m.outer_radius
-        rel = pts - c
+        rel = pts - np.asarray(m.center, float)
         r = np.linalg.norm(rel if m.type == "shell" else rel[:, :2], axis=1)
         angle = np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) % 360.0
         out = (r < m.inner_radius - tol) | (r > m.outer_radius + tol)

@@ -131,6 +131,11 @@ def refined_shape(knots, per_span, degree: int = 2) -> tuple[list[int], list[int
     return ctrl, cells
 
 
+def arc_pieces(degrees: float) -> int:
+    """Rational pieces of an arc of `degrees`: one per at most a quarter turn."""
+    return max(1, math.ceil(degrees / 90.0 - 1e-9))
+
+
 def arc(angle: float, n_cells: int):
     """A unit-radius circular arc from angle 0 to `angle` (<= 2 pi) as a quadratic NURBS on parameters
     [0, n_cells]: one rational Bezier piece (weights 1, cos(d/2), 1) per at most a quarter turn, joined by
@@ -212,14 +217,17 @@ def shell_net(r_inner, r_outer, angle, latitudes, cells, centre):
     return [t0, t1, t2], P, w
 
 
-def arc_chords(angle: float, n_cells: int, per_cell: int = 1) -> np.ndarray:
+def knot_points(t, Q, w) -> np.ndarray:
+    """The points of a quadratic rational curve (knots t, control points Q, weights w) at its distinct knots:
+    its cells' corners."""
+    N = bspline_values(t, 2, np.unique(t)) * w[None, :]
+    return (N @ Q) / N.sum(axis=1, keepdims=True)
+
+
+def arc_chords(angle: float, n_cells: int) -> np.ndarray:
     """Chords between neighbouring knot points of the unit `arc` (its cells' edges, the rational pieces'
     uneven split included)."""
-    t, Q, w = arc(angle, n_cells)
-    u = np.unique(t)
-    N = bspline_values(t, 2, u) * w[None, :]
-    pts = (N @ Q) / N.sum(axis=1, keepdims=True)
-    return np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    return np.linalg.norm(np.diff(knot_points(*arc(angle, n_cells)), axis=0), axis=1)
 
 
 def solid_cell_sizes(kind: str, r_inner, r_outer, angle, cells, length=None, latitudes=None):
@@ -231,11 +239,9 @@ def solid_cell_sizes(kind: str, r_inner, r_outer, angle, cells, length=None, lat
     if kind == "cylinder":
         sizes = [r_inner * ring.min(), r_outer * ring.max(), radial, length / n_axial]
         return min(sizes), max(sizes)
-    t, M, wm = meridian(latitudes, n_axial)
-    u = np.unique(t)
-    N = bspline_values(t, 2, u) * wm[None, :]
-    rho = (N @ M)[:, 0] / N.sum(axis=1)                  # distance from the axis of each latitude corner
-    along = np.linalg.norm(np.diff((N @ M) / N.sum(axis=1, keepdims=True), axis=0), axis=1)
+    corners = knot_points(*meridian(latitudes, n_axial))
+    rho = corners[:, 0]                                  # distance from the axis of each latitude corner
+    along = np.linalg.norm(np.diff(corners, axis=0), axis=1)
     lo = min(r_inner * rho.min() * ring.min(), r_inner * along.min(), radial)
     hi = max(r_outer * rho.max() * ring.max(), r_outer * along.max(), radial)
     return lo, hi
@@ -248,6 +254,11 @@ def solid_map_cell_sizes(m):
                             latitudes=np.radians(m.latitudes) if m.type == "shell" else None)
 
 
+def solid_map_shape(m, degree: int = 2) -> tuple[list[int], list[int]]:
+    """(control points, cells) per axis of a `cylinder` or `shell` domain.map config (solid_shape)."""
+    return solid_shape(m.type, m.angle, m.cells, float(np.ptp(m.latitudes)) if m.type == "shell" else 0.0, degree)
+
+
 def solid_shape(kind: str, angle_deg: float, cells, span_deg: float = 0.0,
                 degree: int = 2) -> tuple[list[int], list[int]]:
     """(control points, cells) per axis of the built-in cylinder or shell from its config alone: the annulus'
@@ -255,7 +266,7 @@ def solid_shape(kind: str, angle_deg: float, cells, span_deg: float = 0.0,
     ctrl, cells2 = annulus_shape(angle_deg, cells[:2], degree)
     if kind == "cylinder":
         return ctrl + [int(cells[2]) + degree], cells2 + [int(cells[2])]
-    pieces = max(1, int(np.ceil(span_deg / 90.0 - 1e-9)))
+    pieces = arc_pieces(span_deg)
     return ctrl + [int(cells[2]) + (degree - 1) * pieces + 1], cells2 + [int(cells[2])]
 
 
@@ -323,7 +334,7 @@ def annulus_shape(angle_deg: float, cells, degree: int = 2) -> tuple[list[int], 
     is one rational piece per quarter turn (joined by knots of multiplicity p), n_angle + (p - 1) pieces + 1
     control points; the radius n_radial + p (a full ring stores its seam column once: one fewer along the
     angle)."""
-    pieces = max(1, int(np.ceil(angle_deg / 90.0 - 1e-9)))
+    pieces = arc_pieces(angle_deg)
     n_angle, n_radial = (int(c) for c in cells)
     return [n_angle + (degree - 1) * pieces + 1, n_radial + degree], [n_angle, n_radial]
 
@@ -515,13 +526,14 @@ def _face_normals_3d(knots, degrees, P, w, periodic=False) -> np.ndarray:
         top = np.array([hi[a] for a in along])
 
         def point(s):
+            """x and the full J at face parameters s."""
             xi = np.empty((len(s), 3))
             xi[:, along[0]], xi[:, along[1]], xi[:, axis] = s[:, 0], s[:, 1], at
-            x, J = surface(knots, degrees, P, w, xi)
-            return x, J[:, :, along]
+            return surface(knots, degrees, P, w, xi)
 
         for _ in range(60):
-            x, T = point(s)
+            x, J = point(s)
+            T = J[:, :, along]
             f = np.einsum("mc,mck->mk", x - nodes, T)
             H = np.einsum("mck,mcl->mkl", T, T)
             for l in range(2):
@@ -529,19 +541,16 @@ def _face_normals_3d(knots, degrees, P, w, periodic=False) -> np.ndarray:
                 e = np.zeros(2)
                 e[l] = h
                 up, dn = np.minimum(s + e, top), np.maximum(s - e, 0.0)
-                dT = (point(up)[1] - point(dn)[1]) / (up[:, l] - dn[:, l])[:, None, None]
+                dT = (point(up)[1][:, :, along] - point(dn)[1][:, :, along]) / (up[:, l] - dn[:, l])[:, None, None]
                 H[:, :, l] += np.einsum("mc,mck->mk", x - nodes, dT)
             step = np.linalg.solve(H, f[..., None])[..., 0]
             s = np.clip(s - step, 0.0, top)
             if np.abs(step).max() < 1e-15 * top.max():
                 break
-        _, T = point(s)
-        n = np.cross(T[:, :, 0], T[:, :, 1])
+        _, J = point(s)
+        n = np.cross(J[:, :, along[0]], J[:, :, along[1]])
         n /= np.linalg.norm(n, axis=-1, keepdims=True)
-        xi = np.empty((len(s), 3))
-        xi[:, along[0]], xi[:, along[1]], xi[:, axis] = s[:, 0], s[:, 1], at
-        across = surface(knots, degrees, P, w, xi)[1][:, :, axis]
-        n *= np.sign((n * across).sum(-1) * (1.0 if k % 2 else -1.0))[:, None]
+        n *= np.sign((n * J[:, :, axis]).sum(-1) * (1.0 if k % 2 else -1.0))[:, None]
         index = [slice(None)] * 3
         index[axis] = 0 if k % 2 == 0 else -1
         out[tuple(index) + (k,)] = n.reshape(out[tuple(index) + (k,)].shape)

@@ -49,9 +49,9 @@ def build_map(m, degree: int = 2):
         knots, P, w = mapgeom.config_net(m)
         per_span = m.refine
     else:
-        pieces = [max(1, math.ceil(m.angle / 90.0 - 1e-9)), 1]
+        pieces = [mapgeom.arc_pieces(m.angle), 1]
         if m.type != "annulus":
-            pieces.append(max(1, math.ceil(np.ptp(m.latitudes) / 90.0 - 1e-9)) if m.type == "shell" else 1)
+            pieces.append(mapgeom.arc_pieces(np.ptp(m.latitudes)) if m.type == "shell" else 1)
         coarse = _built_in(m, pieces)
         knots, P, w = coarse.knots, coarse.P, coarse.w
         per_span = [n // k for n, k in zip(m.cells, pieces)]

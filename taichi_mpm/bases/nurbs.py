@@ -21,7 +21,8 @@ import numpy as np
 import taichi as ti
 
 from .shape_functions import make_knot_bspline
-from .mapgeom import arc, bspline_values, cartesian, cylinder_net, homogeneous, insert_knot, shell_net, surface  # noqa: F401 (re-exported)
+from .mapgeom import (arc, bspline_values, cartesian, cylinder_net, homogeneous, insert_knot, radii,  # noqa: F401
+                      shell_net, surface)                                                   # (re-exported)
 
 
 def annulus(r_inner: float, r_outer: float, angle: float, n_angle: int, n_radial: int, centre=(0.0, 0.0)):
@@ -30,9 +31,7 @@ def annulus(r_inner: float, r_outer: float, angle: float, n_angle: int, n_radial
     r(eta) = r_inner + (r_outer - r_inner) eta / n_radial: the radial control points sit at the Greville
     abscissae of the open uniform knot vector, where linear functions are reproduced. Returns a `Map`."""
     t0, Q, wq = arc(angle, n_angle)
-    t1 = np.array([0.0] * 3 + [float(k) for k in range(1, n_radial)] + [float(n_radial)] * 3)
-    g = np.array([t1[j + 1: j + 3].mean() for j in range(len(t1) - 3)])
-    r = r_inner + (r_outer - r_inner) * g / n_radial
+    t1, r = radii(r_inner, r_outer, n_radial)
     P = Q[:, None, :] * r[None, :, None] + np.asarray(centre, float)
     w = np.repeat(wq[:, None], len(r), axis=1)
     return Map([t0, t1], [2, 2], P, w)
