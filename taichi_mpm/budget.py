@@ -240,9 +240,10 @@ def sparse_levels(nodes: list[int]) -> dict:
 
 def _active_blocks(cfg: Config, layout: dict, base_dir) -> tuple[int, int]:
     """(leaf blocks, top pointer slots) the bodies' stencils touch, each body's bounding box grown by a stencil."""
-    d, dx, leaf = cfg.dim, cfg.domain.dx, layout["leaf"]
+    d, leaf, per_cell = cfg.dim, layout["leaf"], bases.get(cfg.solver.basis).nodes_per_cell
+    dx = cfg.domain.dx / per_cell   # the storage nodes' spacing (ck: half a cell)
     lower = np.asarray(cfg.domain.lower, float)
-    reach = layout["stencil"]
+    reach = layout["stencil"] - (per_cell - 1)   # ck: its window of 4 storage nodes spans 3 half cells
     leaves = tops = 0
     for i, b in enumerate(cfg.bodies):
         lo, hi = shape_bounds(b.shape, d, base_dir, f"bodies.{i}.shape")

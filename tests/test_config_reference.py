@@ -31,7 +31,7 @@ def test_every_key_has_a_description():
 def test_rows_follow_the_schema():
     rows = {r[0]: r for r in ref.walk()}
     assert rows["solver.cfl"][1:4] == ("number", "0.4", "> 0")
-    assert rows["solver.basis"][3] == r"linear \| gimp \| quadratic \| cubic \| cpdi \| ddmp"
+    assert rows["solver.basis"][3] == r"linear \| gimp \| quadratic \| cubic \| cpdi \| ddmp \| ck"
     assert rows["solver.dt"][1:3] == ("number or null", "null")
     assert rows["domain.dx"][2] == "required"
     assert rows["domain.boundaries.default"][2] == "slip"

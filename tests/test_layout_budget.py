@@ -216,6 +216,7 @@ CASES = {
     "2d cpdi mixed spacing": lambda: _two_bodies(make_cfg(2, basis="cpdi", dx=0.05)),
     "3d cpdi2 f32": lambda: make_cfg(3, basis="cpdi", precision="f32", dx=0.1, cpdi=dict(variant="cpdi2")),
     "2d ddmp sparse": lambda: make_cfg(2, basis="ddmp", dx=0.05),
+    "3d ck sparse f32": lambda: make_cfg(3, basis="ck", precision="f32", dx=0.1),
     "2d ddmp dense": lambda: _dense(make_cfg(2, basis="ddmp", dx=0.05)),
     "2d fbar quadratic": lambda: make_cfg(2, volumetric="fbar", dx=0.05),
     "2d fbar linear dense": lambda: _dense(make_cfg(2, basis="linear", volumetric="fbar", dx=0.05)),
@@ -284,7 +285,8 @@ def test_the_fixed_fields_are_few_and_small():
 
 
 @pytest.mark.parametrize("case", fast_subset(["2d apic f64", "3d gimp mixed spacing, two materials",
-                                              "2d fbar quadratic"], ["2d apic f64", "2d fbar quadratic"]))
+                                              "2d fbar quadratic", "3d ck sparse f32"],
+                                             ["2d apic f64", "2d fbar quadratic", "3d ck sparse f32"]))
 def test_active_blocks_within_the_estimate(case):
     """After a step, the leaf blocks each sparse grid has active (counted by a struct-for over its pointer level)
     are at most the estimate's and at least a quarter of it: the bodies' boxes grown by a whole stencil each side

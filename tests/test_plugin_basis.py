@@ -84,7 +84,7 @@ def test_partition_of_unity_and_linear_reproduction(hat):
 def test_config_takes_its_name_and_its_declared_limits(hat):
     assert tm.load_config(block(NAME)).solver.basis == NAME
     rows = {r[0]: r for r in ref.walk()}
-    assert rows["solver.basis"][3].endswith(r"cpdi \| ddmp \| hat_test")     # the config reference lists it
+    assert rows["solver.basis"][3].endswith(r"cpdi \| ddmp \| ck \| hat_test")     # the config reference lists it
     with pytest.raises(tm.ConfigError, match=r"basis hat_test is defined in 1D or 2D only \(the scene is 3D\)"):
         tm.load_config(make_cfg(3, basis=NAME))
     knots = block(NAME)
@@ -139,7 +139,7 @@ def test_advise_and_compare_list_it(hat, tmp_path):
 
 def test_unregistered_afterwards():
     assert NAME not in registry.names()
-    with pytest.raises(tm.ConfigError, match=r"must be 'linear', 'gimp', 'quadratic', 'cubic', 'cpdi' or 'ddmp' "
+    with pytest.raises(tm.ConfigError, match=r"must be 'linear', 'gimp', 'quadratic', 'cubic', 'cpdi', 'ddmp' or 'ck' "
                                              r"\(got 'hat_test'\)"):
         tm.load_config(block(NAME))
     with pytest.raises(ValueError, match="built in"):

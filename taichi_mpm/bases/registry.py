@@ -11,8 +11,8 @@ import importlib
 from dataclasses import dataclass
 from typing import Callable, Optional, Union
 
-GRIDS = ("bspline", "ghost")     # the node layouts of shape_functions.py (see Spec.grid)
-STENCIL_KINDS = ("tensor", "corners")   # how stencils.make_stencil builds a particle's contributions
+GRIDS = ("bspline", "ghost", "staggered")     # the node layouts of shape_functions.py (see Spec.grid)
+STENCIL_KINDS = ("tensor", "corners", "staggered")   # how stencils.make_stencil builds a particle's contributions
 
 
 @dataclass(frozen=True)
@@ -25,7 +25,8 @@ class Spec:
     degree: int                 # polynomial degree of the 1D functions (B-splines: of their knot vectors)
     stencil: int                # nodes per axis a particle's stencil spans (budget, advise's work count, scatter)
     # "bspline": n + degree control points on an open knot vector, the first and last on the walls;
-    # "ghost": nodes 0..n plus one ghost node beyond each wall
+    # "ghost": nodes 0..n plus one ghost node beyond each wall; "staggered": two grids half a cell apart, stored on
+    # one grid of half the spacing (compact_kernel.py)
     grid: str
     stencil_kind: str = "tensor"    # a tensor product of per-axis weights, or the corners of particle domains (cpdi)
     dims: tuple = (1, 2, 3)
@@ -44,6 +45,7 @@ class Spec:
     cfl_factor: float = 1.0     # the dt rule's step is cfl_factor x solver.cfl x (the CFL step)
     accuracy: Optional[int] = None  # rank in the tools' sweeps (advise, the GUI's switch, the CFL table); None: unswept
     inversion_hint: str = ""    # what the particle-inversion error adds for this basis (empty: lower solver.cfl)
+    nodes_per_cell: int = 1     # storage nodes per cell and axis (the staggered grids' half spacing: 2)
 
     def __post_init__(self):
         if self.grid not in GRIDS or self.stencil_kind not in STENCIL_KINDS:
@@ -62,6 +64,12 @@ class Spec:
         """Particles on a face that holds material are transferred from inside it (stencils.WALL_LAYER): the
         tensor B-splines, whose first interior control point gets full gradient but no mass from a wall particle."""
         return self.grid == "bspline" and self.stencil_kind == "tensor"
+
+    def nodes_per_particle(self, dim: int) -> int:
+        """The (node, weight, gradient) contributions of one particle (shape_functions.Basis.contributions)."""
+        if self.stencil_kind == "staggered":
+            return 2 * 2 ** dim
+        return 4 ** dim if self.stencil_kind == "corners" else self.stencil ** dim
 
     def build(self, knots=None):
         """The shape functions (shape_functions.Basis) of this basis; knots per axis in grid units, or None."""
@@ -119,6 +127,7 @@ _DDMP_CRACK = ("two interface blocks pulled apart kept only 0.185 of their 0.2 m
 _DDMP_LSD = ("ddmp's blended gradient is not its weights' derivative: near a free surface (where its blend turns to "
              "linear's) its integral over a node's support is not what the correction assumes, and the 1D manufactured "
              "solution with free ends grew 3-13-fold in error with it (measured; docs/accuracy.md)")
+_NOT_TRIED = "not tried with this basis yet"
 _CORNERS_LSD = "cpdi's corner stencil has no per-axis functions to integrate a node's support from"
 
 BUILT_IN = tuple(register(s).name for s in (
@@ -136,4 +145,7 @@ BUILT_IN = tuple(register(s).name for s in (
          inversion_hint="the particle's CPDI domain (half-edges F r0) inverted: det F <= 0; fix: lower solver.cfl"),
     Spec("ddmp", "DDMP, linear weights with the gradient blended with its dual-domain average", _SF + "make_ddmp",
          1, 4, "ghost", crack=_DDMP_CRACK, prepass_grid=True, stress_difference=_DDMP_LSD),
+    Spec("ck", "CK-MPM's compact kernel: the particle's cell on each of two grids staggered by half a cell",
+         "taichi_mpm.bases.compact_kernel:make_compact", 1, 4, "staggered", stencil_kind="staggered",
+         nodes_per_cell=2, crack=_NOT_TRIED, stress_difference=_NOT_TRIED, fbar=False),
 ))

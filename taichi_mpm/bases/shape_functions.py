@@ -20,6 +20,8 @@ grid, node coordinates and wall nodes are the linear basis's.
 
 `ddmp` (Zhang, Ma & Giguere 2011) keeps the linear weights and blends the particle's linear gradient with the
 dual-domain gradient, the linear interpolant of each node's exact average of grad N_i (docs/bases.md).
+
+`ck` (CK-MPM's compact kernel on two staggered grids) is in compact_kernel.py.
 """
 
 from dataclasses import dataclass, replace
@@ -49,8 +51,9 @@ class Basis:
     coord: Callable                        # @ti.func: (node index, n cells) -> coordinate in grid units
     coord_py: Callable[[int, int], float]  # the same in Python
     weights_1d: Callable                   # @ti.func: (u, n cells, lp) -> (first node, w, dw)
-    kind: str = "tensor"                   # how stencils.py builds a particle's contributions: tensor, corners, mapped
+    kind: str = "tensor"                   # how stencils.py builds a particle's contributions (registry.STENCIL_KINDS)
     smooth_1d: Optional[Callable] = None   # ddmp: @ti.func (u, n cells) -> (smoothed w, smoothed dw, blend)
+    grids_1d: Optional[Callable] = None    # ck: @ti.func (u, n cells) -> the particle's cell on each of its two grids
     axes: Optional[tuple] = None           # domain.knots: one Basis per axis (its own knot vector), else None
     knots: Any = None                      # a knot-vector axis: its KnotData (grid-unit knots and their fields)
     # B-splines: weights_1d of solver.quadrature domain (the span's functions averaged over the particle's domain,
@@ -75,8 +78,11 @@ class Basis:
 
     def contributions(self, dim: int) -> int:
         """(node, weight, gradient) contributions of one particle: S^d for tensor products; CPDI: 2^d nodes of
-        each of its 2^d corners (a node shared by corners appears once per corner)."""
-        return self.stencil ** dim if self.kind in ("tensor", "mapped") else 4 ** dim
+        each of its 2^d corners (a node shared by corners appears once per corner); ck: 2^d nodes on each of its
+        two grids."""
+        if self.kind in ("tensor", "mapped"):
+            return self.stencil ** dim
+        return 2 * 2 ** dim if self.kind == "staggered" else 4 ** dim
 
 
 def cox_de_boor(p: int, knot: Callable):

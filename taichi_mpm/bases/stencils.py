@@ -30,6 +30,7 @@ import taichi as ti
 from taichi.lang.matrix import make_matrix
 
 from .. import traced
+from .compact_kernel import staggered_stencil
 from .corners import cpdi_stencil
 from .nurbs import UNROLL_TERMS
 from .stencil_parts import (AUTO_INNER, KernelContext, Stencil, domain_half_width, flat_index,  # noqa: F401
@@ -37,7 +38,8 @@ from .stencil_parts import (AUTO_INNER, KernelContext, Stencil, domain_half_widt
 
 
 def make_stencil(ctx: KernelContext) -> Stencil:
-    build = {"tensor": _tensor_stencil, "corners": cpdi_stencil, "mapped": _mapped_stencil}[ctx.basis.kind]
+    build = {"tensor": _tensor_stencil, "corners": cpdi_stencil, "mapped": _mapped_stencil,
+             "staggered": staggered_stencil}[ctx.basis.kind]
     return build(ctx)
 
 

@@ -10,6 +10,7 @@ Physics code only: no CLI, rendering or file I/O here.
 import numpy as np
 import taichi as ti
 
+from ..bases.compact_kernel import make_ghost_images
 from ..grid import make_wall_condition
 from ..loads import Loads
 from ..step.moments import Extension, GridSolve
@@ -59,6 +60,9 @@ class Walls(Extension):
         # a mapped grid's walls act on its parameter faces, along their normals
         ctx.wall = make_wall_condition(d, s.n_cells, faces, s.basis, friction, self.reaction, moving, s.mapped)
         ctx.grid_solve.append(GridSolve(condition=self._condition(ctx.wall)))
+        images = make_ghost_images(d, s.n_cells, faces) if s.basis.kind == "staggered" else None
+        if images is not None:   # ck: B's ghost nodes beyond the faces as images of the nodes inside
+            ctx.grid_solve.append(GridSolve(images=images))
         self._set_values = self._values_kernel() if self.moving else None
 
     @staticmethod

@@ -84,9 +84,31 @@ def make_grid_update(ctx):
     has_mass, node_velocity = make_node_solve(ctx)
     accelerations = make_accelerations(ctx)
     own_fields = [g.node_fields for g in ctx.grid_solve if g.node_fields is not None]
+    images = [g.images for g in ctx.grid_solve if g.images is not None]
+    if len(images) > 1:
+        raise ValueError("two extensions fold ghost nodes: only one may")
+
+    @ti.func
+    def folded(g: ti.template()):
+        """Ghost nodes' sums into their image nodes (ck's walls), before the chain: FLIP's old velocities first,
+        while the momentum still tells a slip face's ghosts whether the material moves into it, then the momentum
+        and the mass (once: a folded ghost has none left, so a second pass adds only its new momentum)."""
+        if ti.static(images):
+            if ti.static(flip):
+                images[0][0](gm, g, gv_old, False)
+            images[0][0](gm, g, g, True)
+
+    @ti.func
+    def mirrored(g: ti.template()):
+        """Ghost nodes from their image nodes, once every node has its velocity (a loop of its own)."""
+        if ti.static(images):
+            images[0][1](gm, g)
+            if ti.static(flip):
+                images[0][1](gm, gv_old)
 
     @ti.kernel
     def grid_update(kick_before: float, kick_after: float, special: ti.template()):
+        folded(gv)
         for I in ti.grouped(gm):
             m = gm[I]
             if has_mass(I, m, special):
@@ -98,15 +120,18 @@ def make_grid_update(ctx):
                     gv_old[I] = node_velocity(I, m, gv_old[I], special)
                 for k in ti.static(range(len(own_fields))):   # the extensions' own node fields (multi-field contact)
                     own_fields[k](I, kick_before, kick_after)
+        mirrored(gv)
 
     @ti.func
     def velocities(g: ti.template(), special: ti.template()):
         """The chain without forces, unmeasured (the step's measured update is grid_update): g = the node solve of
         the momentum g under the walls and grips."""
+        folded(g)
         for I in ti.grouped(gm):
             m = gm[I]
             if has_mass(I, m, special):
                 g[I] = conditions(I, node_velocity(I, m, g[I], special), m, False)
+        mirrored(g)
 
     @ti.kernel
     def grid_remap(special: ti.template()):

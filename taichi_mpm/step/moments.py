@@ -188,7 +188,8 @@ class GridSolve:
     node velocity from momentum (the solver's m^-1 p unless one extension gives `velocity`, compiled in on steps
     where its node_solve_active() says so), gravity, the extensions' `accelerate` terms in list order, then their
     `condition`s in list order (walls, then grips); then the extensions' `node_fields` (their own fields at the
-    node, in list order). Each field may be None."""
+    node, in list order); `images` fold nodes into others before the chain and set them from others after it. Each
+    field may be None."""
     has_mass: Optional[Callable] = None     # (I, m) -> whether node I takes part (with `velocity`)
     velocity: Optional[Callable] = None     # (I, m, p) -> node velocity from momentum p (a tensor mass, say)
     accelerate: Optional[Callable] = None   # (I, vel, m, kick_before, kick_after) -> vel after a body acceleration
@@ -197,3 +198,7 @@ class GridSolve:
     condition: Optional[Callable] = None
     node_fields: Optional[Callable] = None  # (I, kick_before, kick_after): its own node fields' solve at node I,
     #                                         after the grid's chain (multi-field contact)
+    # ck's ghost nodes as images across the walls (compact_kernel.make_ghost_images): (fold, mirror), loops of their
+    # own before the chain (fold(gm, decide, g, with_mass): a ghost's sums into its mirror node) and after it
+    # (mirror(gm, g): the ghost's velocity from its mirror node's), in the step's update, MUSL's remap, USF's pass
+    images: Optional[tuple] = None

@@ -284,8 +284,8 @@ def _cost(rec: dict, cost: str, params: dict, dim: int) -> float:
         return math.nan
     try:
         if cost == "work":
-            stencil = basis_registry.get(params["solver.basis"]).stencil   # nodes per particle and axis
-            return float(rec["particles"]) * float(rec["steps"]) * stencil ** dim
+            nodes = basis_registry.get(params["solver.basis"]).nodes_per_particle(dim)
+            return float(rec["particles"]) * float(rec["steps"]) * nodes
         return float(rec.get(cost, math.nan))
     except (KeyError, TypeError, ValueError):
         return math.nan

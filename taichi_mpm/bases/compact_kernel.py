@@ -1,0 +1,225 @@
+"""CK-MPM's compact kernel (`solver.basis: ck`): Liu, Wang & Li, "CK-MPM: A Compact-Kernel Material Point Method",
+ACM Trans. Graph. 44(4), 2025 (arXiv:2412.10399).
+
+Two grids staggered by half a cell along every axis: A with nodes at the cell corners (i dx, on the walls) and B at
+the cell centres ((i + 1/2) dx, with one ghost node half a cell beyond each wall). A particle weights only the 2^d
+nodes of the cell it lies in on each grid (2 x 2^d nodes, against 3^d for quadratic B-splines), each by half of
+
+    w(r) = 1 - r + sin(2 pi r) / (2 pi),   r = |x - x_i| / dx <= 1   (C2: w' = w'' = 0 at r = 0 and 1).
+
+Along an axis the two nodes of a cell get 1 - s(t) and s(t), s(t) = t - sin(2 pi t) / (2 pi) (t: the position in
+the cell): linear hats in a warped coordinate, a partition of unity on each grid. Each grid alone reproduces
+linear fields only up to -+ sin(2 pi t) / (2 pi), and the two errors cancel: the average over both grids is
+exact for linear fields, sum_i w_i x_i = x_p, sum_i x_i (x) grad w_i = I (tests/test_compact_kernel.py).
+
+Storage: one grid of half-cell spacing, storage index k at (k - 1) / 2 cells (k = 0: B's ghost below the lower wall,
+odd k: A's nodes, even k: B's), 2 n + 3 nodes per axis for n cells. A node is A's when every index is odd and B's
+when every index is even; the mixed ones stay empty (on a sparse grid only the touched blocks are allocated, with
+their empty nodes: 2^(d-1) x the nodes the two grids need).
+
+Walls act on the nodes at or beyond them, as for every basis (grid.make_wall_condition): A's wall node and B's ghost
+half a cell beyond. B has no node on the wall, so the velocity interpolated at a sticky wall is a quarter of B's
+first interior node's, not zero (docs/bases.md, "CK-MPM", measured).
+
+Physics code only: no CLI, rendering or file I/O here.
+"""
+import math
+
+import taichi as ti
+
+from .shape_functions import Basis
+from .stencil_parts import KernelContext, Stencil, flat_index, loops
+
+TWO_PI = 2.0 * math.pi
+GRIDS = 2   # A (cell corners) and B (cell centres)
+
+
+def make_compact(spec, knots=None) -> Basis:
+    """The compact kernel's 1D functions on the half-cell storage grid. `weights_1d` gives the window of 4 storage
+    nodes a particle's two cells span along an axis, each node with its weight on its own grid (each grid's two
+    weights sum to 1; a stencil halves them); `grids_1d` the two grids' cells apiece (staggered_stencil)."""
+
+    @ti.func
+    def coord(k, n):
+        return 0.5 * ti.cast(k - 1, float)
+
+    @ti.func
+    def warp(t):
+        """s(t) and ds/dt: the weight of a cell's upper node and its derivative (cells)."""
+        return t - ti.sin(TWO_PI * t) / TWO_PI, 1.0 - ti.cos(TWO_PI * t)
+
+    @ti.func
+    def grids_1d(u, n: ti.template()):
+        """(first storage index, weights, derivatives) of the particle's cell on A, then on B."""
+        uu = ti.cast(u, float)
+        i = ti.min(ti.max(int(ti.floor(uu)), 0), n - 1)          # A's cell [i, i + 1]
+        j = ti.min(ti.max(int(ti.floor(uu + 0.5)), 0), n)        # B's cell [j - 1/2, j + 1/2]
+        sa, da = warp(uu - ti.cast(i, float))
+        sb, db = warp(uu + 0.5 - ti.cast(j, float))
+        return (2 * i + 1, ti.Vector([1.0 - sa, sa]), ti.Vector([-da, da]),
+                2 * j, ti.Vector([1.0 - sb, sb]), ti.Vector([-db, db]))
+
+    @ti.func
+    def weights_1d(u, n: ti.template(), lp):
+        ka, wa, da, kb, wb, db = grids_1d(u, n)
+        a_first = ka < kb   # the window alternates A, B, A, B or B, A, B, A
+        w = ti.select(a_first, ti.Vector([wa[0], wb[0], wa[1], wb[1]]), ti.Vector([wb[0], wa[0], wb[1], wa[1]]))
+        dw = ti.select(a_first, ti.Vector([da[0], db[0], da[1], db[1]]), ti.Vector([db[0], da[0], db[1], da[1]]))
+        return ti.min(ka, kb), w, dw
+
+    return Basis(spec.name, 4, 1, False, lambda n: 2 * n + 3, coord, lambda k, n: 0.5 * (k - 1), weights_1d,
+                 spec.stencil_kind, grids_1d=grids_1d)
+
+
+def staggered_stencil(ctx: KernelContext) -> Stencil:
+    """Contributions indexed (o_1 .. o_d, g): node o of the particle's cell on grid g (0: A, 1: B), weight
+    1/2 prod_a w_a, gradient 1/2 dw_a prod_{b != a} w_b, offset x_i - x_p. D_p = sum w r r^T is a full matrix
+    (each grid's first moments do not vanish, only their sum does)."""
+    dim, dx, inv_dx, lower, n_cells = ctx.dim, ctx.dx, 1.0 / ctx.dx, ctx.lower, ctx.n_cells
+    x, grids_1d = ctx.x, ctx.basis.grids_1d
+    span = [2] * dim + [GRIDS]
+    outer, inner = loops(span, ctx.unroll)
+    count = GRIDS * 2 ** dim
+
+    @ti.func
+    def at(p):
+        """Per grid g and axis a (row g dim + a): the cell's first storage index, its two weights, derivatives
+        (per metre) and offsets x_i - x_p."""
+        u = (x[p] - lower) * inv_dx
+        base = ti.Matrix.zero(int, GRIDS * dim, 1)
+        W = ti.Matrix.zero(float, GRIDS * dim, 2)
+        DW = ti.Matrix.zero(float, GRIDS * dim, 2)
+        R = ti.Matrix.zero(float, GRIDS * dim, 2)
+        for a in ti.static(range(dim)):
+            uw = ti.min(ti.max(u[a], 0.0), ti.cast(n_cells[a], float))
+            ka, wa, da, kb, wb, db = grids_1d(uw, n_cells[a])
+            base[a, 0], base[dim + a, 0] = ka, kb
+            for k in ti.static(range(2)):
+                W[a, k], DW[a, k] = wa[k], da[k] * inv_dx
+                W[dim + a, k], DW[dim + a, k] = wb[k], db[k] * inv_dx
+                R[a, k] = (0.5 * ti.cast(ka + 2 * k - 1, float) - uw) * dx
+                R[dim + a, k] = (0.5 * ti.cast(kb + 2 * k - 1, float) - uw) * dx
+        return base, W, DW, R
+
+    @ti.func
+    def pick(M, g, a: ti.template(), k):
+        """M[g dim + a, k] by selects (g and k may be run-time values: no dynamic indexing of a local matrix)."""
+        lo = ti.select(k == 0, M[a, 0], M[a, 1])
+        hi = ti.select(k == 0, M[dim + a, 0], M[dim + a, 1])
+        return ti.select(g == 0, lo, hi)
+
+    @ti.func
+    def node(st, off):
+        base, W, DW, R = st
+        g = off[dim]
+        I = ti.Vector.zero(int, dim)
+        w = 0.5
+        for a in ti.static(range(dim)):
+            I[a] = ti.select(g == 0, base[a, 0], base[dim + a, 0]) + 2 * off[a]
+            w *= pick(W, g, a, off[a])
+        grad = ti.Vector.zero(float, dim)
+        r = ti.Vector.zero(float, dim)
+        for a in ti.static(range(dim)):
+            ga = 0.5 * pick(DW, g, a, off[a])
+            for b in ti.static(range(dim)):
+                if ti.static(b != a):
+                    ga *= pick(W, g, b, off[b])
+            grad[a] = ga
+            r[a] = pick(R, g, a, off[a])
+        return I, w, grad, r
+
+    @ti.func
+    def inertia(st):
+        """Per grid a tensor product, so from the axes' moments: sum w r_a^2 on the diagonal and
+        (sum w r_a)(sum w r_b) off it, each grid weighted 1/2 (summing the 2 x 2^d nodes instead took 25 s to
+        compile in 3D APIC's P2G)."""
+        W, R = st[1], st[3]
+        D = ti.Matrix.zero(float, dim, dim)
+        for g in ti.static(range(GRIDS)):
+            first = ti.Vector([W[g * dim + a, 0] * R[g * dim + a, 0] + W[g * dim + a, 1] * R[g * dim + a, 1]
+                               for a in range(dim)])
+            for a in ti.static(range(dim)):
+                row = g * dim + a
+                for b in ti.static(range(dim)):
+                    if ti.static(a == b):
+                        D[a, a] += 0.5 * (W[row, 0] * R[row, 0] ** 2 + W[row, 1] * R[row, 1] ** 2)
+                    else:
+                        D[a, b] += 0.5 * first[a] * first[b]
+        return D
+
+    @ti.func
+    def inertia_inverse(st):
+        return inertia(st).inverse()
+
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), count)
+
+
+# how a face reflects B's ghost nodes: every component (sticky), the normal one (roller), the normal one while the
+# material moves into the face (slip; else the ghost stays a node of its own)
+ALL, NORMAL, INTO = 1, 2, 3
+MIRRORED = {"sticky": ALL, "roller": NORMAL, "slip": INTO}
+
+
+def make_ghost_images(dim: int, n_cells: list, faces: list):
+    """B's ghost nodes beyond sticky, roller and slip faces as images of their mirror nodes half a cell inside (the
+    method of images): `fold(gm, decide, g, with_mass)` before the grid solve adds each ghost's P2G sums to its
+    mirror node, reflected (the momentum and force the mirrored material would give it), and empties the ghost;
+    `mirror(gm, g)` after it gives the ghost the reflected velocity of its mirror node. The velocity the two grids
+    interpolate on the face is then the face's (sticky: zero; roller, slip: no normal component), and the mirror
+    node's equation is that of a node inside a mirrored body instead of one at a free surface. A corner ghost is
+    reflected across both faces. Slip folds and mirrors only while the material moves into the face (`decide`:
+    the momentum that says so). Free faces and velocity walls keep the node-wise conditions of
+    grid.make_wall_condition, as friction does. None when no face reflects."""
+    kinds = [[MIRRORED.get(faces[a][side], 0) for side in range(2)] for a in range(dim)]
+    reflects = [[k > 0 for k in axis] for axis in kinds]
+    if not any(map(any, reflects)):
+        return None
+    ghost = [(0, 2 * n + 2) for n in n_cells]     # storage index of B's ghost below and above each axis' walls
+    image = [(2, 2 * n) for n in n_cells]         # and of its mirror node inside
+
+    @ti.func
+    def reflect(I, v, p):
+        """(v reflected across every face ghost I lies beyond, whether a slip face there sees p move out)."""
+        out = False
+        for a in ti.static(range(dim)):
+            for side in ti.static(range(2)):
+                if ti.static(reflects[a][side]):
+                    if I[a] == ghost[a][side]:
+                        if ti.static(kinds[a][side] == ALL):
+                            v = -v
+                        else:
+                            v[a] = -v[a]
+                            if ti.static(kinds[a][side] == INTO):
+                                out = out or (p[a] > 0 if ti.static(side == 0) else p[a] < 0)
+        return v, out
+
+    @ti.func
+    def mirror_of(I):
+        J, beyond = I, False
+        for a in ti.static(range(dim)):
+            for side in ti.static(range(2)):
+                if ti.static(reflects[a][side]):
+                    if I[a] == ghost[a][side]:
+                        J[a], beyond = image[a][side], True
+        return J, beyond
+
+    @ti.func
+    def fold(gm: ti.template(), decide: ti.template(), g: ti.template(), with_mass: ti.template()):
+        for I in ti.grouped(g):
+            J, beyond = mirror_of(I)
+            if beyond:
+                v, out = reflect(I, g[I], decide[I] + decide[J])
+                if not out:
+                    g[J] += v
+                    g[I] = ti.Vector.zero(float, dim)
+                    if ti.static(with_mass):
+                        gm[J] += gm[I]
+                        gm[I] = 0.0
+
+    @ti.func
+    def mirror(gm: ti.template(), g: ti.template()):
+        for I in ti.grouped(g):
+            J, beyond = mirror_of(I)
+            if beyond and gm[I] == 0 and gm[J] > 0:   # folded (a ghost that kept its mass solved itself)
+                g[I], _ = reflect(I, g[J], g[J])
+    return fold, mirror

@@ -1,0 +1,91 @@
+"""CK-MPM's compact kernel (solver.basis: ck, taichi_mpm/bases/compact_kernel.py), f64: the stencil identities on
+the two staggered grids (walls included), conservation, and (slow) the manufactured solutions and the trade against
+quadratic B-splines (docs/bases.md, "CK-MPM")."""
+import numpy as np
+import pytest
+
+import taichi_mpm as tm
+from conftest import make_cfg
+from taichi_mpm import analytic as an
+import test_conservation as tcons   # module objects: their tests are not collected again here
+import test_cpdi as tcp
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_stencil_identities_on_both_grids(dim):
+    """Partition of unity, linear reproduction, zero gradient sum, sum x_i (x) grad w = I (each grid alone misses
+    the last two by up to 1/pi: only their average is exact) and D_p's closed form against the node sum, to 1e-12 at
+    random positions and on and next to the walls, where B's ghost node lies half a cell beyond."""
+    sim = tm.Simulation(make_cfg(dim, basis="ck", dx=0.25, extent=1.0, lower=[0.0] * dim, upper=[1.0] * dim,
+                                 boundaries="free"))
+    rng = np.random.default_rng(dim)
+    x = rng.uniform(0.0, 1.0, (sim.n, dim))
+    x[:5] = [[0.0] * dim, [1.0] * dim, [1e-9] * dim, [0.999] * dim, [0.125] * dim]
+    sim.set_particles(x=x)
+    assert tcp.stencil_sums(sim).max() < 1e-12
+
+
+def test_nodes_are_a_cell_apart_on_each_grid():
+    """A particle weights 2 nodes per axis on each grid, a cell apart, A's on the cell corners and B's on the
+    centres (storage index k at (k - 1) / 2 cells): 2 x 2^d contributions, the grid 2 n + 3 nodes per axis."""
+    sim = tm.Simulation(make_cfg(2, basis="ck", dx=0.25, extent=1.0, boundaries="free"))
+    assert sim.basis.nodes(4) == 11 and sim.basis.contributions(2) == 8 and sim.ctx.stencil.count == 8
+    assert [sim.basis.coord_py(k, 4) for k in (0, 1, 2, 9, 10)] == [-0.5, 0.0, 0.5, 4.0, 4.5]
+
+
+@pytest.mark.parametrize("transfer", ["flip", "apic"])
+def test_moving_block_keeps_momentum(transfer):
+    """tests/test_conservation.py's drifting, spinning, breathing block: linear momentum to round-off, and with
+    APIC's B_p D_p^-1 (D_p a full matrix here, never singular) the angular momentum too."""
+    m0, m1, scale = tcp.moving_block(basis="ck", transfer=transfer)
+    assert np.abs(m1["linear"] - m0["linear"]).max() < 1e-10 * scale
+    if transfer == "apic":
+        assert abs(m1["angular"][2] - m0["angular"][2]) < 1e-10 * abs(m0["angular"][2])
+
+
+def test_apic_spinning_disk_keeps_its_angular_momentum():
+    """The spinning disk of tests/test_conservation.py, 200 steps."""
+    L0, L1 = tcons.spinning_disk("ck", "usl", steps=200)
+    assert L0 > 1.0 and abs(L1 - L0) < 1e-10 * abs(L0)
+
+
+def test_config_refuses_what_it_was_not_tried_with():
+    for key, value in [("crack", {}), ("volumetric", "fbar")]:
+        cfg = make_cfg(2, basis="ck")
+        if key == "crack":
+            cfg["bodies"][0]["interface"] = True
+            cfg["crack"] = {}
+        else:
+            cfg["solver"]["volumetric"] = value
+        with pytest.raises(tm.ConfigError):
+            tm.load_config(cfg)
+
+
+def mms_errors(cells, amplitude, dim=1, basis="ck", **problem):
+    errs = []
+    for n in cells:
+        pr = an.make_problem({"type": "mms_axis_aligned", "dim": dim, "amplitude": amplitude, **problem})
+        _, e = an.run_problem(pr, {"domain.dx": 1.0 / n, "solver.basis": basis})
+        errs.append(e["error_rms"])
+    return np.array(errs)
+
+
+def test_sticky_walls_keep_second_order():
+    """The 1D manufactured solution at G = 0.001 between sticky walls, 2 particles per cell. B has no node on a
+    wall; its ghost beyond it is the image of the node inside (compact_kernel.make_ghost_images). Measured 16/32
+    cells: 2.27e-5, 5.59e-6 (64, 128: 1.37e-6, 3.35e-7, rate 2.03; quadratic 6.87e-7 at 128). With the ghost under
+    the node-wise wall condition instead: 2.60e-4, 1.61e-4 (rate 0.72, first order: the wall's velocity
+    interpolated to a quarter of B's first node's); with the ghost's velocity mirrored but not its sums folded:
+    1.23e-4, 6.0e-5 (rate 1.0)."""
+    e = mms_errors([16, 32], 0.001)
+    assert e[1] < 7e-6 and e[0] / e[1] > 3.5, e
+
+
+@pytest.mark.slow
+def test_large_amplitude_stalls_like_the_point_integrated_bases():
+    """G = 0.05 (particles cross cells), 2 particles per cell: measured 1.23e-3 6.65e-4 3.95e-4 5.27e-4 at 16-128
+    cells, below quadratic's error at 16 and 32 (2.11e-3, 5.80e-4) and above it from 64 on (1.73e-4, 1.01e-4): the
+    kernel's gradient, 1 - cos(2 pi t) across a cell, makes the particles' quadrature of the force coarser than a
+    B-spline's once they are unevenly spaced (docs/bases.md, "CK-MPM")."""
+    e = mms_errors([16, 32, 64, 128], 0.05)
+    assert e[0] < 1.5e-3 and e[1] < 8e-4 and e.max() < 2e-3, e
