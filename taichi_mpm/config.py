@@ -751,7 +751,7 @@ class Config(Strict):
     def _check_scatter(self):
         spec = bases.get(self.solver.basis)
         if self.solver.scatter == "coloured" and (not spec.coloured_scatter or self.domain.map is not None):
-            raise _Located("solver.scatter", f"coloured needs a tensor-product basis on a box grid "
+            raise _Located("solver.scatter", f"coloured needs a basis whose stencil is a bounded box of nodes, on a box grid "
                                              f"({', '.join(bases.names(coloured_scatter=True))}): cpdi's particle "
                                              "domains and a mapped grid's stencil can reach any node, so they add "
                                              "atomically (scatter: auto)")

@@ -17,19 +17,21 @@ def test_declaration_matches_its_shape_functions(name):
     assert basis.spec is spec and basis.name == name
     assert basis.stencil == spec.stencil and basis.kind == spec.stencil_kind
     n = 8
-    assert basis.nodes(n) == (n + spec.degree if spec.grid == "bspline" else n + 3)   # ghost: one node past each wall
+    nodes = {"bspline": n + spec.degree, "ghost": n + 3,   # ghost: one node past each wall
+             "staggered": 2 * n + 3}                     # every half cell, and B's ghost past each wall
+    assert basis.nodes(n) == nodes[spec.grid] and spec.nodes_per_cell == (2 if spec.grid == "staggered" else 1)
     assert basis.ghost == (0 if spec.grid == "bspline" else 1)
 
 
 def test_what_the_built_in_bases_declare():
-    assert registry.names() == ("linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp")
+    assert registry.names() == ("linear", "gimp", "quadratic", "cubic", "cpdi", "ddmp", "ck")
     assert registry.swept() == ("linear", "gimp", "quadratic", "cubic")   # advise, the GUI switch, the CFL table
     assert registry.names(knots=True) == ("linear", "quadratic", "cubic")
     assert registry.names(map=True) == ("quadratic", "cubic")
     assert registry.names(particle_domains=True) == ("gimp", "cpdi")
     assert registry.names(fbar_linear_grid=True) == ("quadratic", "cubic")
     assert registry.names(crack=None) == ("linear", "gimp", "quadratic", "cubic", "cpdi")
-    assert registry.names(coloured_scatter=True) == ("linear", "gimp", "quadratic", "cubic", "ddmp")
+    assert registry.names(coloured_scatter=True) == ("linear", "gimp", "quadratic", "cubic", "ddmp", "ck")
     assert registry.names(wall_layer=True) == ("linear", "quadratic", "cubic")
     assert registry.names(prepass_grid=True) == ("ddmp",)
     assert {registry.get(n).cfl_factor for n in registry.names()} == {1.0}
@@ -42,14 +44,15 @@ def test_registration_rules():
     with pytest.raises(ValueError, match="built in"):
         registry.unregister("cubic")
     with pytest.raises(ValueError, match="grid must be one of"):
-        registry.Spec("odd", "", "x:y", 1, 2, "staggered")
+        registry.Spec("odd", "", "x:y", 1, 2, "hexagonal")
     with pytest.raises(ValueError, match="cfl_factor must be positive"):
         registry.Spec("odd", "", "x:y", 1, 2, "bspline", cfl_factor=0.0)
 
 
 @pytest.mark.parametrize("change, key, message", [
     (dict(scatter="coloured", basis="cpdi"), "solver.scatter",
-     "coloured needs a tensor-product basis on a box grid (linear, gimp, quadratic, cubic, ddmp): cpdi's particle "
+     "coloured needs a basis whose stencil is a bounded box of nodes, on a box grid (linear, gimp, quadratic, cubic, "
+     "ddmp, ck): cpdi's particle "
      "domains and a mapped grid's stencil can reach any node, so they add atomically (scatter: auto)"),
     (dict(basis="linear", gimp_domain="deforming"), "solver.gimp_domain",
      "is read by solver.basis gimp only (the basis is linear): remove it or use basis gimp"),

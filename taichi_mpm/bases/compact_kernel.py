@@ -151,7 +151,18 @@ def staggered_stencil(ctx: KernelContext) -> Stencil:
     def inertia_inverse(st):
         return inertia(st).inverse()
 
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), count)
+    @ti.func
+    def origin(p):
+        """The first storage node of the particle's window (both cells lie within 4 nodes of it per axis): the
+        coloured scatter's bin."""
+        u = (x[p] - lower) * inv_dx
+        first = ti.Vector.zero(int, dim)
+        for a in ti.static(range(dim)):
+            ka, _, _, kb, _, _ = grids_1d(ti.min(ti.max(u[a], 0.0), ti.cast(n_cells[a], float)), n_cells[a])
+            first[a] = ti.min(ka, kb)
+        return first
+
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), count, origin=origin)
 
 
 # how a face reflects B's ghost nodes: every component (sticky), the normal one (roller), the normal one while the

@@ -56,8 +56,9 @@ class Spec:
 
     @property
     def coloured_scatter(self) -> bool:
-        """P2G can add by colours: a tensor stencil reaches a bounded box of nodes (cpdi's corners can reach any)."""
-        return self.stencil_kind == "tensor"
+        """P2G can add by colours: a tensor (or ck's staggered) stencil reaches a bounded box of nodes (cpdi's corners
+        can reach any)."""
+        return self.stencil_kind in ("tensor", "staggered")
 
     @property
     def wall_layer(self) -> bool:

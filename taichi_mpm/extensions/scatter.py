@@ -7,8 +7,9 @@ Each step `bin()` puts every particle in the grid leaf block (B nodes per axis) 
 its stencil then covers that block and the next S - 1 nodes along each axis. Blocks whose coordinates have the same
 parities (one of 2^d colours) are at least two blocks apart along some axis, so while S <= B + 1 the stencils of
 their particles share no node. P2G then runs one colour after another; within a colour one thread takes a whole
-block, in particle order, and adds to the nodes with plain loads and stores (`add`). Only tensor-product stencils of
-bounded width qualify: a CPDI domain or a mapped grid's stencil can reach any node, and a GPU's atomics are fast.
+block, in particle order, and adds to the nodes with plain loads and stores (`add`). Only stencils of bounded width
+qualify (tensor products, and ck's two staggered cells, which lie in a window of 4 storage nodes per axis): a CPDI
+domain or a mapped grid's stencil can reach any node, and a GPU's atomics are fast.
 
 The order within a block is the particles' solver order (a counting sort, then an insertion sort of each block's
 short run), so every node sums its contributions in the same order for any thread count.
@@ -31,13 +32,14 @@ from ..sums import CPU_TASK, cpu_threads
 # medians of 3, docs/performance.md "Coloured or atomic"): 2D ~2 300 particles, 3D ~440, 1D none (within noise).
 # Deterministic runs keep the colours at any size: their sums need one order.
 ATOMIC_BELOW = {1: 0, 2: 2300, 3: 440}
+BOUNDED_KINDS = ("tensor", "staggered")   # stencils within a window of `stencil` storage nodes per axis from an origin
 
 
 def applies(gpu: bool, stencil_kind: str, width: int, dim: int, setting: str, particles: int,
             deterministic: bool = False) -> bool:
     """Whether P2G scatters by colours: `solver.scatter` auto (CPU, bounded tensor stencil, at least
     ATOMIC_BELOW[dim] particles or a deterministic run), coloured or atomic."""
-    bounded = stencil_kind == "tensor" and width <= LEAF[dim] + 1
+    bounded = stencil_kind in BOUNDED_KINDS and width <= LEAF[dim] + 1
     if setting == "atomic":
         return False
     if setting == "coloured":
