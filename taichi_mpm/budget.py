@@ -226,11 +226,12 @@ def grid_layout(cfg: Config, mapped: MapSize | None = None) -> dict:
     return out
 
 
-def sparse_levels(nodes: list[int]) -> dict:
-    """The pointer levels grid.Grid builds over a sparse grid of these nodes per axis: the levels' extents, the
-    second level's extent per axis (1: none), the leaf block's nodes per axis and the blocks per axis."""
+def sparse_levels(nodes: list[int], leaf: int = 0) -> dict:
+    """The pointer levels grid.Grid builds over a sparse grid of these nodes per axis (leaf: nodes per axis of a
+    leaf block, 0: LEAF[d]): the levels' extents, the second level's extent per axis (1: none), the leaf block's
+    nodes per axis and the blocks per axis."""
     d = len(nodes)
-    leaf = LEAF[d]
+    leaf = leaf or LEAF[d]
     blocks = [_pow2(math.ceil(s / leaf)) for s in nodes]
     if math.prod(blocks) <= MAX_TOP_POINTERS:
         return dict(levels=[blocks], mid=1, leaf=leaf, blocks=blocks)
@@ -276,7 +277,7 @@ class GridSize:
     def bytes(self) -> int:
         d = len(self.nodes)
         if not self.sparse:
-            blocks = math.prod(math.ceil(n / LEAF[d]) for n in self.nodes)
+            blocks = math.prod(math.ceil(n / (self.leaf if self.leaf > 1 else LEAF[d])) for n in self.nodes)
             return math.prod(self.nodes) * self.node_bytes + blocks * self.block_bytes
         pointers = self.top_slots + (self.tops * self.mid ** d if self.mid > 1 else 0)
         return pointers * POINTER_SLOT_BYTES + self.leaves * (self.leaf ** d * self.node_bytes + self.block_bytes)
@@ -290,9 +291,9 @@ def grid_sizes(cfg: Config, base_dir, mapped: MapSize | None = None, body_force:
         linear = g.extent == "linear"
         nodes = [c + 1 for c in lay["cells"]] if linear else list(lay["nodes"])
         size = GridSize(g.name, nodes, cfg.domain.sparse or g.always_sparse, g.node_bytes(d, cfg.precision),
-                        4 * g.block_ints)
+                        4 * g.block_ints, leaf=_leaf(cfg, g))
         if size.sparse:
-            levels = sparse_levels(nodes)
+            levels = sparse_levels(nodes, size.leaf)
             size.top_slots, size.mid, size.leaf = math.prod(levels["levels"][0]), levels["mid"], levels["leaf"]
             if mapped is not None:
                 # bodies are given in physical space: the parameter blocks they touch are not known without
@@ -310,8 +311,14 @@ def _bin_list_bytes(cfg: Config, particles: int, nodes: list[int], body_force: b
     colour tables."""
     if not needs(cfg, body_force).coloured:
         return 0
-    blocks = math.prod(math.ceil(n / LEAF[cfg.dim]) for n in nodes)
+    leaf = LEAF[cfg.dim] * bases.get(cfg.solver.basis).nodes_per_cell   # the main grid's (solver.py)
+    blocks = math.prod(math.ceil(n / leaf) for n in nodes)
     return layout.scatter_fixed_bytes(cfg.dim, max(1, min(particles, blocks)))
+
+
+def _leaf(cfg: Config, decl) -> int:
+    """Nodes per axis of a grid's leaf blocks: LEAF[d], twice that on ck's half-spacing main grid (solver.py)."""
+    return LEAF[cfg.dim] * (bases.get(cfg.solver.basis).nodes_per_cell if decl.name == "grid" else 1)
 
 
 def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None, particles: int = 0,

@@ -17,11 +17,12 @@ MAX_TOP_POINTERS = 1 << 16          # pointer slots at the top level before a se
 
 class Grid:
     def __init__(self, dim: int, shape: list[int], sparse: bool, vector_fields: list[str], apart: list[str] = (),
-                 apart_scalars: list[str] = ()):
-        """`shape`: nodes per axis. Allocates `m` (mass) and one dim-vector field per name. The fields of
-        `vector_fields` lie interleaved node by node (P2G touches them together: one cache line); those of `apart`
-        (dim-vectors) and `apart_scalars` (`scalar`), read by few particles, in arrays of their own in the same
-        blocks, so they do not dilute the others."""
+                 apart_scalars: list[str] = (), leaf: int = 0):
+        """`shape`: nodes per axis; `leaf`: nodes per axis of a leaf block (0: LEAF[dim]; ck's half-spacing grid
+        takes twice that, so that a block spans the same cells). Allocates `m` (mass) and one dim-vector field per
+        name. The fields of `vector_fields` lie interleaved node by node (P2G touches them together: one cache
+        line); those of `apart` (dim-vectors) and `apart_scalars` (`scalar`), read by few particles, in arrays of
+        their own in the same blocks, so they do not dilute the others."""
         self.dim, self.shape, self.sparse = dim, list(shape), sparse
         self.m = ti.field(float)
         self.vec = {name: ti.Vector.field(dim, float) for name in [*vector_fields, *apart]}
@@ -30,7 +31,7 @@ class Grid:
         places = [self.m, *(self.vec[name] for name in vector_fields)]
         groups = [places] + [[self.vec[name]] for name in apart] + [[f] for f in self.scalar.values()]
         self.levels = []
-        self.leaf = leaf = LEAF[dim]
+        self.leaf = leaf = leaf or LEAF[dim]
         self.blocks = [math.ceil(s / leaf) for s in self.shape]   # leaf blocks per axis
         if not sparse:
             for group in groups:

@@ -93,7 +93,7 @@ def test_auto_scatters_by_colours_from_the_measured_crossover_or_when_determinis
 def test_coloured_scatter_is_refused_where_a_stencil_is_unbounded(cfg_factory):
     data = cfg_factory(2, basis="cpdi")
     data["solver"]["scatter"] = "coloured"
-    with pytest.raises(tm.ConfigError, match="tensor-product basis") as e:
+    with pytest.raises(tm.ConfigError, match="stencil is a bounded box of nodes") as e:
         tm.load_config(data)
     assert e.value.key == "solver.scatter"
 

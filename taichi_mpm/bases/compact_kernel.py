@@ -23,10 +23,13 @@ first interior node's, not zero (docs/bases.md, "CK-MPM", measured).
 
 Physics code only: no CLI, rendering or file I/O here.
 """
+import itertools
 import math
 
 import taichi as ti
+from taichi.lang.matrix import make_matrix
 
+from .. import traced
 from .shape_functions import Basis
 from .stencil_parts import KernelContext, Stencil, flat_index, loops
 
@@ -44,18 +47,17 @@ def make_compact(spec, knots=None) -> Basis:
         return 0.5 * ti.cast(k - 1, float)
 
     @ti.func
-    def warp(t):
-        """s(t) and ds/dt: the weight of a cell's upper node and its derivative (cells)."""
-        return t - ti.sin(TWO_PI * t) / TWO_PI, 1.0 - ti.cos(TWO_PI * t)
-
-    @ti.func
     def grids_1d(u, n: ti.template()):
-        """(first storage index, weights, derivatives) of the particle's cell on A, then on B."""
+        """(first storage index, weights, derivatives) of the particle's cell on A, then on B. A cell's upper node
+        weighs s(t) = t - sin(2 pi t) / (2 pi), ds/dt = 1 - cos(2 pi t); B's t is A's -+ 1/2, half a period of
+        the sine away, so one sine and cosine serve both grids."""
         uu = ti.cast(u, float)
         i = ti.min(ti.max(int(ti.floor(uu)), 0), n - 1)          # A's cell [i, i + 1]
         j = ti.min(ti.max(int(ti.floor(uu + 0.5)), 0), n)        # B's cell [j - 1/2, j + 1/2]
-        sa, da = warp(uu - ti.cast(i, float))
-        sb, db = warp(uu + 0.5 - ti.cast(j, float))
+        ta = uu - ti.cast(i, float)
+        sin, cos = ti.sin(TWO_PI * ta) / TWO_PI, ti.cos(TWO_PI * ta)
+        sa, da = ta - sin, 1.0 - cos
+        sb, db = uu + 0.5 - ti.cast(j, float) + sin, 1.0 + cos
         return (2 * i + 1, ti.Vector([1.0 - sa, sa]), ti.Vector([-da, da]),
                 2 * j, ti.Vector([1.0 - sb, sb]), ti.Vector([-db, db]))
 
@@ -72,13 +74,17 @@ def make_compact(spec, knots=None) -> Basis:
 
 
 def staggered_stencil(ctx: KernelContext) -> Stencil:
-    """Contributions indexed (o_1 .. o_d, g): node o of the particle's cell on grid g (0: A, 1: B), weight
+    """Contributions indexed (g, o_1 .. o_d): node o of the particle's cell on grid g (0: A, 1: B), weight
     1/2 prod_a w_a, gradient 1/2 dw_a prod_{b != a} w_b, offset x_i - x_p. D_p = sum w r r^T is a full matrix
     (each grid's first moments do not vanish, only their sum does)."""
     dim, dx, inv_dx, lower, n_cells = ctx.dim, ctx.dx, 1.0 / ctx.dx, ctx.lower, ctx.n_cells
     x, grids_1d = ctx.x, ctx.basis.grids_1d
-    span = [2] * dim + [GRIDS]
-    outer, inner = loops(span, ctx.unroll)
+    span = [GRIDS] + [2] * dim
+    if ctx.unroll == "auto":   # a grid's 2^d nodes unrolled, the two grids looped (3D, all 16: 2x the compile)
+        outer = [GRIDS] + [1] * dim
+        inner = [ti.Vector([0, *o]) for o in itertools.product(range(2), repeat=dim)]
+    else:
+        outer, inner = loops(span, ctx.unroll)
     count = GRIDS * 2 ** dim
 
     @ti.func
@@ -101,32 +107,36 @@ def staggered_stencil(ctx: KernelContext) -> Stencil:
                 R[dim + a, k] = (0.5 * ti.cast(kb + 2 * k - 1, float) - uw) * dx
         return base, W, DW, R
 
-    @ti.func
-    def pick(M, g, a: ti.template(), k):
-        """M[g dim + a, k] by selects (g and k may be run-time values: no dynamic indexing of a local matrix)."""
-        lo = ti.select(k == 0, M[a, 0], M[a, 1])
-        hi = ti.select(k == 0, M[dim + a, 0], M[dim + a, 1])
-        return ti.select(g == 0, lo, hi)
-
-    @ti.func
+    @traced.traced
     def node(st, off):
+        """Built at trace time (traced.py): as a func, each unrolled node's call copied the particle's tables (3D
+        APIC's P2G and G2P took 44 s each to compile). Grid and node offsets may be run-time values: entries are
+        picked by selects, never by indexing a local matrix at run time."""
         base, W, DW, R = st
-        g = off[dim]
-        I = ti.Vector.zero(int, dim)
-        w = 0.5
-        for a in ti.static(range(dim)):
-            I[a] = ti.select(g == 0, base[a, 0], base[dim + a, 0]) + 2 * off[a]
-            w *= pick(W, g, a, off[a])
-        grad = ti.Vector.zero(float, dim)
-        r = ti.Vector.zero(float, dim)
-        for a in ti.static(range(dim)):
-            ga = 0.5 * pick(DW, g, a, off[a])
-            for b in ti.static(range(dim)):
-                if ti.static(b != a):
-                    ga *= pick(W, g, b, off[b])
-            grad[a] = ga
-            r[a] = pick(R, g, a, off[a])
-        return I, w, grad, r
+        off = traced.local(off)
+        g = traced.local(traced.at(off, 0))
+        o = [traced.local(traced.at(off, 1 + a)) for a in range(dim)]
+
+        def pick(M, a, k):
+            """M[g dim + a, k]."""
+            lo = traced.select(k == 0, traced.at(M, a, 0), traced.at(M, a, 1))
+            hi = traced.select(k == 0, traced.at(M, dim + a, 0), traced.at(M, dim + a, 1))
+            return traced.select(g == 0, lo, hi)
+
+        Wo = [traced.local(pick(W, a, o[a])) for a in range(dim)]
+        w = 0.5 * Wo[0]
+        for a in range(1, dim):
+            w = w * Wo[a]
+        grad = []
+        for a in range(dim):
+            ga = 0.5 * pick(DW, a, o[a])
+            for b in range(dim):
+                if b != a:
+                    ga = ga * Wo[b]
+            grad.append(ga)
+        I = [traced.select(g == 0, traced.at(base, a, 0), traced.at(base, dim + a, 0)) + 2 * o[a] for a in range(dim)]
+        r = [pick(R, a, o[a]) for a in range(dim)]
+        return make_matrix(I, int), w, make_matrix(grad, float), make_matrix(r, float)
 
     @ti.func
     def inertia(st):
