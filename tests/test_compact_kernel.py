@@ -89,3 +89,28 @@ def test_large_amplitude_stalls_like_the_point_integrated_bases():
     B-spline's once they are unevenly spaced (docs/bases.md, "CK-MPM")."""
     e = mms_errors([16, 32, 64, 128], 0.05)
     assert e[0] < 1.5e-3 and e[1] < 8e-4 and e.max() < 2e-3, e
+
+
+def spinning_disk_energy(basis, transfer="apic"):
+    """A free elastic disk (r 0.2 m, E 1e4 Pa, dx 1/32) spinning at 2 rad/s, one revolution: the fraction of its
+    energy kept and of its angular momentum."""
+    cfg = make_cfg(2, basis=basis, transfer=transfer, dx=1 / 32, E=1e4, boundaries="free", energy_growth_limit=None)
+    cfg["bodies"][0]["shape"] = dict(type="sphere", center=[0.5, 0.5], radius=0.2)
+    cfg["bodies"][0]["angular_velocity"] = 2.0
+    cfg["solver"]["gravity"] = [0.0, 0.0]
+    sim = tm.Simulation(cfg)
+    e0, L0 = sim.energy_balance()["total"], sim.momentum()["angular"][2]
+    while sim.time < np.pi:
+        sim.step()
+    return sim.energy_balance()["total"] / e0, sim.momentum()["angular"][2] / L0
+
+
+@pytest.mark.slow
+def test_apic_dissipates_less_than_the_wider_b_splines():
+    """The kernel's claim (less numerical diffusion than quadratic B-splines): energy kept after one revolution,
+    measured ck 0.9768, quadratic 0.9527, cubic 0.9380 (angular momentum kept to 1e-6 by all three; PIC keeps
+    1e-4 of the energy with any of them)."""
+    ck, L = spinning_disk_energy("ck")
+    quadratic, _ = spinning_disk_energy("quadratic")
+    assert abs(L - 1.0) < 1e-6
+    assert 1.0 - ck < 0.6 * (1.0 - quadratic), (ck, quadratic)
