@@ -181,37 +181,44 @@ ALL, NORMAL, INTO = 1, 2, 3
 MIRRORED = {"sticky": ALL, "roller": NORMAL, "slip": INTO}
 
 
-def make_ghost_images(dim: int, n_cells: list, faces: list):
+def make_ghost_images(dim: int, n_cells: list, faces: list, reaction=None):
     """B's ghost nodes beyond sticky, roller and slip faces as images of their mirror nodes half a cell inside (the
-    method of images): `fold(gm, decide, g, with_mass)` before the grid solve adds each ghost's P2G sums to its
-    mirror node, reflected (the momentum and force the mirrored material would give it), and empties the ghost;
-    `mirror(gm, g)` after it gives the ghost the reflected velocity of its mirror node. The velocity the two grids
-    interpolate on the face is then the face's (sticky: zero; roller, slip: no normal component), and the mirror
-    node's equation is that of a node inside a mirrored body instead of one at a free surface. A corner ghost is
-    reflected across both faces. Slip folds and mirrors only while the material moves into the face (`decide`:
-    the momentum that says so). Free faces and velocity walls keep the node-wise conditions of
-    grid.make_wall_condition, as friction does. None when no face reflects."""
+    method of images): `fold(gm, decide, g, with_mass, gkick, measure)` before the grid solve adds each ghost's P2G
+    sums to its mirror node, reflected (the momentum, force and gravity the mirrored material would give it), and
+    empties the ghost; `mirror(gm, g)` after it gives the ghost the reflected velocity of its mirror node. The
+    velocity the two grids interpolate on the face is then the face's (sticky: zero; roller, slip: no normal
+    component), and the mirror node's equation is that of a node inside a mirrored body instead of one at a free
+    surface. A corner ghost is reflected across both faces. Slip folds and mirrors only while the material moves
+    into the face (`decide`: the momentum that says so). Free faces and velocity walls keep the node-wise
+    conditions of grid.make_wall_condition, as friction does. `reaction` (the walls' per-face impulse for wall
+    probes, or None): a measured fold adds each face's reflection of the ghost's momentum, B's share of the wall's
+    impulse (A's wall nodes give theirs through the node-wise condition). None when no face reflects."""
     kinds = [[MIRRORED.get(faces[a][side], 0) for side in range(2)] for a in range(dim)]
     reflects = [[k > 0 for k in axis] for axis in kinds]
     if not any(map(any, reflects)):
         return None
     ghost = [(0, 2 * n + 2) for n in n_cells]     # storage index of B's ghost below and above each axis' walls
     image = [(2, 2 * n) for n in n_cells]         # and of its mirror node inside
+    measuring = reaction is not None
 
     @ti.func
-    def reflect(I, v, p):
-        """(v reflected across every face ghost I lies beyond, whether a slip face there sees p move out)."""
+    def reflect(I, v, p, measure: ti.template()):
+        """(v reflected across every face ghost I lies beyond, whether a slip face there sees p move out); measured:
+        each face's change of v into its reaction slot."""
         out = False
         for a in ti.static(range(dim)):
             for side in ti.static(range(2)):
                 if ti.static(reflects[a][side]):
                     if I[a] == ghost[a][side]:
+                        before = v
                         if ti.static(kinds[a][side] == ALL):
                             v = -v
                         else:
                             v[a] = -v[a]
                             if ti.static(kinds[a][side] == INTO):
                                 out = out or (p[a] > 0 if ti.static(side == 0) else p[a] < 0)
+                        if ti.static(measure and measuring):
+                            reaction[2 * a + side] += v - before
         return v, out
 
     @ti.func
@@ -225,22 +232,31 @@ def make_ghost_images(dim: int, n_cells: list, faces: list):
         return J, beyond
 
     @ti.func
-    def fold(gm: ti.template(), decide: ti.template(), g: ti.template(), with_mass: ti.template()):
+    def fold(gm: ti.template(), decide: ti.template(), g: ti.template(), with_mass: ti.template(), gkick,
+             measure: ti.template()):
+        """with_mass: g is the momentum the grid solve will add gravity to (gkick per unit mass); the mirrored
+        material's gravity is reflected too, so the ghost's is folded in reflected and taken out again."""
         for I in ti.grouped(g):
             J, beyond = mirror_of(I)
             if beyond:
-                v, out = reflect(I, g[I], decide[I] + decide[J])
+                mI = gm[I] if ti.static(with_mass) else 0.0
+                p = decide[I] + decide[J] + (mI + gm[J]) * gkick
+                _, out = reflect(I, p, p, False)
                 if not out:
-                    g[J] += v
-                    g[I] = ti.Vector.zero(float, dim)
                     if ti.static(with_mass):
-                        gm[J] += gm[I]
+                        v, _ = reflect(I, g[I] + mI * gkick, p, measure)
+                        g[J] += v - mI * gkick
+                        gm[J] += mI
                         gm[I] = 0.0
+                    else:
+                        v, _ = reflect(I, g[I], p, False)
+                        g[J] += v
+                    g[I] = ti.Vector.zero(float, dim)
 
     @ti.func
     def mirror(gm: ti.template(), g: ti.template()):
         for I in ti.grouped(g):
             J, beyond = mirror_of(I)
             if beyond and gm[I] == 0 and gm[J] > 0:   # folded (a ghost that kept its mass solved itself)
-                g[I], _ = reflect(I, g[J], g[J])
+                g[I], _ = reflect(I, g[J], g[J], False)
     return fold, mirror

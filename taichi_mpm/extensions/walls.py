@@ -60,7 +60,7 @@ class Walls(Extension):
         # a mapped grid's walls act on its parameter faces, along their normals
         ctx.wall = make_wall_condition(d, s.n_cells, faces, s.basis, friction, self.reaction, moving, s.mapped)
         ctx.grid_solve.append(GridSolve(condition=self._condition(ctx.wall)))
-        images = make_ghost_images(d, s.n_cells, faces) if s.basis.kind == "staggered" else None
+        images = make_ghost_images(d, s.n_cells, faces, self.reaction) if s.basis.kind == "staggered" else None
         if images is not None:   # ck: B's ghost nodes beyond the faces as images of the nodes inside
             ctx.grid_solve.append(GridSolve(images=images))
         self._set_values = self._values_kernel() if self.moving else None

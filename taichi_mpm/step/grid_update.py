@@ -89,14 +89,15 @@ def make_grid_update(ctx):
         raise ValueError("two extensions fold ghost nodes: only one may")
 
     @ti.func
-    def folded(g: ti.template()):
-        """Ghost nodes' sums into their image nodes (ck's walls), before the chain: FLIP's old velocities first,
-        while the momentum still tells a slip face's ghosts whether the material moves into it, then the momentum
-        and the mass (once: a folded ghost has none left, so a second pass adds only its new momentum)."""
+    def folded(g: ti.template(), gkick, measure: ti.template()):
+        """Ghost nodes' sums into their image nodes (ck's walls), before the chain: FLIP's old momenta first, while
+        the momentum still tells a slip face's ghosts whether the material moves into it, then the momentum and
+        the mass (once: a folded ghost has none left, so a second pass adds only its new momentum). gkick: the
+        gravity the chain then adds per unit mass; measure: the step's update (wall probes)."""
         if ti.static(images):
-            if ti.static(flip):
-                images[0][0](gm, g, gv_old, False)
-            images[0][0](gm, g, g, True)
+            if ti.static(flip and measure):
+                images[0][0](gm, g, gv_old, False, gkick, False)
+            images[0][0](gm, g, g, True, gkick, measure)
 
     @ti.func
     def mirrored(g: ti.template()):
@@ -108,7 +109,7 @@ def make_grid_update(ctx):
 
     @ti.kernel
     def grid_update(kick_before: float, kick_after: float, special: ti.template()):
-        folded(gv)
+        folded(gv, gravity_kick(kick_before, kick_after), True)
         for I in ti.grouped(gm):
             m = gm[I]
             if has_mass(I, m, special):
@@ -126,7 +127,7 @@ def make_grid_update(ctx):
     def velocities(g: ti.template(), special: ti.template()):
         """The chain without forces, unmeasured (the step's measured update is grid_update): g = the node solve of
         the momentum g under the walls and grips."""
-        folded(g)
+        folded(g, ti.Vector.zero(float, ctx.dim), False)
         for I in ti.grouped(gm):
             m = gm[I]
             if has_mass(I, m, special):
