@@ -70,7 +70,7 @@ def make_compact(spec, knots=None) -> Basis:
         return ti.min(ka, kb), w, dw
 
     return Basis(spec.name, 4, 1, False, lambda n: 2 * n + 3, coord, lambda k, n: 0.5 * (k - 1), weights_1d,
-                 spec.stencil_kind, grids_1d=grids_1d)
+                 spec.stencil_kind, grids_1d=grids_1d, grids=GRIDS)
 
 
 def staggered_stencil(ctx: KernelContext) -> Stencil:

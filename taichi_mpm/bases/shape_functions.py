@@ -54,6 +54,7 @@ class Basis:
     kind: str = "tensor"                   # how stencils.py builds a particle's contributions (registry.STENCIL_KINDS)
     smooth_1d: Optional[Callable] = None   # ddmp: @ti.func (u, n cells) -> (smoothed w, smoothed dw, blend)
     grids_1d: Optional[Callable] = None    # ck: @ti.func (u, n cells) -> the particle's cell on each of its two grids
+    grids: int = 1                         # interleaved grids, each weighted 1/grids (ck: 2)
     axes: Optional[tuple] = None           # domain.knots: one Basis per axis (its own knot vector), else None
     knots: Any = None                      # a knot-vector axis: its KnotData (grid-unit knots and their fields)
     # B-splines: weights_1d of solver.quadrature domain (the span's functions averaged over the particle's domain,

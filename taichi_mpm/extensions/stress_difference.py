@@ -103,12 +103,15 @@ class StressDifference(Extension):
     def _correction(self, ctx):
         d, dx, rows, g_sum, v_sum = self.dim, self.dx, self.rows, self.g_sum, self.v_sum
         support, ends = self.support, self.ends
-        ramp, reach = 1.0 / (FILL_HIGH - FILL_LOW), (ctx.basis.stencil + 1) // 2
+        # ck: a node's neighbours on its own grid lie `stride` storage nodes apart, and its function is 1/grids of
+        # the axes' product
+        stride, scale = ctx.basis.spec.nodes_per_cell, 1.0 / ctx.basis.grids
+        ramp, reach = 1.0 / (FILL_HIGH - FILL_LOW), (ctx.basis.stencil // stride + 1) // 2
         shape = tuple(self.v_sum.shape)
 
         @ti.func
         def full_volume(J):
-            full = 1.0
+            full = scale
             for a in ti.static(range(d)):
                 full *= support[a][J[a]] * dx
             return full
@@ -121,7 +124,7 @@ class StressDifference(Extension):
             function hardly reaches into the box, does not count."""
             c = 1.0
             for o in ti.grouped(ti.ndrange(*([(-reach, reach + 1)] * d))):
-                J = I + o
+                J = I + stride * o
                 within = True
                 for a in ti.static(range(d)):
                     within = within and 0 <= J[a] < shape[a]
