@@ -61,6 +61,12 @@ class Spec:
         return self.stencil_kind in ("tensor", "staggered")
 
     @property
+    def regular_inertia(self) -> bool:
+        """APIC's D_p = sum w r r^T is never singular: weights of degree above 1, hats averaged over particle
+        domains, or ck's two staggered cells (multilinear weights alone make it singular on a node)."""
+        return self.degree > 1 or self.particle_domains or self.stencil_kind == "staggered"
+
+    @property
     def wall_layer(self) -> bool:
         """Particles on a face that holds material are transferred from inside it (stencils.WALL_LAYER): the
         tensor B-splines, whose first interior control point gets full gradient but no mass from a wall particle."""
