@@ -29,7 +29,7 @@ def test_what_the_built_in_bases_declare():
     assert registry.names(knots=True) == ("linear", "quadratic", "cubic")
     assert registry.names(map=True) == ("quadratic", "cubic")
     assert registry.names(particle_domains=True) == ("gimp", "cpdi")
-    assert registry.names(fbar_linear_grid=True) == ("quadratic", "cubic")
+    assert registry.names(fbar_linear_grid=True) == ("quadratic", "cubic", "ck")
     assert registry.names(crack=None) == ("linear", "gimp", "quadratic", "cubic", "cpdi")
     assert registry.names(coloured_scatter=True) == ("linear", "gimp", "quadratic", "cubic", "ddmp", "ck")
     assert registry.names(wall_layer=True) == ("linear", "quadratic", "cubic")

@@ -217,6 +217,7 @@ CASES = {
     "3d cpdi2 f32": lambda: make_cfg(3, basis="cpdi", precision="f32", dx=0.1, cpdi=dict(variant="cpdi2")),
     "2d ddmp sparse": lambda: make_cfg(2, basis="ddmp", dx=0.05),
     "3d ck sparse f32": lambda: make_cfg(3, basis="ck", precision="f32", dx=0.1),
+    "2d ck fbar": lambda: make_cfg(2, basis="ck", volumetric="fbar", dx=0.05),
     "2d ddmp dense": lambda: _dense(make_cfg(2, basis="ddmp", dx=0.05)),
     "2d fbar quadratic": lambda: make_cfg(2, volumetric="fbar", dx=0.05),
     "2d fbar linear dense": lambda: _dense(make_cfg(2, basis="linear", volumetric="fbar", dx=0.05)),

@@ -155,5 +155,5 @@ BUILT_IN = tuple(register(s).name for s in (
          1, 4, "ghost", crack=_DDMP_CRACK, prepass_grid=True, stress_difference=_DDMP_LSD),
     Spec("ck", "CK-MPM's compact kernel: the particle's cell on each of two grids staggered by half a cell",
          "taichi_mpm.bases.compact_kernel:make_compact", 1, 4, "staggered", stencil_kind="staggered",
-         nodes_per_cell=2, crack=_CK_CRACK, fbar=False),
+         nodes_per_cell=2, crack=_CK_CRACK, fbar_linear_grid=True),
 ))
