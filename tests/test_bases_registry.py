@@ -30,7 +30,7 @@ def test_what_the_built_in_bases_declare():
     assert registry.names(map=True) == ("quadratic", "cubic")
     assert registry.names(particle_domains=True) == ("gimp", "cpdi")
     assert registry.names(fbar_linear_grid=True) == ("quadratic", "cubic", "ck")
-    assert registry.names(crack=None) == ("linear", "gimp", "quadratic", "cubic", "cpdi")
+    assert registry.names(crack=None) == ("linear", "gimp", "quadratic", "cubic", "cpdi", "ck")
     assert registry.names(coloured_scatter=True) == ("linear", "gimp", "quadratic", "cubic", "ddmp", "ck")
     assert registry.names(wall_layer=True) == ("linear", "quadratic", "cubic")
     assert registry.names(prepass_grid=True) == ("ddmp",)
@@ -74,8 +74,8 @@ def test_crack_and_knot_refusals_name_the_supporting_bases():
     cfg = make_cfg(2, basis="ddmp")
     cfg["crack"] = {}
     with pytest.raises(tm.ConfigError, match=r"does not support basis ddmp: two interface blocks pulled apart kept "
-                                             r"only 0.185 .*; use linear, gimp, quadratic, cubic or cpdi with a "
-                                             r"crack section"):
+                                             r"only 0.185 .*; use linear, gimp, quadratic, cubic, cpdi or ck with "
+                                             r"a crack section"):
         tm.load_config(cfg)
     cfg = make_cfg(2, basis="gimp")
     cfg["domain"]["knots"] = dict(x=[0.0, 0.0, 0.5, 1.0, 1.0])

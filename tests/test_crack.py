@@ -14,7 +14,7 @@ import taichi_mpm as tm
 from conftest import fast_subset, make_cfg
 
 DATA = Path(__file__).parent / "data"
-BASES = ["linear", "gimp", "quadratic", "cubic"]
+BASES = ["linear", "gimp", "quadratic", "cubic", "ck"]
 
 
 # ---------------------------------------------------------------- scenes

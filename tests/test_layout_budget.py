@@ -223,6 +223,7 @@ CASES = {
     "2d fbar linear dense": lambda: _dense(make_cfg(2, basis="linear", volumetric="fbar", dx=0.05)),
     "2d crack, normals each step": lambda: _crack(0.0),
     "2d crack, kept normals": lambda: _crack(0.01),
+    "2d crack, ck": lambda: _crack(0.01, basis="ck"),
     "2d crack with F-bar": lambda: _crack(0.01, volumetric="fbar"),
     "2d domain.map sparse": lambda: _mapped(True),
     "2d domain.map dense": lambda: _mapped(False),

@@ -134,8 +134,6 @@ _DDMP_CRACK = ("two interface blocks pulled apart kept only 0.185 of their 0.2 m
 _DDMP_LSD = ("ddmp's blended gradient is not its weights' derivative: near a free surface (where its blend turns to "
              "linear's) its integral over a node's support is not what the correction assumes, and the 1D manufactured "
              "solution with free ends grew 3-13-fold in error with it (measured; docs/accuracy.md)")
-_CK_CRACK = ("a pre-cracked bar pulled open passes 8.1 % of the uncracked stress across the crack (quadratic 1.8 %, "
-             "the finder's bound 5 %), though two interface blocks separate exactly (measured; docs/bases.md)")
 _CORNERS_LSD = "cpdi's corner stencil has no per-axis functions to integrate a node's support from"
 
 BUILT_IN = tuple(register(s).name for s in (
@@ -155,5 +153,5 @@ BUILT_IN = tuple(register(s).name for s in (
          1, 4, "ghost", crack=_DDMP_CRACK, prepass_grid=True, stress_difference=_DDMP_LSD),
     Spec("ck", "CK-MPM's compact kernel: the particle's cell on each of two grids staggered by half a cell",
          "taichi_mpm.bases.compact_kernel:make_compact", 1, 4, "staggered", stencil_kind="staggered",
-         nodes_per_cell=2, crack=_CK_CRACK, fbar_linear_grid=True),
+         nodes_per_cell=2, fbar_linear_grid=True),
 ))

@@ -88,13 +88,17 @@ def make_grid_update(ctx):
     if len(images) > 1:
         raise ValueError("two extensions fold ghost nodes: only one may")
 
+    own_solve = any(g.velocity is not None for g in ctx.grid_solve)
+
     @ti.func
-    def folded(g: ti.template(), gkick, measure: ti.template()):
+    def folded(g: ti.template(), gkick, measure: ti.template(), special: ti.template()):
         """Ghost nodes' sums into their image nodes (ck's walls), before the chain: FLIP's old momenta first, while
         the momentum still tells a slip face's ghosts whether the material moves into it, then the momentum and
         the mass (once: a folded ghost has none left, so a second pass adds only its new momentum). gkick: the
-        gravity the chain then adds per unit mass; measure: the step's update (wall probes)."""
-        if ti.static(images):
+        gravity the chain then adds per unit mass; measure: the step's update (wall probes). Not on a step where an
+        extension solves the nodes itself (the crack finder's tensor node mass has rows of its own, which the fold
+        does not move): B's ghosts then keep the node-wise wall conditions."""
+        if ti.static(images and not (special and own_solve)):
             if ti.static(flip and measure):
                 images[0][0](gm, g, gv_old, False, gkick, False)
             images[0][0](gm, g, g, True, gkick, measure)
@@ -109,7 +113,7 @@ def make_grid_update(ctx):
 
     @ti.kernel
     def grid_update(kick_before: float, kick_after: float, special: ti.template()):
-        folded(gv, gravity_kick(kick_before, kick_after), True)
+        folded(gv, gravity_kick(kick_before, kick_after), True, special)
         for I in ti.grouped(gm):
             m = gm[I]
             if has_mass(I, m, special):
@@ -127,7 +131,7 @@ def make_grid_update(ctx):
     def velocities(g: ti.template(), special: ti.template()):
         """The chain without forces, unmeasured (the step's measured update is grid_update): g = the node solve of
         the momentum g under the walls and grips."""
-        folded(g, ti.Vector.zero(float, ctx.dim), False)
+        folded(g, ti.Vector.zero(float, ctx.dim), False, special)
         for I in ti.grouped(gm):
             m = gm[I]
             if has_mass(I, m, special):

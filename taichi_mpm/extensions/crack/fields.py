@@ -135,9 +135,10 @@ class CrackFields:
         self.dim = d
         self.spacing = float(np.min(view.spacing))
         # a particle whose stencil reaches across the discontinuity must see it: the support radius is at
-        # least the stencil reach (S/2 cells) plus one particle spacing (cpdi: its undeformed domains' reach,
-        # 1.5 cells; a domain stretched beyond it sees the discontinuity only once it is within that reach)
-        self.reach = 0.5 * view.basis.stencil * view.dx
+        # least the stencil reach (S/2 cells; ck: its window of S storage nodes, half a cell apart, reaches a cell)
+        # plus one particle spacing (cpdi: its undeformed domains' reach, 1.5 cells; a domain stretched beyond it
+        # sees the discontinuity only once it is within that reach)
+        self.reach = 0.5 * view.basis.stencil / view.basis.spec.nodes_per_cell * view.dx
         self.radius = max(cc.kernel_radius * self.spacing, self.reach + self.spacing)
         extent = view.upper - view.lower
         self.cells = [max(1, int(math.ceil(e * CELL_SPLIT / self.radius))) for e in extent]  # cell = r / CELL_SPLIT
