@@ -277,7 +277,7 @@ class GridSize:
     def bytes(self) -> int:
         d = len(self.nodes)
         if not self.sparse:
-            blocks = math.prod(math.ceil(n / (self.leaf if self.leaf > 1 else LEAF[d])) for n in self.nodes)
+            blocks = math.prod(math.ceil(n / self.leaf) for n in self.nodes)
             return math.prod(self.nodes) * self.node_bytes + blocks * self.block_bytes
         pointers = self.top_slots + (self.tops * self.mid ** d if self.mid > 1 else 0)
         return pointers * POINTER_SLOT_BYTES + self.leaves * (self.leaf ** d * self.node_bytes + self.block_bytes)
@@ -311,14 +311,18 @@ def _bin_list_bytes(cfg: Config, particles: int, nodes: list[int], body_force: b
     colour tables."""
     if not needs(cfg, body_force).coloured:
         return 0
-    leaf = LEAF[cfg.dim] * bases.get(cfg.solver.basis).nodes_per_cell   # the main grid's (solver.py)
-    blocks = math.prod(math.ceil(n / leaf) for n in nodes)
+    blocks = math.prod(math.ceil(n / _main_leaf(cfg)) for n in nodes)
     return layout.scatter_fixed_bytes(cfg.dim, max(1, min(particles, blocks)))
 
 
+def _main_leaf(cfg: Config) -> int:
+    """Nodes per axis of the main grid's leaf blocks: LEAF[d], twice that on ck's half-spacing grid (solver.py)."""
+    return LEAF[cfg.dim] * bases.get(cfg.solver.basis).nodes_per_cell
+
+
 def _leaf(cfg: Config, decl) -> int:
-    """Nodes per axis of a grid's leaf blocks: LEAF[d], twice that on ck's half-spacing main grid (solver.py)."""
-    return LEAF[cfg.dim] * (bases.get(cfg.solver.basis).nodes_per_cell if decl.name == "grid" else 1)
+    """Nodes per axis of a grid's leaf blocks: the main grid's (layout.main_grid), LEAF[d] for the others."""
+    return _main_leaf(cfg) if decl.name == "grid" else LEAF[cfg.dim]
 
 
 def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None, particles: int = 0,

@@ -17,9 +17,11 @@ odd k: A's nodes, even k: B's), 2 n + 3 nodes per axis for n cells. A node is A'
 when every index is even; the mixed ones stay empty (on a sparse grid only the touched blocks are allocated, with
 their empty nodes: 2^(d-1) x the nodes the two grids need).
 
-Walls act on the nodes at or beyond them, as for every basis (grid.make_wall_condition): A's wall node and B's ghost
-half a cell beyond. B has no node on the wall, so the velocity interpolated at a sticky wall is a quarter of B's
-first interior node's, not zero (docs/bases.md, "CK-MPM", measured).
+Walls: B has no node on a wall. Its ghost nodes half a cell beyond sticky, roller and slip faces are images of the
+nodes half a cell inside (`make_ghost_images`, the walls extension's GridSolve.images); A's wall nodes, and every
+node of free faces and velocity walls, take the node-wise conditions of grid.make_wall_condition, as for every basis
+(docs/bases.md, "CK-MPM": under the node-wise conditions alone a sticky wall kept a quarter of B's first node's
+velocity and the manufactured solution converged at first order).
 
 Physics code only: no CLI, rendering or file I/O here.
 """
@@ -88,16 +90,21 @@ def staggered_stencil(ctx: KernelContext) -> Stencil:
     count = GRIDS * 2 ** dim
 
     @ti.func
+    def coordinate(p, a: ti.template()):
+        """The particle's coordinate along axis a in cells, clamped onto the box (a particle a hair beyond a wall
+        takes the wall's weights)."""
+        return ti.min(ti.max((x[p][a] - lower[a]) * inv_dx, 0.0), ti.cast(n_cells[a], float))
+
+    @ti.func
     def at(p):
         """Per grid g and axis a (row g dim + a): the cell's first storage index, its two weights, derivatives
         (per metre) and offsets x_i - x_p."""
-        u = (x[p] - lower) * inv_dx
         base = ti.Matrix.zero(int, GRIDS * dim, 1)
         W = ti.Matrix.zero(float, GRIDS * dim, 2)
         DW = ti.Matrix.zero(float, GRIDS * dim, 2)
         R = ti.Matrix.zero(float, GRIDS * dim, 2)
         for a in ti.static(range(dim)):
-            uw = ti.min(ti.max(u[a], 0.0), ti.cast(n_cells[a], float))
+            uw = coordinate(p, a)
             ka, wa, da, kb, wb, db = grids_1d(uw, n_cells[a])
             base[a, 0], base[dim + a, 0] = ka, kb
             for k in ti.static(range(2)):
@@ -165,10 +172,9 @@ def staggered_stencil(ctx: KernelContext) -> Stencil:
     def origin(p):
         """The first storage node of the particle's window (both cells lie within 4 nodes of it per axis): the
         coloured scatter's bin."""
-        u = (x[p] - lower) * inv_dx
         first = ti.Vector.zero(int, dim)
         for a in ti.static(range(dim)):
-            ka, _, _, kb, _, _ = grids_1d(ti.min(ti.max(u[a], 0.0), ti.cast(n_cells[a], float)), n_cells[a])
+            ka, _, _, kb, _, _ = grids_1d(coordinate(p, a), n_cells[a])
             first[a] = ti.min(ka, kb)
         return first
 

@@ -13,6 +13,9 @@ from typing import Callable, Optional, Union
 
 GRIDS = ("bspline", "ghost", "staggered")     # the node layouts of shape_functions.py (see Spec.grid)
 STENCIL_KINDS = ("tensor", "corners", "staggered")   # how stencils.make_stencil builds a particle's contributions
+# kinds whose stencil lies in a window of `stencil` storage nodes per axis from an origin (the coloured scatter's
+# bound; cpdi's corners can reach any node)
+BOUNDED_KINDS = ("tensor", "staggered")
 
 
 @dataclass(frozen=True)
@@ -58,7 +61,7 @@ class Spec:
     def coloured_scatter(self) -> bool:
         """P2G can add by colours: a tensor (or ck's staggered) stencil reaches a bounded box of nodes (cpdi's corners
         can reach any)."""
-        return self.stencil_kind in ("tensor", "staggered")
+        return self.stencil_kind in BOUNDED_KINDS
 
     @property
     def regular_inertia(self) -> bool:

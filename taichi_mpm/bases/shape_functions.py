@@ -83,7 +83,7 @@ class Basis:
         two grids."""
         if self.kind in ("tensor", "mapped"):
             return self.stencil ** dim
-        return 2 * 2 ** dim if self.kind == "staggered" else 4 ** dim
+        return self.spec.nodes_per_particle(dim)
 
 
 def cox_de_boor(p: int, knot: Callable):

@@ -32,14 +32,13 @@ from ..sums import CPU_TASK, cpu_threads
 # medians of 3, docs/performance.md "Coloured or atomic"): 2D ~2 300 particles, 3D ~440, 1D none (within noise).
 # Deterministic runs keep the colours at any size: their sums need one order.
 ATOMIC_BELOW = {1: 0, 2: 2300, 3: 440}
-BOUNDED_KINDS = ("tensor", "staggered")   # stencils within a window of `stencil` storage nodes per axis from an origin
 
 
 def applies(gpu: bool, stencil_kind: str, width: int, dim: int, setting: str, particles: int,
             deterministic: bool = False) -> bool:
     """Whether P2G scatters by colours: `solver.scatter` auto (CPU, bounded tensor stencil, at least
     ATOMIC_BELOW[dim] particles or a deterministic run), coloured or atomic."""
-    bounded = stencil_kind in BOUNDED_KINDS and width <= LEAF[dim] + 1
+    bounded = stencil_kind in bases.BOUNDED_KINDS and width <= LEAF[dim] + 1
     if setting == "atomic":
         return False
     if setting == "coloured":
