@@ -245,7 +245,7 @@ def make_ghost_images(dim: int, n_cells: list, faces: list, reaction=None):
         for I in ti.grouped(g):
             J, beyond = mirror_of(I)
             if beyond:
-                mI = gm[I] if ti.static(with_mass) else 0.0
+                mI = gm[I]   # the ghost's mass (the momentum fold runs last: FLIP's fold decides as it will)
                 p = decide[I] + decide[J] + (mI + gm[J]) * gkick
                 _, out = reflect(I, p, p, False)
                 if not out:

@@ -104,11 +104,12 @@ def make_grid_update(ctx):
             images[0][0](gm, g, g, True, gkick, measure)
 
     @ti.func
-    def mirrored(g: ti.template()):
-        """Ghost nodes from their image nodes, once every node has its velocity (a loop of its own)."""
+    def mirrored(g: ti.template(), measure: ti.template()):
+        """Ghost nodes from their image nodes, once every node has its velocity (a loop of its own); FLIP's old
+        velocities in the step's update, where they were folded."""
         if ti.static(images):
             images[0][1](gm, g)
-            if ti.static(flip):
+            if ti.static(flip and measure):
                 images[0][1](gm, gv_old)
 
     @ti.kernel
@@ -125,7 +126,7 @@ def make_grid_update(ctx):
                     gv_old[I] = node_velocity(I, m, gv_old[I], special)
                 for k in ti.static(range(len(own_fields))):   # the extensions' own node fields (multi-field contact)
                     own_fields[k](I, kick_before, kick_after)
-        mirrored(gv)
+        mirrored(gv, True)
 
     @ti.func
     def velocities(g: ti.template(), special: ti.template()):
@@ -136,7 +137,7 @@ def make_grid_update(ctx):
             m = gm[I]
             if has_mass(I, m, special):
                 g[I] = conditions(I, node_velocity(I, m, g[I], special), m, False)
-        mirrored(g)
+        mirrored(g, False)
 
     @ti.kernel
     def grid_remap(special: ti.template()):
