@@ -6,7 +6,6 @@ import pytest
 
 import taichi_mpm as tm
 from conftest import make_cfg
-from taichi_mpm import analytic as an
 import test_conservation as tcons   # module objects: their tests are not collected again here
 import test_cpdi as tcp
 import test_crack as tcr
@@ -87,13 +86,9 @@ def test_fbar_block_at_rest_at_nu_04999_is_smooth_and_hydrostatic():
     assert np.abs(syy - tfb.RHO * tfb.G * (tfb.H - heights)).max() < 0.05 * rho_g_h
 
 
-def mms_errors(cells, amplitude, dim=1, basis="ck", transfer="flip", **problem):
-    errs = []
-    for n in cells:
-        pr = an.make_problem({"type": "mms_axis_aligned", "dim": dim, "amplitude": amplitude, **problem})
-        _, e = an.run_problem(pr, {"domain.dx": 1.0 / n, "solver.basis": basis, "solver.transfer": transfer})
-        errs.append(e["error_rms"])
-    return np.array(errs)
+def mms_errors(cells, amplitude, **problem):
+    """test_cpdi.py's 1D manufactured-solution errors with ck (the problem's own transfer, FLIP, unless given)."""
+    return np.array(tcp.mms_errors(1, amplitude, cells, basis="ck", **problem))
 
 
 def test_sticky_walls_keep_second_order():

@@ -218,11 +218,13 @@ def test_corner_leaving_the_domain_raises():
 
 
 # ---------------------------------------------------------------- manufactured solutions (slow)
-def mms_errors(dim, amplitude, cells, basis="cpdi", variant="cpdi1", **problem):
+def mms_errors(dim, amplitude, cells, basis="cpdi", variant="cpdi1", transfer=None, **problem):
     errs = []
     for n in cells:
         pr = an.make_problem({"type": "mms_axis_aligned", "dim": dim, "amplitude": amplitude, **problem})
         overrides = {"domain.dx": 1.0 / n, "solver.basis": basis}
+        if transfer is not None:
+            overrides["solver.transfer"] = transfer
         if basis == "cpdi":
             overrides["solver.cpdi.variant"] = variant
         _, e = an.run_problem(pr, overrides)
