@@ -112,7 +112,7 @@ _field("displacement", "m", "displacement x - X from the initial position", lamb
 _field("F", "1", "deformation gradient (3x3; F_zz = 1 in 2D, F_yy = F_zz = 1 in 1D)",
        lambda p: embed3(p["F"], 1.0), "tensor", ["F"])
 _field("C", "1/s or m^2/s", "the solver's affine matrix: APIC's B_p (quadratic, cubic, gimp) or the velocity gradient "
-       "(linear basis with APIC, and viscous fluids)", lambda p: embed3(p["C"], 0.0), "tensor", ["C"])
+       "(linear basis with APIC, TPIC, and viscous materials under PIC or FLIP)", lambda p: embed3(p["C"], 0.0), "tensor", ["C"])
 _field("mass", "kg", "particle mass", lambda p: np.asarray(p["mass"], float), needs=["mass"])
 _field("volume", "m^3 (m^2 per m in 2D, m per m^2 in 1D)", "current particle volume J V0",
        lambda p: np.asarray(p["volume"], float), needs=["volume"])

@@ -25,6 +25,7 @@ class Needs:
     dim: int
     precision: str
     store_grad_v: bool          # C: APIC's B_p or C_p, or grad v (viscosity)
+    own_grad_v: bool            # grad_v: the last step's grid velocity gradient (viscosity with an affine transfer)
     multi_material: bool        # a material index
     multi_body: bool            # a body index (diagnostics per body)
     body_force: bool
@@ -51,6 +52,7 @@ class Needs:
         """The solver's: from its Features and scene."""
         c = sim.cfg
         return cls(dim=sim.dim, precision=c.precision, store_grad_v=feat.store_grad_v,
+                   own_grad_v=feat.own_grad_v,
                    multi_material=feat.multi_material, multi_body=bool(sim.scene.body.max(initial=0) > 0),
                    body_force=feat.body_force, domain_per_particle=feat.domain_per_particle,
                    initial_stress=feat.initial_stress, tractions=feat.tractions,
@@ -69,6 +71,7 @@ class Needs:
         s = cfg.solver
         scheme = transfer_schemes.get(s.transfer)   # its declaration (schemes/)
         return cls(dim=cfg.dim, precision=cfg.precision, store_grad_v=scheme.affine or viscous,
+                   own_grad_v=scheme.affine and viscous,
                    multi_material=len(mats) > 1, multi_body=len(cfg.bodies) > 1, body_force=body_force,
                    domain_per_particle=bases.get(s.basis).particle_domains and len(spacings) > 1,
                    initial_stress=any(b.stress is not None for b in cfg.bodies),
@@ -93,6 +96,7 @@ def solver_particle_fields(n: Needs) -> list[FieldDecl]:
     out = [FieldDecl("x", "real", (d,)), FieldDecl("v", "real", (d,)), FieldDecl("F", "real", (d, d)),
            FieldDecl("vol0", "real")]
     out += [FieldDecl("C", "real", (d, d), "apic or viscosity")] if n.store_grad_v else []
+    out += [FieldDecl("grad_v", "real", (d, d), "viscosity with an affine transfer")] if n.own_grad_v else []
     out += [FieldDecl("mat", "u8", (), "more than one material")] if n.multi_material else []
     out += [FieldDecl("body_acc", "real", (d,), "body force")] if n.body_force else []
     out += [FieldDecl("half_width", "real", (), "particle domains of several sizes")] if n.domain_per_particle else []

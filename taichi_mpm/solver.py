@@ -149,7 +149,7 @@ class Simulation:
         """x, v, F, vol0 and the optional per-particle fields (C, mat, body_acc, half_width, stress0, state, load,
         body_id: None when the scene does without), as field_layout.solver_particle_fields declares them."""
         fields = field_layout.allocate(field_layout.solver_particle_fields(needs), self.n)
-        for name in ("x", "v", "F", "vol0", "C", "mat", "body_acc", "half_width", "stress0", "state", "load",
+        for name in ("x", "v", "F", "vol0", "C", "grad_v", "mat", "body_acc", "half_width", "stress0", "state", "load",
                      "body_id"):
             setattr(self, name, fields.get(name))
         # per-particle material state (plastic strain, J_p, ...): only when a model of the scene has any (materials/)
@@ -247,8 +247,9 @@ class Simulation:
                 F[particles] = Fg
         pairs = [(self.x, self._to_solver(s.x)), (self.v, self._to_solver(s.v)),
                  (self.F, self._to_solver(F)), (self.vol0, self._to_solver(s.volume))]
-        if self.C is not None:
-            pairs.append((self.C, np.zeros((n, d, d))))
+        for affine in (self.C, self.grad_v):
+            if affine is not None:
+                pairs.append((affine, np.zeros((n, d, d))))
         if self.mat is not None:
             pairs.append((self.mat, self._to_solver(s.material)))
         if self.half_width is not None:
@@ -286,7 +287,8 @@ class Simulation:
         return StepContext(
             dim=dim, dx=dx, lower=ti.Vector(self.lower.tolist()), upper=ti.Vector(self.upper.tolist()),
             n_cells=self.n_cells, basis=self.basis, feat=self.feat, precision=c.precision,
-            x=self.x, v=self.v, F=self.F, C=self.C, vol0=self.vol0, mat=self.mat, half_width=self.half_width,
+            x=self.x, v=self.v, F=self.F, C=self.C, grad_v=self.grad_v, vol0=self.vol0, mat=self.mat,
+            half_width=self.half_width,
             domain_lp0=0.5 * float(self.scene.spacing[0]) / dx if self.n else 0.5,
             gimp_deforming=c.solver.gimp_domain == "deforming", unroll=self.unroll, grid=self.grid,
             gravity_kick=step_kernels.make_gravity_kick(self.gravity_field, self.gravity_before_field),
@@ -809,6 +811,8 @@ class Simulation:
         fields = {"x": self.x, "v": self.v, "F": self.F}
         if self.C is not None:
             fields["C"] = self.C
+        if self.grad_v is not None:   # viscous stresses read it: a resumed run continues bit for bit
+            fields["grad_v"] = self.grad_v
         return fields
 
     def _read(self, name) -> np.ndarray:

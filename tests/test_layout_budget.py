@@ -162,8 +162,8 @@ def _plastic(model, **params):
     return data
 
 
-def _viscous():
-    data = make_cfg(2, model="fluid", transfer="pic")
+def _viscous(transfer="pic"):
+    data = make_cfg(2, model="fluid", transfer=transfer)
     data["materials"]["m"]["viscosity"] = 1.0
     return data
 
@@ -234,6 +234,7 @@ CASES = {
                                                      model="snow", hardening=10.0),
     "2d stress, tractions, grip, wall probe": _loads,
     "2d viscous fluid": _viscous,
+    "2d viscous fluid, apic (grad_v apart from C)": lambda: _viscous("apic"),
     # transfers (issue 28): XPIC's v_old and three grid vectors more, ASFLIP's v_old and C, MLS's C; USF
     "2d xpic": lambda: make_cfg(2, transfer="xpic", xpic_order=3),
     "3d xpic dense f32": lambda: _dense(make_cfg(3, transfer="xpic", precision="f32", dx=0.1)),

@@ -19,6 +19,7 @@ class StepContext(KernelContext):
     state: Any = None                # per-particle material state (plastic strain, J_p, ...) or None
     stress0: Any = None              # bodies[].stress: the stored 2nd Piola-Kirchhoff stress, or None
     body_acc: Any = None             # Simulation(body_force=...): per-particle body acceleration, or None
+    grad_v: Any = None               # the last step's grid velocity gradient (viscosity with an affine transfer)
     # runtime parameters, read by the kernels (set_gravity, set_stiffness_scale, set_flip_blend)
     gravity: Any = None
     gravity_before: Any = None       # the last step's gravity (see gravity_kick)

@@ -24,6 +24,8 @@ class Features:
     musl: bool                  # solver.update musl: a second P2G of the new momentum (grid v2)
     usf: bool                   # solver.update usf: F and the stress from the velocities before forces
     store_grad_v: bool          # a C field: APIC's B_p or C_p, or grad v (viscosity)
+    own_grad_v: bool            # viscosity with an affine transfer: grad v kept in a field of its own (grad_v),
+                                # since APIC's C_p (B_p D_p^-1) is not the grid's gradient
     multi_material: bool        # a per-particle material index
     body_force: bool            # Simulation(body_force=...): a per-particle body acceleration
     domain_per_particle: bool   # particle domains of more than one size (gimp, cpdi): a per-particle half-width
@@ -48,6 +50,7 @@ class Features:
             musl=cfg.solver.update == "musl",
             usf=cfg.solver.update == "usf",
             store_grad_v=transfer.affine or viscosity,
+            own_grad_v=transfer.affine and viscosity,
             multi_material=len(materials) > 1,
             body_force=body_force,
             domain_per_particle=bases.get(cfg.solver.basis).particle_domains and len(np.unique(scene.spacing)) > 1,

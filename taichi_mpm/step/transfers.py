@@ -273,13 +273,14 @@ def make_node_reads(ctx):
 def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
     dim = ctx.dim
-    x, v, F, C = ctx.x, ctx.v, ctx.F, ctx.C
+    x, v, F, C, grad_v = ctx.x, ctx.v, ctx.F, ctx.C, ctx.grad_v
     sten, pt = ctx.stencil, ctx.particle_transfer
     outer, inner = sten.outer, sten.inner
     read_v, read_old, read_grad = make_node_reads(ctx)
     gv_old = ctx.gv_old
     f = ctx.feat
     flip, apic, taken, has_C = f.flip, f.apic, pt is not None, C is not None
+    own_grad_v = grad_v is not None
     xpic, v_star = f.xpic, ctx.grid.vec.get("xpic_sum")   # XPIC's v* (step/xpic.py)
     transfer_velocity, new_position = make_velocity_update(ctx), make_position_update(ctx, read_v)
     apic_gradient = gradient_affine(ctx)   # C_p = sum v_i grad w^T: TPIC, or APIC on multilinear weights
@@ -348,6 +349,8 @@ def make_g2p(ctx, mf, af, external_force):
         F[p] = Fp
         if ti.static(has_C and not apic and _moves_F(deform)):
             C[p] = G
+        if ti.static(own_grad_v and _moves_F(deform)):
+            grad_v[p] = G
         speed2 = v[p].norm_sqr()
         ti.atomic_max(vmax2[None], speed2)
         code = failure(p, xp, Fp, J, speed2)
