@@ -352,6 +352,13 @@ class Cpdi(Strict):
     variant: Literal["cpdi1", "cpdi2"] = "cpdi1"
 
 
+class Ddmp(Strict):
+    # a node whose dual domain is filled below this fraction (V_j / V_j^dual, at a free surface or where material
+    # enters a cell) is folded into its fullest neighbour on the same walls, which gives it its velocity: linear
+    # weights leave such a node a tiny mass and a full force (docs/bases.md, "DDMP's small nodes"); 0: off
+    fold_below: Annotated[float, Field(ge=0, lt=1)] = 0.1
+
+
 def _basis_name(v):
     """A registered basis (bases/registry.py; read at validation, so a basis registered later is accepted)."""
     if not (isinstance(v, str) and v in bases.names()):
@@ -386,6 +393,7 @@ class Solver(Strict):
     # inside a body (extensions/stress_difference.py; docs/accuracy.md, "The local stress difference")
     stress_difference: bool = False
     cpdi: Cpdi = Cpdi()
+    ddmp: Ddmp = Ddmp()
     cfl: PositiveFloat = 0.4
     dt: Optional[PositiveFloat] = None
     end_time: PositiveFloat
@@ -914,7 +922,7 @@ class Config(Strict):
         """Settings given that nothing would read: an error at validation rather than a run that ignores them."""
         s = self.solver
         # (a default value written out, as Config.to_dict does, is no setting: only other values are refused)
-        for key, default in (("cpdi", Cpdi()), ("gimp_domain", "uniform"), ("quadrature", "point")):
+        for key, default in (("cpdi", Cpdi()), ("ddmp", Ddmp()), ("gimp_domain", "uniform"), ("quadrature", "point")):
             readers = [n for n in bases.names() if key in bases.get(n).options]
             if getattr(s, key) != default and s.basis not in readers:
                 raise _Located(f"solver.{key}", f"is read by solver.basis {bases.listed(readers)} only (the basis is "

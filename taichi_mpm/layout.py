@@ -18,6 +18,7 @@ from .bases import registry as bases
 from .extensions.contact.fields import ContactNeeds
 from .extensions.crack.fields import NODE_CACHE as CRACK_NODE_CACHE, CrackNeeds
 from .field_decl import FieldDecl, GridDecl, allocate, nbytes  # noqa: F401 (allocate, nbytes: the layout's API)
+from .step.features import small_node_fold
 
 @dataclass(frozen=True)
 class Needs:
@@ -33,7 +34,7 @@ class Needs:
     initial_stress: bool
     tractions: bool
     n_state: int                # material state floats (materials/), 0: no state field
-    flip: bool                  # the grid keeps v before forces, v_old (flip, xpic, asflip: schemes/)
+    flip: bool                  # the grid keeps v before forces, v_old (flip, xpic, asflip: schemes/; ddmp's fold)
     transfer_vectors: tuple     # the transfer's own node vectors (xpic's three: schemes/xpic.py)
     musl: bool
     grips: bool
@@ -41,6 +42,7 @@ class Needs:
     fbar: bool                  # solver.volumetric fbar (not 1D)
     fbar_linear: bool           # F-bar averages on the linear grid (quadratic, cubic)
     ddmp: bool                  # nodal volumes on a grid of their own
+    ddmp_fold: bool             # and each node's fold target (solver.ddmp.fold_below)
     coloured: bool              # the coloured scatter's bins (scatter.BlockBins)
     crack: CrackNeeds | None
     contact: ContactNeeds | None = None   # multi-field contact's node fields (its velocity fields)
@@ -56,7 +58,8 @@ class Needs:
                    multi_material=feat.multi_material, multi_body=bool(sim.scene.body.max(initial=0) > 0),
                    body_force=feat.body_force, domain_per_particle=feat.domain_per_particle,
                    initial_stress=feat.initial_stress, tractions=feat.tractions,
-                   n_state=material_models.state_size(sim._materials, sim.dim), flip=feat.flip,
+                   n_state=material_models.state_size(sim._materials, sim.dim),
+                   flip=feat.flip or feat.small_node_fold > 0,
                    transfer_vectors=transfer_schemes.get(c.solver.transfer).grid_vectors, musl=feat.musl,
                    grips=feat.grips, mapped=sim.mapped is not None, **_common(c, coloured),
                    crack=CrackNeeds.of(c, sim._materials, sim.basis) if c.crack is not None else None,
@@ -76,7 +79,8 @@ class Needs:
                    domain_per_particle=bases.get(s.basis).particle_domains and len(spacings) > 1,
                    initial_stress=any(b.stress is not None for b in cfg.bodies),
                    tractions=any(b.tractions for b in cfg.bodies), n_state=material_models.state_size(mats, cfg.dim),
-                   flip=scheme.keeps_old_grid, transfer_vectors=scheme.grid_vectors, musl=s.update == "musl",
+                   flip=scheme.keeps_old_grid or small_node_fold(cfg) > 0, transfer_vectors=scheme.grid_vectors,
+                   musl=s.update == "musl",
                    grips=any(b.prescribed_velocity for b in cfg.bodies), mapped=cfg.domain.map is not None,
                    **_common(cfg, coloured), crack=CrackNeeds.of(cfg, mats, basis) if cfg.crack is not None else None,
                    contact=ContactNeeds.of(cfg) if cfg.contact is not None else None)
@@ -85,7 +89,7 @@ class Needs:
 def _common(cfg, coloured: bool) -> dict:
     spec = bases.get(cfg.solver.basis)   # the basis' declaration (bases/registry.py)
     return dict(fbar=cfg.solver.volumetric == "fbar" and cfg.dim > 1, fbar_linear=spec.fbar_linear_grid,
-                ddmp=spec.prepass_grid, coloured=coloured,
+                ddmp=spec.prepass_grid, ddmp_fold=small_node_fold(cfg) > 0, coloured=coloured,
                 cpdi2=spec.stencil_kind == "corners" and cfg.solver.cpdi.variant == "cpdi2",
                 stress_difference=cfg.solver.stress_difference)
 
@@ -171,7 +175,13 @@ def main_grid(n: Needs) -> GridDecl:
     return GridDecl("grid", vec, apart, scalars, block_ints=2 if n.coloured else 0)
 
 
-DDMP_VOLUMES = GridDecl("ddmp nodal volumes")
+def ddmp_grid(fold: bool) -> GridDecl:
+    """ddmp's node volumes; with the small-node fold (solver.ddmp.fold_below) each node's fold code and the force and
+    mass per axis its small neighbours share with it (extensions/ddmp_fill.py)."""
+    return GridDecl("ddmp nodal volumes", apart=("fold_force", "fold_mass") if fold else (),
+                    scalars=("fold",) if fold else ())
+
+
 STRESS_DIFFERENCE_ROWS = ("lsd_t0", "lsd_t1", "lsd_t2")   # the rows of sum V sigma w at a node
 
 
@@ -184,6 +194,6 @@ def grids(n: Needs) -> list[GridDecl]:
     """Every grid of the scene, the main one first."""
     out = [main_grid(n)]
     out += [CRACK_NODE_CACHE] if n.crack is not None and n.crack.kept_normals else []   # normals kept between refreshes
-    out += [DDMP_VOLUMES] if n.ddmp else []
+    out += [ddmp_grid(n.ddmp_fold)] if n.ddmp else []
     out += [fbar_grid(n)] * 2 if n.fbar else []
     return out

@@ -177,18 +177,23 @@ def test_validate_prints_the_estimate_refuses_and_allow_large_overrides(tmp_path
 
 def test_ddmp_counts_its_nodal_volume_grid():
     """ddmp keeps the nodal volumes V_j on a grid of their own, one scalar per node (stencils._dual_domain_fill):
-    dense, exactly one float per node more than gimp, whose grid has the same nodes (ghosts beyond the walls)."""
+    dense, exactly one float per node more than gimp, whose grid has the same nodes (ghosts beyond the walls). Its
+    small-node fold (solver.ddmp.fold_below, on by default) adds per node its code, the force and mass per axis it
+    shares (2 d + 1 floats) and the main grid's momentum before forces (v_old, d floats)."""
     for sparse in (False, True):
-        cfg = tm.load_config(make_cfg(2, basis="ddmp", dx=0.1, precision="f64"))
-        cfg.domain.sparse = sparse
-        with_vol = budget._grid_bytes(cfg, ".")[0]
-        nodes = math.prod(budget.grid_layout(cfg)["nodes"])
-        cfg.solver.basis = "gimp"            # same grid (ghost nodes beyond the walls), no nodal-volume grid
-        plain = budget._grid_bytes(cfg, ".")[0]
-        if not sparse:
-            assert with_vol - plain == 8 * nodes
-        else:
-            assert with_vol > plain
+        for fold, extra in ((0.0, 1), (0.1, 1 + (1 + 2 * 2) + 2)):
+            cfg = tm.load_config(make_cfg(2, basis="ddmp", dx=0.1, precision="f64"))
+            cfg.domain.sparse = sparse
+            cfg.solver.ddmp.fold_below = fold
+            with_vol = budget._grid_bytes(cfg, ".")[0]
+            nodes = math.prod(budget.grid_layout(cfg)["nodes"])
+            cfg.solver.basis = "gimp"            # same grid (ghost nodes beyond the walls), no nodal-volume grid
+            cfg.solver.ddmp.fold_below = 0.1
+            plain = budget._grid_bytes(cfg, ".")[0]
+            if not sparse:
+                assert with_vol - plain == 8 * nodes * extra
+            else:
+                assert with_vol > plain
 
 
 @pytest.mark.parametrize("sparse", [False, True])

@@ -81,6 +81,7 @@ class Stencil:
     origin: Optional[Callable] = None    # @ti.func (p) -> the first node of a tensor stencil (scatter.BlockBins)
     # cpdi2: (read_v) -> @ti.func (p, st, dt) -> new x_p, moving the particle's own corners with the node velocities
     advance: Optional[Callable] = None
+    dual: Optional[Any] = None   # ddmp: its dual domains (stencils.DualDomains: node volumes and their geometry)
 
 
 AUTO_FULL = 16   # solver.unroll auto: stencils of at most this many contributions are unrolled whole

@@ -26,6 +26,9 @@ contributions (CPDI: once per corner that reaches it); sums over contributions a
 Physics code only: no CLI, rendering or file I/O here.
 """
 
+from dataclasses import dataclass
+from typing import Any, Callable
+
 import taichi as ti
 from taichi.lang.matrix import make_matrix
 
@@ -114,7 +117,8 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     d_min = (1e-5 if ctx.precision == "f32" else 1e-10) * dx * dx  # smallest D_p entry inverted
     span = [S] * dim
     outer, inner = loops(span, ctx.unroll, auto_inner=AUTO_INNER)
-    prepare, fill = _dual_domain_fill(ctx, span) if smooth else (None, None)
+    dual = _dual_domain_fill(ctx, span) if smooth else None
+    prepare, fill = (dual.prepare, dual.fill) if smooth else (None, None)
 
     @traced.traced
     def at(p):
@@ -227,20 +231,35 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
         return axes_of(p, with_fill=False)[0]   # the weights are dead code here, removed by the compiler
 
     return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), S ** dim, prepare,
-                   origin)
+                   origin, dual=dual)
 
 
-def _dual_domain_fill(ctx: KernelContext, span: list):
-    """ddmp: (prepare, fill). prepare() scatters the nodal volumes V_j = sum_q V_q N_j(x_q) (linear weights) onto
-    their own scalar grid; fill(base) is the smallest V_j / (geometric dual-domain volume) over the real nodes of a
-    stencil starting at `base` (1 where every dual domain is full, 0 where a node has no material)."""
+@dataclass
+class DualDomains:
+    """ddmp's dual domains (the supports of the linear hats): the node volumes V_j = sum_q V_q N_j(x_q) on a grid of
+    their own (`grid.m`; with the small-node fold also its `fold` scalar), `prepare()` scattering them each step,
+    `fill(base)` and `geometry(I)`."""
+    grid: Any
+    prepare: Callable
+    fill: Callable       # @ti.func (base) -> the smallest V_j / V_j^dual over the real nodes of a stencil at `base`
+    geometry: Callable   # @ti.func (I) -> (V_j^dual, real, walls): the geometric dual-domain volume (dx^d, halved
+    #                      per wall the node lies on), whether I is a real node (not a ghost beyond a wall), and per
+    #                      axis -1 / +1 where it lies on the lower / upper wall, else 0
+
+
+def _dual_domain_fill(ctx: KernelContext, span: list) -> DualDomains:
+    """ddmp: prepare() scatters the nodal volumes V_j = sum_q V_q N_j(x_q) (linear weights) onto their own scalar
+    grid; fill(base) is the smallest V_j / (geometric dual-domain volume) over the real nodes of a stencil starting
+    at `base` (1 where every dual domain is full, 0 where a node has no material)."""
     from ..grid import Grid   # only ddmp allocates it
-    from ..layout import DDMP_VOLUMES   # its declaration (budget counts the same)
+    from ..layout import ddmp_grid   # its declaration (budget counts the same)
 
     dim, dx, basis, n_cells, lower = ctx.dim, ctx.dx, ctx.basis, ctx.n_cells, ctx.lower
     x, F, vol0 = ctx.x, ctx.F, ctx.vol0
     S = span[0]
-    grid = Grid(dim, ctx.grid.shape, ctx.grid.sparse, list(DDMP_VOLUMES.vectors))
+    decl = ddmp_grid(ctx.feat.small_node_fold > 0)
+    grid = Grid(dim, ctx.grid.shape, ctx.grid.sparse, list(decl.vectors), apart=list(decl.apart),
+                apart_scalars=list(decl.scalars))
     vol = grid.m
     cell = float(dx ** dim)
     inv_dx = 1.0 / dx
@@ -271,19 +290,26 @@ def _dual_domain_fill(ctx: KernelContext, span: list):
     outer, inner = loops(span, False if ctx.unroll is False else "auto", auto_inner=S)
 
     @ti.func
+    def geometry(I):
+        geo = cell
+        real = True
+        walls = ti.Vector.zero(int, dim)
+        for a in ti.static(range(dim)):
+            c = I[a] - 1                          # storage index i holds node i - 1
+            if c < 0 or c > n_cells[a]:
+                real = False                      # a ghost node: no dual domain, no smoothed gradient
+            elif c == 0 or c == n_cells[a]:
+                geo *= 0.5                        # a wall node's dual domain is half a cell wide
+                walls[a] = -1 if c == 0 else 1
+        return geo, real, walls
+
+    @ti.func
     def fill(base):
         f = 1.0
         for o in ti.grouped(ti.ndrange(*outer)):
           for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, split as `unroll` does)
             I = base + o + inner[k]
-            geo = cell
-            real = True
-            for a in ti.static(range(dim)):
-                c = I[a] - 1                          # storage index i holds node i - 1
-                if c < 0 or c > n_cells[a]:
-                    real = False                      # a ghost node: no dual domain, no smoothed gradient
-                elif c == 0 or c == n_cells[a]:
-                    geo *= 0.5                        # a wall node's dual domain is half a cell wide
+            geo, real, _ = geometry(I)
             if real:
                 f = ti.min(f, vol[I] / geo)
         return ti.min(f, 1.0)
@@ -292,7 +318,7 @@ def _dual_domain_fill(ctx: KernelContext, span: list):
         grid.clear()
         scatter()
 
-    return prepare, fill
+    return DualDomains(grid, prepare, fill, geometry)
 
 
 def _mapped_stencil(ctx: KernelContext) -> Stencil:

@@ -34,6 +34,8 @@ class Features:
     grips: bool                 # bodies[].prescribed_velocity on the nodes the grip touches
     initial_stress: bool        # bodies[].stress, a stored stress added to the model's
     plastic: bool               # a return mapping after the F update
+    small_node_fold: float = 0.0   # ddmp: nodes whose dual domain is filled below this fraction fold into a
+    #                                neighbour (extensions/ddmp_fill.py); 0: off
 
     @classmethod
     def of(cls, cfg, scene, materials: list, body_force: bool) -> "Features":
@@ -59,4 +61,15 @@ class Features:
             grips=bool(scene.grips),
             initial_stress=scene.stress is not None,
             plastic=any(MODELS[m.model].plastic for m in materials),
+            small_node_fold=small_node_fold(cfg),
         )
+
+
+def small_node_fold(cfg) -> float:
+    """solver.ddmp.fold_below where the scene folds ddmp's small nodes, else 0: not with grips (a grip prescribes
+    its own nodes' velocity), multi-field contact (its body fields are not folded) or xpic (its v* passes divide by
+    the node masses the fold moves)."""
+    s = cfg.solver
+    if not bases.get(s.basis).prepass_grid or schemes.get(s.transfer).extended or cfg.contact is not None:
+        return 0.0
+    return 0.0 if any(b.prescribed_velocity for b in cfg.bodies) else float(s.ddmp.fold_below)

@@ -76,6 +76,7 @@ def make_p2g(ctx, mf, af, external_force):
     gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
     flip, viscosity, taken, degraded = ctx.feat.flip, ctx.feat.viscosity, pt is not None, dg is not None
     asflip, nf, fs = ctx.feat.asflip, ctx.node_fields, ctx.force_sums
+    keeps_old = flip or ctx.feat.small_node_fold > 0   # the momentum before forces (ddmp's fold reads it too)
     own, sums = nf is not None, fs is not None
     density, kirchhoff, viscous_power = mf.density, mf.kirchhoff, mf.viscous_power
     affine, node_momentum = af.affine, af.node_momentum
@@ -115,9 +116,9 @@ def make_p2g(ctx, mf, af, external_force):
                 if ti.static(sums):   # the local stress difference's node sums (extensions/stress_difference.py)
                     fs.scatter(p, I, w, gf, -stress, volume)
                 old = w * mp * vp
-                if ti.static(flip and asflip):   # ASFLIP's v_old: the grid velocity before forces, affine part too
+                if ti.static(asflip or not flip):   # ASFLIP's v_old, and the fold's: the affine part too
                     old = w * mp * mom
-                if ti.static(flip):
+                if ti.static(keeps_old):
                     add(gv_old, I, old)
                 if ti.static(own):   # an extension's node fields (multi-field contact: the particle's body field)
                     nf.scatter(p, I, w, gw, r, mp, value, old)
