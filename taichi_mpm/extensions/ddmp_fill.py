@@ -94,6 +94,14 @@ def make_small_node_fold(dim: int, dual, old, below: float, wall=None):
         return t % CODES, free
 
     @ti.func
+    def strength(I):
+        """The part of a small node's force it shares: 1 - fill / fold_below, all of it as its dual domain empties and
+        none at the threshold (so a node crossing it changes nothing at once); the rest it keeps, which its mass
+        takes at no more than the acceleration of a node filled to the threshold."""
+        geo, _, _ = geometry(I)
+        return 1.0 - vol[I] / (below * geo)
+
+    @ti.func
     def acceleration(gm: ti.template(), g: ti.template(), J):
         """The acceleration impulse node J and its small neighbours share, per axis: their force impulses over their
         masses (a small node's only along the axes its walls leave free)."""
@@ -124,13 +132,14 @@ def make_small_node_fold(dim: int, dual, old, below: float, wall=None):
                             bits += 1 << a
                             free[a] = 1.0
                     target[I] = code + CODES * bits
-                    shared_force[J] += free * (g[I] - old[I])
-                    shared_mass[J] += free * m
+                    s = strength(I)
+                    shared_force[J] += s * free * (g[I] - old[I])
+                    shared_mass[J] += s * free * m
             for I in ti.grouped(target):
                 code, free = decoded(I)
                 if code > 0:
                     J = neighbour(I, code)
-                    g[I] += free * (gm[I] * acceleration(gm, g, J) - (g[I] - old[I]))
+                    g[I] += strength(I) * free * (gm[I] * acceleration(gm, g, J) - (g[I] - old[I]))
             for J in ti.grouped(shared_mass):
                 if shared_mass[J].max() > 0:
                     g[J] = old[J] + gm[J] * acceleration(gm, g, J)
