@@ -354,9 +354,9 @@ class Cpdi(Strict):
 
 class Ddmp(Strict):
     # a node whose dual domain is filled below this fraction (V_j / V_j^dual, at a free surface or where material
-    # enters a cell) is folded into its fullest neighbour on the same walls, which gives it its velocity: linear
-    # weights leave such a node a tiny mass and a full force (docs/bases.md, "DDMP's small nodes"); 0: off
-    fold_below: Annotated[float, Field(ge=0, lt=1)] = 0.1
+    # enters a cell) shares part of its force with its fullest neighbour: linear weights leave such a node a tiny
+    # mass and a full force (extensions/ddmp_fill.py; docs/bases.md, "DDMP's small nodes"); 0: off
+    fold_below: Annotated[float, Field(ge=0, lt=1)] = 0.2
 
 
 def _basis_name(v):

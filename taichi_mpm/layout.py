@@ -42,7 +42,7 @@ class Needs:
     fbar: bool                  # solver.volumetric fbar (not 1D)
     fbar_linear: bool           # F-bar averages on the linear grid (quadratic, cubic)
     ddmp: bool                  # nodal volumes on a grid of their own
-    ddmp_fold: bool             # and each node's fold target (solver.ddmp.fold_below)
+    ddmp_fold: bool             # and each node's fold code and shared sums (solver.ddmp.fold_below)
     coloured: bool              # the coloured scatter's bins (scatter.BlockBins)
     crack: CrackNeeds | None
     contact: ContactNeeds | None = None   # multi-field contact's node fields (its velocity fields)

@@ -2,18 +2,17 @@
 reads (stencils._dual_domain_fill), and the small-node fold (solver.ddmp.fold_below).
 
 The fold: linear weights give a node whose dual domain the material barely reaches (a free surface, a particle
-entering a cell, a body meeting a wall) a mass that vanishes with the material's share, N_i(x_p) -> 0, while the
+entering a cell, a body arriving at a wall) a mass that vanishes with the material's share, N_i(x_p) -> 0, while the
 force it takes does not (the linear gradient keeps 1/dx, the smoothed one reaches the next node), so its
-acceleration f_i / m_i and the strain rate it feeds back have no bound and no time step is stable (measured:
-linear and ddmp under impact, docs/bases.md "DDMP's small nodes"). Each step, a node whose dual domain is filled
-below `fold_below` (V_j / V_j^dual, from the pre-pass) and that has a neighbour filled at least that much on the
-same walls (the fullest of the 3^d - 1 around it) is joined to it, as cut-cell methods agglomerate a small cell
-into its neighbour: its P2G sums (mass, momentum with the force impulse, FLIP's old momentum, MUSL's remapped
-momentum) are added to the neighbour's before the grid solve and it takes the neighbour's velocity after it. Mass,
-momentum and every wall condition are kept (the neighbour lies on the node's walls, so its solved velocity meets
-them); the pair moves together for the step. A wall node whose neighbours on the wall are all small (a face of a
-body arriving parallel to the wall) keeps its own solve: folded off the wall it was measured less stable (the
-impact at 0.01 c stopped at step 327 instead of 380). Physics code only: no CLI, rendering or file I/O here.
+acceleration f_i / m_i and the strain rate it feeds back have no bound and no time step is stable (measured: linear
+and ddmp under impact; docs/bases.md, "DDMP's small nodes"). Each step, a node whose dual domain is filled below
+`fold_below` (fill = V_j / V_j^dual, from the pre-pass) and that has a neighbour filled at least that much (the
+fullest of the 3^d - 1 around it, face neighbours first) shares the part s = 1 - fill / fold_below of its force
+impulse with it: the two take the acceleration (s f_I + f_J) / (s m_I + m_J), each keeping its own momentum, and
+the node keeps the rest of its force on its own mass, which that bounds as for a node filled to the threshold. It
+shares only along the axes its walls leave free (decided from its own velocity, as the walls would without the
+fold): along the others the wall takes its force. Momentum is kept to round-off; a rigid motion is untouched (no
+force, nothing shared). Physics code only: no CLI, rendering or file I/O here.
 """
 import itertools
 

@@ -113,9 +113,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.cpdi": ("", "options of basis cpdi"),
     "solver.ddmp": ("", "options of basis ddmp"),
     "solver.ddmp.fold_below": ("1", "a node whose dual domain is filled below this fraction (a free surface, material "
-                                    "entering a cell) folds its mass, momentum and force into its fullest neighbour on "
-                                    "the same walls and takes its velocity (docs/bases.md, \"DDMP's small nodes\"); 0: "
-                                    "off. Off with grips, multi-field contact and xpic"),
+                                    "entering a cell) shares 1 - fill / fold_below of its force with its fullest "
+                                    "neighbour, the pair taking one acceleration along the axes its walls leave free "
+                                    "(docs/bases.md, \"DDMP's small nodes\"); 0: off. Off with grips, multi-field "
+                                    "contact and xpic"),
     "solver.cpdi.variant": ("", "cpdi1: parallelogram / parallelepiped domains with half-edges F r0 (Sadeghirad et "
                                 "al. 2011); cpdi2: quadrilateral / hexahedral domains whose corners move with the "
                                 "grid (Sadeghirad et al. 2013; not with a crack section or asflip)"),
