@@ -187,10 +187,9 @@ def test_fold_shares_force_and_keeps_momentum():
 
 
 def test_fold_makes_the_impact_stable_at_the_default_cfl():
-    """The 16-cell impact of the CFL table (0.1 c on the slip floor, APIC, CFL 0.4; 12 of its 24 wave transits, the
-    block lands at step 50 and has rebounded by step 150): without
-    the fold the energy check stops it as the block lands (measured at step 53: a floor node entered with a tiny
-    mass and a full force), with it the run finishes, the mechanical energy at most 1.007 x its initial (measured;
+    """The 16-cell impact of the CFL table (0.1 c on the slip floor, APIC, CFL 0.4; 12 of its 24 wave transits, 199
+    steps, the block landing at step 50): without the fold the energy check stops it as the block lands (measured
+    at step 53: a floor node entered with a tiny mass and a full force), with it the run finishes, the mechanical energy at most 1.007 x its initial (measured;
     the stability map's bound is 1.1)."""
     off = _impact_case(16, 0.1, 0.4, transits=12.0, **{"ddmp.fold_below": 0.0})
     assert off["outcome"] == "unstable", off
