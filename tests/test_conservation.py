@@ -13,6 +13,16 @@ BASES = ["linear", "gimp", "quadratic", "cubic"]
 TRANSFERS = ["pic", "flip", "apic"]
 
 
+def drifting_spinning_breathing(x):
+    """moving_block's velocities at positions x (2D, 3D): a drift, a turn about x = y = 0.5, an expansion and a
+    wave."""
+    r = x - 0.5
+    v = 0.05 + 0.4 * r + 0.1 * np.sin(7.0 * x)
+    v[:, 0] += -0.5 * r[:, 1]
+    v[:, 1] += 0.5 * r[:, 0]
+    return v
+
+
 def moving_block(dim=2, basis="quadratic", transfer="apic", update="usl", sparse=True, steps=20, knots=None,
                  **solver):
     """A block drifting, spinning and breathing (so it carries stress), free walls; returns the momenta
@@ -27,11 +37,7 @@ def moving_block(dim=2, basis="quadratic", transfer="apic", update="usl", sparse
     if knots is not None:
         cfg["domain"]["knots"] = knots   # explicit knot vectors per axis (tests/test_knots.py)
     sim = tm.Simulation(cfg)
-    X = sim.scene.x
-    r = X - 0.5
-    v = np.full_like(X, 0.05) + 0.4 * r + 0.1 * np.sin(7.0 * X)
-    v[:, 0] += -0.5 * r[:, 1]
-    v[:, 1] += 0.5 * r[:, 0]
+    v = drifting_spinning_breathing(sim.scene.x)
     sim.set_particles(v=v)
     m0 = sim.momentum()
     for _ in range(steps):

@@ -171,10 +171,7 @@ def test_fold_shares_force_and_keeps_momentum():
     # the first particles 0.001 m short of the nodes at 0.35: the nodes one cell out get 2 % of a full dual domain
     cfg = make_cfg(2, basis="ddmp", dx=0.05, E=1e4, lower=[0.3365, 0.3365], upper=[0.6365, 0.6365], boundaries="free")
     sim = tm.Simulation(cfg)
-    r = sim.scene.x - 0.5
-    v = 0.05 + 0.4 * r + 0.1 * np.sin(7.0 * sim.scene.x)
-    v[:, 0] += -0.5 * r[:, 1]
-    v[:, 1] += 0.5 * r[:, 0]
+    v = tcons.drifting_spinning_breathing(sim.scene.x)
     sim.set_particles(v=v)
     m0 = sim.momentum()["linear"]
     folded = 0
@@ -189,8 +186,8 @@ def test_fold_shares_force_and_keeps_momentum():
 def test_fold_makes_the_impact_stable_at_the_default_cfl():
     """The 16-cell impact of the CFL table (0.1 c on the slip floor, APIC, CFL 0.4; 12 of its 24 wave transits, 199
     steps, the block landing at step 50): without the fold the energy check stops it as the block lands (measured
-    at step 53: a floor node entered with a tiny mass and a full force), with it the run finishes, the mechanical energy at most 1.007 x its initial (measured;
-    the stability map's bound is 1.1)."""
+    at step 53: a floor node entered with a tiny mass and a full force), with it the run finishes, the mechanical
+    energy at most 1.007 x its initial (measured; the stability map's bound is 1.1)."""
     off = _impact_case(16, 0.1, 0.4, transits=12.0, **{"ddmp.fold_below": 0.0})
     assert off["outcome"] == "unstable", off
     on = _impact_case(16, 0.1, 0.4, transits=12.0)

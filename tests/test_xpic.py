@@ -5,6 +5,7 @@ import pytest
 
 import taichi_mpm as tm
 import taichi_mpm.analytic as an
+import test_conservation as tcons    # module object: its tests are not collected again here
 
 
 def test_xpic_order_1_is_pic(cfg_factory):
@@ -35,10 +36,7 @@ def test_xpic_conserves_momentum(cfg_factory):
     cfg["solver"]["xpic_order"] = 3
     cfg["domain"]["boundaries"]["default"] = "free"
     sim = tm.Simulation(cfg)
-    r = sim.scene.x - 0.5
-    v = 0.05 + 0.4 * r + 0.1 * np.sin(7.0 * sim.scene.x)
-    v[:, 0] += -0.5 * r[:, 1]
-    v[:, 1] += 0.5 * r[:, 0]
+    v = tcons.drifting_spinning_breathing(sim.scene.x)
     sim.set_particles(v=v)
     p0 = sim.momentum()["linear"]
     for _ in range(20):
