@@ -237,14 +237,13 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
 @dataclass
 class DualDomains:
     """ddmp's dual domains (the supports of the linear hats): the node volumes V_j = sum_q V_q N_j(x_q) on a grid of
-    their own (`grid.m`; with the small-node fold also its `fold` scalar), `prepare()` scattering them each step,
-    `fill(base)` and `geometry(I)`."""
+    their own (`grid.m`; with the small-node fold also its fields, layout.ddmp_grid), `prepare()` scattering them
+    each step, `fill(base)` and `geometry(I)`."""
     grid: Any
     prepare: Callable
     fill: Callable       # @ti.func (base) -> the smallest V_j / V_j^dual over the real nodes of a stencil at `base`
-    geometry: Callable   # @ti.func (I) -> (V_j^dual, real, walls): the geometric dual-domain volume (dx^d, halved
-    #                      per wall the node lies on), whether I is a real node (not a ghost beyond a wall), and per
-    #                      axis -1 / +1 where it lies on the lower / upper wall, else 0
+    geometry: Callable   # @ti.func (I) -> (V_j^dual, real): the geometric dual-domain volume (dx^d, halved per wall
+    #                      the node lies on) and whether I is a real node (not a ghost beyond a wall)
 
 
 def _dual_domain_fill(ctx: KernelContext, span: list) -> DualDomains:
@@ -293,15 +292,13 @@ def _dual_domain_fill(ctx: KernelContext, span: list) -> DualDomains:
     def geometry(I):
         geo = cell
         real = True
-        walls = ti.Vector.zero(int, dim)
         for a in ti.static(range(dim)):
             c = I[a] - 1                          # storage index i holds node i - 1
             if c < 0 or c > n_cells[a]:
                 real = False                      # a ghost node: no dual domain, no smoothed gradient
             elif c == 0 or c == n_cells[a]:
                 geo *= 0.5                        # a wall node's dual domain is half a cell wide
-                walls[a] = -1 if c == 0 else 1
-        return geo, real, walls
+        return geo, real
 
     @ti.func
     def fill(base):
@@ -309,7 +306,7 @@ def _dual_domain_fill(ctx: KernelContext, span: list) -> DualDomains:
         for o in ti.grouped(ti.ndrange(*outer)):
           for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, split as `unroll` does)
             I = base + o + inner[k]
-            geo, real, _ = geometry(I)
+            geo, real = geometry(I)
             if real:
                 f = ti.min(f, vol[I] / geo)
         return ti.min(f, 1.0)

@@ -64,12 +64,12 @@ def make_small_node_fold(dim: int, dual, old, below: float, wall=None):
     @ti.kernel
     def targets():
         for I in ti.grouped(vol):
-            geo, real, _ = geometry(I)
+            geo, real = geometry(I)
             if real and 0 < vol[I] < below * geo:
                 best, pick = 0.0, 0
                 for k in ti.static(range(len(around))):
                     J = I + ti.Vector(around[k])
-                    geo_j, real_j, _ = geometry(J)
+                    geo_j, real_j = geometry(J)
                     v = vol[J]
                     if real_j and v >= below * geo_j and v > best:
                         best, pick = v, k + 1
@@ -97,7 +97,7 @@ def make_small_node_fold(dim: int, dual, old, below: float, wall=None):
         """The part of a small node's force it shares: 1 - fill / fold_below, all of it as its dual domain empties and
         none at the threshold (so a node crossing it changes nothing at once); the rest it keeps, which its mass
         takes at no more than the acceleration of a node filled to the threshold."""
-        geo, _, _ = geometry(I)
+        geo, _ = geometry(I)
         return 1.0 - vol[I] / (below * geo)
 
     @ti.func
