@@ -753,10 +753,11 @@ class Simulation:
 
     # ------------------------------------------------------------------ state access
     def particles(self) -> dict:
-        """Particle state as numpy arrays in creation order: x, v, F, C (when stored), stress (N, d, d), stress3
-        (N, 3, 3: the full Cauchy stress, out-of-plane normal stresses of plane strain / uniaxial strain included),
-        mass, volume, body, damage (with a crack section), and the output states of the scene's material models
-        (plastic_strain, Jp: materials/) when any has state; particles of other materials hold the initial value."""
+        """Particle state as numpy arrays in creation order: x, v, F, C and grad_v (when stored), stress (N, d, d),
+        stress3 (N, 3, 3: the full Cauchy stress, out-of-plane normal stresses of plane strain / uniaxial strain
+        included), mass, volume, body, damage (with a crack section), and the output states of the scene's material
+        models (plastic_strain, Jp: materials/) when any has state; particles of other materials hold the initial
+        value."""
         self._check_live()
         s = self.scene
         out = self._read_all()
