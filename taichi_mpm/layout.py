@@ -34,8 +34,8 @@ class Needs:
     initial_stress: bool
     tractions: bool
     n_state: int                # material state floats (materials/), 0: no state field
-    flip: bool                  # the grid keeps v before forces, v_old (flip, xpic, asflip: schemes/; ddmp's fold)
     transfer_vectors: tuple     # the transfer's own node vectors (xpic's three: schemes/xpic.py)
+    old_grid: bool              # the grid keeps v before forces, v_old (flip, xpic, asflip: schemes/; ddmp's fold)
     musl: bool
     grips: bool
     mapped: bool                # domain.map: parametric coordinates xi_p
@@ -59,7 +59,7 @@ class Needs:
                    body_force=feat.body_force, domain_per_particle=feat.domain_per_particle,
                    initial_stress=feat.initial_stress, tractions=feat.tractions,
                    n_state=material_models.state_size(sim._materials, sim.dim),
-                   flip=feat.flip or feat.small_node_fold > 0,
+                   old_grid=feat.old_grid,
                    transfer_vectors=transfer_schemes.get(c.solver.transfer).grid_vectors, musl=feat.musl,
                    grips=feat.grips, mapped=sim.mapped is not None, **_common(c, coloured),
                    crack=CrackNeeds.of(c, sim._materials, sim.basis) if c.crack is not None else None,
@@ -79,8 +79,8 @@ class Needs:
                    domain_per_particle=bases.get(s.basis).particle_domains and len(spacings) > 1,
                    initial_stress=any(b.stress is not None for b in cfg.bodies),
                    tractions=any(b.tractions for b in cfg.bodies), n_state=material_models.state_size(mats, cfg.dim),
-                   flip=scheme.keeps_old_grid or small_node_fold(cfg) > 0, transfer_vectors=scheme.grid_vectors,
-                   musl=s.update == "musl",
+                   old_grid=scheme.keeps_old_grid or small_node_fold(cfg) > 0,
+                   transfer_vectors=scheme.grid_vectors, musl=s.update == "musl",
                    grips=any(b.prescribed_velocity for b in cfg.bodies), mapped=cfg.domain.map is not None,
                    **_common(cfg, coloured), crack=CrackNeeds.of(cfg, mats, basis) if cfg.crack is not None else None,
                    contact=ContactNeeds.of(cfg) if cfg.contact is not None else None)
@@ -160,7 +160,7 @@ def particle_fields(n: Needs) -> list[FieldDecl]:
 
 
 def main_grid(n: Needs) -> GridDecl:
-    vec = ("v",) + (("v_old",) if n.flip else ()) + (("v2",) if n.musl else ()) + n.transfer_vectors
+    vec = ("v",) + (("v_old",) if n.old_grid else ()) + (("v2",) if n.musl else ()) + n.transfer_vectors
     vec += ("grip",) if n.grips else ()   # component 0: the grip (from 1) whose particles touch the node
     apart: tuple[str, ...] = ()
     scalars: tuple[str, ...] = ()

@@ -38,8 +38,8 @@ class DualDomainFill(Extension):
         self.prepare, self.targets = ctx.stencil.prepare, None
         below = ctx.feat.small_node_fold
         if below > 0:
-            self.targets, fold, mirror = make_small_node_fold(ctx.dim, ctx.stencil.dual, ctx.gv_old, below, ctx.wall)
-            ctx.grid_solve.append(GridSolve(images=(fold, mirror)))
+            self.targets, fold = make_small_node_fold(ctx.dim, ctx.stencil.dual, ctx.gv_old, below, ctx.wall)
+            ctx.grid_solve.append(GridSolve(images=(fold, None)))   # every node then solves itself: no mirror
 
     def before_p2g(self):
         self.prepare()
@@ -51,9 +51,9 @@ CODES = 32   # a node's fold scalar: its neighbour's number + 1 (< CODES), plus 
 
 
 def make_small_node_fold(dim: int, dual, old, below: float, wall=None):
-    """(targets, fold, mirror) over the dual domains' grid (stencils.DualDomains): targets() marks each small node
-    with its neighbour in the dual grid's `fold` scalar (0: none) from this step's volumes; fold and mirror are
-    GridSolve.images' (grid_update.py calls them on the main grid). old: the grid's momentum before forces
+    """(targets, fold) over the dual domains' grid (stencils.DualDomains): targets() marks each small node with its
+    neighbour in the dual grid's `fold` scalar (0: none) from this step's volumes; fold is GridSolve.images' (its
+    fold; grid_update.py calls it on the main grid). old: the grid's momentum before forces
     (`v_old`, which P2G fills for the fold); wall: the walls' condition (I, v) -> v (ctx.wall), or None."""
     vol, target, geometry = dual.grid.m, dual.grid.scalar["fold"], dual.geometry
     shared_force, shared_mass = dual.grid.vec["fold_force"], dual.grid.vec["fold_mass"]
@@ -143,8 +143,4 @@ def make_small_node_fold(dim: int, dual, old, below: float, wall=None):
                 if shared_mass[J].max() > 0:
                     g[J] = old[J] + gm[J] * acceleration(gm, g, J)
 
-    @ti.func
-    def mirror(gm: ti.template(), g: ti.template()):
-        pass   # every node solves itself: the fold changed only their sums
-
-    return targets, fold, mirror
+    return targets, fold

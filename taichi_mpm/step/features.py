@@ -37,6 +37,11 @@ class Features:
     small_node_fold: float = 0.0   # ddmp: nodes whose dual domain is filled below this fraction fold into a
     #                                neighbour (extensions/ddmp_fill.py); 0: off
 
+    @property
+    def old_grid(self) -> bool:
+        """The grid keeps the momentum before forces (v_old): FLIP's kind of transfer reads it, ddmp's fold too."""
+        return self.flip or self.small_node_fold > 0
+
     @classmethod
     def of(cls, cfg, scene, materials: list, body_force: bool) -> "Features":
         """The features of a scene: its config, particles (scene.Scene), material configs in slot order."""

@@ -89,6 +89,7 @@ def make_grid_update(ctx):
         raise ValueError("two extensions fold ghost nodes: only one may")
 
     own_solve = any(g.velocity is not None for g in ctx.grid_solve)
+    mirrors = bool(images) and images[0][1] is not None
 
     @ti.func
     def folded(g: ti.template(), gkick, measure: ti.template(), special: ti.template()):
@@ -107,7 +108,7 @@ def make_grid_update(ctx):
     def mirrored(g: ti.template(), measure: ti.template()):
         """Ghost nodes from their image nodes, once every node has its velocity (a loop of its own); FLIP's old
         velocities in the step's update, where they were folded."""
-        if ti.static(images):
+        if ti.static(mirrors):
             images[0][1](gm, g)
             if ti.static(flip and measure):
                 images[0][1](gm, gv_old)

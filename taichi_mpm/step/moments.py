@@ -198,7 +198,8 @@ class GridSolve:
     condition: Optional[Callable] = None
     node_fields: Optional[Callable] = None  # (I, kick_before, kick_after): its own node fields' solve at node I,
     #                                         after the grid's chain (multi-field contact)
-    # ck's ghost nodes as images across the walls (compact_kernel.make_ghost_images): (fold, mirror), loops of their
-    # own before the chain (fold(gm, decide, g, with_mass): a ghost's sums into its mirror node) and after it
-    # (mirror(gm, g): the ghost's velocity from its mirror node's), in the step's update, MUSL's remap, USF's pass
+    # (fold, mirror), loops of their own before the chain (fold(gm, decide, g, with_mass, gkick, measure): sums of
+    # nodes into others) and after it (mirror(gm, g): those nodes' velocities from the others', or None), in the
+    # step's update, MUSL's remap, USF's pass: ck's ghost nodes as images across the walls
+    # (compact_kernel.make_ghost_images), ddmp's small nodes sharing their force (extensions/ddmp_fill.py; no mirror)
     images: Optional[tuple] = None

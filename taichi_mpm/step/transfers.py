@@ -76,7 +76,7 @@ def make_p2g(ctx, mf, af, external_force):
     gm, gv, gv_old, gv2 = ctx.gm, ctx.gv, ctx.gv_old, ctx.gv2
     flip, viscosity, taken, degraded = ctx.feat.flip, ctx.feat.viscosity, pt is not None, dg is not None
     asflip, nf, fs = ctx.feat.asflip, ctx.node_fields, ctx.force_sums
-    keeps_old = flip or ctx.feat.small_node_fold > 0   # the momentum before forces (ddmp's fold reads it too)
+    keeps_old = ctx.feat.old_grid   # the momentum before forces
     own, sums = nf is not None, fs is not None
     density, kirchhoff, viscous_power = mf.density, mf.kirchhoff, mf.viscous_power
     affine, node_momentum = af.affine, af.node_momentum
