@@ -4,12 +4,15 @@ floor. Lube et al. measured the normalised run-out (L_inf - L0) / L0 = 1.2 a for
 a > 2.8, and a final height H_inf = a L0 (the top is not reached) for a < 1.15.
 
     python demos/column_collapse_lube.py [--aspects 0.5 1 2 3] [--cells 20] [--plot docs/images/column_collapse_lube.png]
+    python demos/column_collapse_lube.py --aspects 1 --cells 20 40 60 80 --profiles docs/images/collapse_profiles.png
 
 Each run starts from configs/granular_collapse.yaml (phi = 30 deg, plane-strain fit, rough floor), sets the column's
 height, the domain and dx = L0 / cells (default 20), runs until the sand
 is at rest (kinetic energy below 1e-4 of the released potential energy, or `--end` seconds) and measures the front
 (the 99.5th percentile of x, so a few lone grains do not count), the height at the wall (the 99.5th percentile of y
-over x < dx) and the slope of the deposit's flank. Measured figures and the plot: docs/materials.md.
+over x < dx) and the slope of the deposit's flank. Several `--cells` run each column at each resolution; `--profiles`
+plots the deposits' thickness along the floor (`thickness_profile`), one panel per aspect ratio: where the deposits
+of two resolutions agree, and where only the toe moves. Measured figures and the plots: docs/materials.md.
 """
 import argparse
 import sys
@@ -29,16 +32,28 @@ def lube_runout(a):
     return np.where(a < 1.8, 1.2 * a, np.where(a > 2.8, 1.9 * a ** (2 / 3), np.nan))
 
 
+PROFILE_BIN = L0 / 20   # bins of the thickness profile: the same physical width at every resolution
+
+
 def resolution(cells=20):
-    """dx = L0 / cells. The run-out is not converged in dx (measured in docs/materials.md: at a = 0.5 it grows from
-    0.31 to 0.38 to 0.52 as dx goes from L0/10 to L0/20 to L0/40, at a = 1 from 1.16 to 1.51 between L0/20 and
-    L0/40), so every column is compared at the same dx."""
+    """dx = L0 / cells. The run-out converges only from about L0/60 (docs/materials.md, "Where the run-out
+    converges": at a = 1 it grows 1.16, 1.51, 1.71, 1.76 at L0/20, 40, 60, 80; the deposits agree but for a toe one
+    or two cells thick that each finer grid carries further), so every column of a table is run at the same dx."""
     return L0 / cells
+
+
+def thickness_profile(x, volume, bin_width=PROFILE_BIN):
+    """The deposit's thickness along the floor: bin centres and, per bin, the particles' volume over the bin's width
+    (a depth average, so it does not depend on how the particles are spaced)."""
+    edges = np.arange(0.0, x[:, 0].max() + 2 * bin_width, bin_width)
+    h = np.histogram(x[:, 0], edges, weights=volume)[0] / bin_width
+    return 0.5 * (edges[:-1] + edges[1:]), h
 
 
 def collapse_config(aspect, dx=0.005, overrides=None):
     H0 = aspect * L0
-    reach = L0 * (1 + 1.2 * max(1.9 * aspect ** (2 / 3), 1.2 * aspect)) + 4 * dx   # room for 20 % more run-out
+    # room for twice Lube et al.'s run-out: a converged drucker_prager deposit runs 50 % further, its toe beyond that
+    reach = L0 * (1 + 2.0 * max(1.9 * aspect ** (2 / 3), 1.2 * aspect)) + 8 * dx
     width = dx * np.ceil(reach / dx)
     height = dx * np.ceil((H0 + 4 * dx) / dx)
     sets = {"domain.dx": dx, "domain.upper": [float(width), float(height)],
@@ -63,12 +78,14 @@ def collapse(aspect, dx=0.005, end=None, overrides=None, verbose=False):
         if verbose:
             print(f"  a={aspect:g} t={sim.time:.2f} kinetic/released={sim.energy()['kinetic'] / released:.2e}",
                   file=sys.stderr)
-    x = sim.particles()["x"]
+    p = sim.particles()
+    x = p["x"]
     front = float(np.percentile(x[:, 0], 99.5))
     wall = x[x[:, 0] < dx]
     top = float(np.percentile(wall[:, 1], 99.5)) if len(wall) else 0.0
+    at_end = int(np.sum(x[:, 0] > cfg.domain.upper[0] - 2 * dx))   # particles stopped by the channel's far end
     return dict(aspect=aspect, runout=(front - L0) / L0, height=top / L0, slope=surface_slope(x, dx), time=sim.time,
-                steps=sim.n_steps, particles=sim.n, dx=dx)
+                steps=sim.n_steps, particles=sim.n, dx=dx, profile=thickness_profile(x, p["volume"]), at_end=at_end)
 
 
 def surface_slope(x, dx):
@@ -109,26 +126,53 @@ def plot(rows, path):
     fig.savefig(path, dpi=110)
 
 
+def plot_profiles(rows, path):
+    """The deposits' thickness profiles, one panel per aspect ratio, one line per resolution."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    aspects = sorted({r["aspect"] for r in rows})
+    fig, axes = plt.subplots(1, len(aspects), figsize=(4.5 * len(aspects), 3.4), squeeze=False)
+    for ax, aspect in zip(axes[0], aspects):
+        for r in sorted((r for r in rows if r["aspect"] == aspect), key=lambda r: -r["dx"]):
+            xc, h = r["profile"]
+            ax.plot(xc / L0, h / L0, label=f"dx = L0/{L0 / r['dx']:.0f}: run-out {r['runout']:.2f}")
+        ref = float(lube_runout(aspect))
+        if np.isfinite(ref):
+            ax.axvline(1 + ref, color="k", ls="--", lw=1, label=f"Lube et al. 2005: {ref:.2f}")
+        ax.set(xlabel="x / L0", ylabel="deposit thickness / L0", title=f"a = {aspect:g}", xlim=(0, None),
+               ylim=(0, None))
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--aspects", type=float, nargs="+", default=[0.5, 1.0, 2.0, 3.0, 4.0])
-    ap.add_argument("--cells", type=int, default=20, help="cells over the smaller of the column's width and height")
+    ap.add_argument("--cells", type=int, nargs="+", default=[20],
+                    help="dx = L0 / cells; several values run every column at each")
     ap.add_argument("--end", type=float, default=None)
     ap.add_argument("--plot", type=Path, default=None)
+    ap.add_argument("--profiles", type=Path, default=None, help="plot the deposits' thickness profiles here")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     a = ap.parse_args(argv)
     from taichi_mpm.config import parse_overrides
 
     rows = []
-    for aspect in a.aspects:
-        r = collapse(aspect, resolution(a.cells), a.end, parse_overrides(a.overrides), verbose=True)
+    for aspect, cells in ((aspect, cells) for aspect in a.aspects for cells in a.cells):
+        r = collapse(aspect, resolution(cells), a.end, parse_overrides(a.overrides), verbose=True)
         ref = float(lube_runout(aspect))
         r["lube_runout"] = ref
         rows.append(r)
         print(f"a={aspect:g}: run-out {r['runout']:.3f} (Lube {ref:.3f}, {r['runout'] / ref - 1:+.0%}), "
-              f"height {r['height']:.3f} L0 (dx = L0/{L0 / r['dx']:.0f}), slope {r['slope']:.1f} deg, t={r['time']:.2f} s, {r['steps']} steps, {r['particles']} particles")
+              f"height {r['height']:.3f} L0 (dx = L0/{L0 / r['dx']:.0f}), slope {r['slope']:.1f} deg, t={r['time']:.2f} s, {r['steps']} steps, {r['particles']} particles"
+              + (f", {r['at_end']} AT THE FAR END WALL: the domain is too short" if r["at_end"] else ""))
     if a.plot:
-        plot(rows, a.plot)
+        plot([r for r in rows if r["dx"] == resolution(a.cells[-1])], a.plot)
+    if a.profiles:
+        plot_profiles(rows, a.profiles)
     return rows
 
 

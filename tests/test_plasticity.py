@@ -424,20 +424,80 @@ def _lube():
     return load_demo("column_collapse_lube")
 
 
+def test_collapse_thickness_profile_is_the_depth_average_of_the_particles():
+    """demos/column_collapse_lube.thickness_profile: a layer 0.2 m long and 0.03 m thick of particles on a lattice
+    (spacing 1.25 mm, four columns per 5 mm bin) reads 0.03 m in every bin it covers and 0 beyond, and the profile
+    integrates to the particles' volume (both to round-off)."""
+    lube = _lube()
+    s = 0.00125
+    i, j = np.meshgrid(np.arange(160), np.arange(24), indexing="ij")
+    x = np.stack([(i.ravel() + 0.5) * s, (j.ravel() + 0.5) * s], axis=1)
+    vol = np.full(len(x), s * s)
+    xc, h = lube.thickness_profile(x, vol)
+    assert abs(h.sum() * lube.PROFILE_BIN - vol.sum()) < 1e-15
+    assert np.allclose(h[xc < 0.2], 0.03, rtol=1e-12) and not h[xc > 0.2].any()
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("aspect", [
     pytest.param(0.5, marks=pytest.mark.xfail(reason="measured run-out 0.38 against 0.60 at dx = L0/20 "
                                                      "(docs/materials.md, Granular column collapse)", strict=False)),
-    1.0, 1.5, 3.0, 4.0])
+    1.0, 1.5,
+    *(pytest.param(a, marks=pytest.mark.xfail(reason=f"measured {m} once the channel was long enough (the far wall "
+                                                     "had stopped the deposit before): docs/materials.md", strict=False))
+      for a, m in ((3.0, "+29 %"), (4.0, "+43 %")))])
 def test_column_collapse_run_out_against_lube_2005(aspect):
     """2D granular column collapse (drucker_prager, phi = 30 deg, plane-strain fit, rough floor: sticky; dx = L0 / 20)
     against Lube et al. 2005: (L_inf - L0) / L0 = 1.2 a
     (a < 1.8) or 1.9 a^(2/3) (a > 2.8) within 25 %, and the final height H_inf = a L0 for a < 1.15 (within 25 %).
-    Measured (docs/materials.md): a = 0.5: -36 % (expected failure), 1: -4 %, 1.5: +17 %, 3: +19 %, 4: see docs.
-    The run-out is not converged in dx (it grows on finer grids), so this holds the documented resolution."""
+    Measured (docs/materials.md): a = 0.5: -36 %, 1: -4 %, 1.5: +17 %, 3: +29 %, 4: +43 % (a = 3 and 4 passed at +19
+    and +22 % while the channel ended where Lube's run-out did: the deposit piled against its far wall).
+    At L0/20 the deposit's toe is under-resolved (the run-out grows to L0/60-80, test below), so this is a check at
+    the documented resolution, not the converged comparison."""
     lube = _lube()
     r = lube.collapse(aspect, dx=lube.resolution(20))
+    assert r["at_end"] == 0, r          # the channel is long enough: nothing stopped at its far end
     ref = float(lube.lube_runout(aspect))
     assert abs(r["runout"] / ref - 1) < 0.25, r
     if aspect < 1.15:
         assert abs(r["height"] / aspect - 1) < 0.25, r
+
+
+@pytest.mark.slow   # about 5 minutes: the column at L0/60 has 14 400 particles and 25 000 steps
+def test_column_collapse_deposit_converges_but_for_a_toe_one_cell_thick():
+    """The collapse of a = 1 (drucker_prager, plane-strain fit, rough floor) at dx = L0/20, L0/40, L0/60: where the
+    deposit is thicker than 0.1 L0 successive grids agree to rms 2.8 and 1.2 mm (bounds 4 and 2 mm; a bulk that did
+    not converge would not halve), and the front, carried by a toe one or two cells thick, moves 0.36 L0 and then
+    0.20 L0 (1.155, 1.511, 1.709): the second refinement moves it less than the first (bound 0.7 of it)."""
+    lube = _lube()
+    runs = [lube.collapse(1.0, dx=lube.resolution(cells)) for cells in (20, 40, 60)]
+    fronts = [r["runout"] for r in runs]
+    assert all(r["at_end"] == 0 for r in runs), fronts   # the toe never reached the channel's far end
+
+    def bulk_rms(r1, r2):
+        (_, h1), (_, h2) = r1["profile"], r2["profile"]
+        n = max(len(h1), len(h2))
+        h1, h2 = np.pad(h1, (0, n - len(h1))), np.pad(h2, (0, n - len(h2)))
+        thick = h2 > 0.1 * lube.L0
+        return float(np.sqrt(np.mean((h1 - h2)[thick] ** 2)))
+
+    assert bulk_rms(runs[0], runs[1]) < 4e-3 and bulk_rms(runs[1], runs[2]) < 2e-3, fronts
+    assert fronts[0] < fronts[1] < fronts[2] and fronts[2] - fronts[1] < 0.7 * (fronts[1] - fronts[0]), fronts
+
+
+MU_I_SAND = ("materials.sand={model: mu_i, E: 1.0e6, nu: 0.3, density: 1500, mu_s: 0.577, mu_2: 0.84, "
+             "grain_diameter: 0.001, max_pressure: 2000}")
+
+
+@pytest.mark.slow   # about 8 minutes
+@pytest.mark.parametrize("aspect, cells", [(1.0, 60), (3.2, 40)])
+def test_mu_i_collapse_converged_within_15_percent_of_lube_2005(aspect, cells):
+    """mu(I) (mu_s = tan 30 deg, mu_2 0.84, d = 1 mm; rough floor) where its run-out has converged (it moves 3.5 %
+    from L0/60 to L0/80 at a = 1 and 0.4 % from L0/40 to L0/60 at a = 3.2, docs/materials.md): within 15 % of Lube
+    et al. 2005 (measured 1.127 against 1.2, -6 %; 3.923 against 4.13, -5 %)."""
+    from taichi_mpm.config import parse_overrides
+
+    lube = _lube()
+    r = lube.collapse(aspect, dx=lube.resolution(cells), overrides=parse_overrides([MU_I_SAND]))
+    assert r["at_end"] == 0, r
+    assert abs(r["runout"] / float(lube.lube_runout(aspect)) - 1) < 0.15, r
