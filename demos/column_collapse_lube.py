@@ -166,7 +166,9 @@ def main(argv=None):
         ref = float(lube_runout(aspect))
         r["lube_runout"] = ref
         rows.append(r)
-        print(f"a={aspect:g}: run-out {r['runout']:.3f} (Lube {ref:.3f}, {r['runout'] / ref - 1:+.0%}), "
+        lube = (f"Lube {ref:.3f}, {r['runout'] / ref - 1:+.0%}" if np.isfinite(ref) else
+                f"Lube: transition, 1.2 a = {1.2 * aspect:.2f} to 1.9 a^(2/3) = {1.9 * aspect ** (2 / 3):.2f}")
+        print(f"a={aspect:g}: run-out {r['runout']:.3f} ({lube}), "
               f"height {r['height']:.3f} L0 (dx = L0/{L0 / r['dx']:.0f}), slope {r['slope']:.1f} deg, t={r['time']:.2f} s, {r['steps']} steps, {r['particles']} particles"
               + (f", {r['at_end']} AT THE FAR END WALL: the domain is too short" if r["at_end"] else ""))
     if a.plot:
