@@ -1,13 +1,14 @@
 """pytest plugin for benchmarks/suite_time.py (not loaded otherwise): per test, its wall time, the time spent in
 each kernel's first launch (its compile, or its load from Taichi's offline cache) and in ti.init, and how many
-times Taichi was started. One JSON line per test into $SUITE_TIME_OUT/<pid>.jsonl."""
+times Taichi was started, and each kernel's first launches by the kernel's name. One JSON line per test into
+$SUITE_TIME_OUT/<pid>.jsonl."""
 import json
 import os
 import time
 
 import pytest
 
-_acc = {"compile": 0.0, "inits": 0}
+_acc = {"compile": 0.0, "inits": 0, "kernels": {}}
 _seen = set()
 
 
@@ -24,7 +25,9 @@ def _install():
         try:
             return launch(self, t_kernel, *args)
         finally:
-            _acc["compile"] += time.perf_counter() - t
+            dt = time.perf_counter() - t
+            _acc["compile"] += dt
+            _acc["kernels"].setdefault(self.func.__name__, []).append(round(dt, 4))
             _seen.add(id(t_kernel))
 
     init = ti.init
@@ -46,8 +49,9 @@ _install()
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     c0, i0, t0 = _acc["compile"], _acc["inits"], time.perf_counter()
+    _acc["kernels"] = {}
     yield
     row = dict(test=item.nodeid, seconds=time.perf_counter() - t0, compile_s=_acc["compile"] - c0,
-               inits=_acc["inits"] - i0)
+               inits=_acc["inits"] - i0, kernels=_acc["kernels"])
     with open(os.path.join(os.environ["SUITE_TIME_OUT"], f"{os.getpid()}.jsonl"), "a") as out:
         out.write(json.dumps(row) + "\n")

@@ -1,7 +1,7 @@
 """The default test suite's time as CI sees it: an empty Taichi kernel cache (unless --warm), two workers on two
 cores, and where the time goes: per test file and for the slowest tests, the seconds spent in kernels' first
-launches (compiles) and in ti.init, measured in-process by benchmarks/compile_timer_plugin.py (tests that run the
-CLI in a subprocess show their wall time only).
+launches (compiles) and in ti.init, and per kernel name, measured in-process by benchmarks/compile_timer_plugin.py
+(tests that run the CLI in a subprocess show their wall time only).
 
     python benchmarks/suite_time.py                 # the README's test command, cold
     python benchmarks/suite_time.py --warm -- tests/test_crack.py
@@ -63,6 +63,13 @@ def report(rows, wall, summary, top, returncode):
     print(f"\n{'seconds':>8} {'compile':>8} {'inits':>5}  test")
     for r in sorted(rows, key=lambda r: -r["seconds"])[:top]:
         print(f"{r['seconds']:8.1f} {r['compile_s']:8.1f} {r['inits']:5d}  {r['test']}")
+    launches = collections.defaultdict(list)
+    for r in rows:
+        for name, times in r.get("kernels", {}).items():
+            launches[name] += times
+    print(f"\n{'seconds':>8} {'first':>6} {'median':>7}  kernel (first launches: a compile, or a load from the cache)")
+    for name, times in sorted(launches.items(), key=lambda kv: -sum(kv[1]))[:top]:
+        print(f"{sum(times):8.1f} {len(times):6d} {sorted(times)[len(times) // 2]:7.3f}  {name}")
     return returncode
 
 
