@@ -44,6 +44,7 @@ def bounce(transfer, steps=None, **asflip):
     return p, float((m * p["v"][:, 1]).sum() / m.sum()), lowest
 
 
+@pytest.mark.slow
 def test_asflip_without_its_flip_part_is_apic():
     """flip 0 and no position correction leave APIC's update: the same state to the bit."""
     a, _, _ = bounce("apic", steps=40)

@@ -237,6 +237,7 @@ def test_schema_ranges_name_the_key():
     assert load_config(cfg).materials["m"].ocr == 1.0
 
 
+@pytest.mark.slow
 def test_k0_geostatic_layer_stays_at_rest_in_a_scene():
     """A normally consolidated clay layer (0.5 x 0.5 m, dx 2.5 cm, 1600 particles, sticky floor, slip sides, gravity)
     started from geostatic_state (sigma_v = rho g (H - y), K0 = 1 - sin(phi) with sin(phi) = 3 M / (6 + M), Jaky) via

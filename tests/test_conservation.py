@@ -99,6 +99,7 @@ def test_stencil_loop_split_steps_the_same(basis):
     assert np.abs(states[0][2] - np.eye(3)).max() > 1e-4   # it did deform (measured 9e-4)
 
 
+@pytest.mark.slow
 def test_auto_unrolls_only_runs_that_earn_their_compile_back():
     """solver.unroll auto unrolls the stencil when the run (particles x steps to end_time) is long enough to repay
     the longer compile (stencils.UNROLL_WORK); a short run keeps the loop at run time. The split changes only the

@@ -35,6 +35,7 @@ def _body_velocity(sim, b):
     return (p["v"][sel] * m[sel, None]).sum(0) / m[sel].sum()
 
 
+@pytest.mark.slow
 def test_colliding_disks_rebound_with_momentum_conserved():
     """Sulsky's disks (0.1, 0.1) and (-0.1, -0.1) m/s: after the impact each moves back at nearly its speed (an
     elastic collision reverses it exactly; the 20 % allowed is what the grid's dissipation at dx = r/5 and the
@@ -93,8 +94,8 @@ def _incline(angle_deg, mu, basis="quadratic", dim=2, T=0.25, **solver):
     return (*body_motion(sim, 1, T), sim)
 
 
-@pytest.mark.parametrize("basis,dim", [("quadratic", 2), pytest.param("gimp", 2, marks=pytest.mark.slow),
-                                       ("quadratic", 3)])
+@pytest.mark.slow   # the default run keeps test_touching_blocks_weld_in_one_field_and_part_in_two
+@pytest.mark.parametrize("basis,dim", [("quadratic", 2), ("gimp", 2), ("quadratic", 3)])
 def test_block_slides_down_an_inclined_body_at_the_coulomb_acceleration(basis, dim):
     """tan 30 = 0.58 > mu = 0.3: a = g (sin t - mu cos t) within 2 % (measured 0.01 % in 2D quadratic and gimp, and
     in 3D quadratic, where block and base are flush with both z walls: 5 % slow before the contact normal dropped
@@ -115,7 +116,7 @@ def test_block_slides_down_an_inclined_body_at_the_coulomb_acceleration(basis, d
     assert bal["friction"] == pytest.approx(0.3 * mass * G * np.cos(a) * x[-1], rel=0.01)
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", fast_subset([2, 3], []))
 def test_block_rests_on_an_inclined_body_below_the_friction_angle(dim):
     """tan 20 = 0.36 < mu = 0.5: the block stays; its drift stays under 1e-3 of g t^2 / 2 (measured 3.7e-4 of it
     in 2D and 3D: the block's elastic shear under the slope's pull)."""
@@ -125,7 +126,7 @@ def test_block_rests_on_an_inclined_body_below_the_friction_angle(dim):
     assert sim.energy_balance()["friction"] < 1e-3 * 0.5 * sim.scene.mass[sim.scene.body == 1].sum() * (G * T) ** 2
 
 
-@pytest.mark.parametrize("dx", fast_subset([0.02, 0.01], fast=[0.02]))
+@pytest.mark.parametrize("dx", fast_subset([0.02, 0.01], fast=[]))
 def test_disk_rolls_down_an_inclined_body(dx):
     """A disk (r = 0.1, ten cells) on a gripped body with enough friction (mu = 1 > tan(t) / 3, t = 30 deg) rolls:
     its centre accelerates at 2/3 g sin t (a solid cylinder, I = m r^2 / 2) within 3 %, not at g sin t (sliding).

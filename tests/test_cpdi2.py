@@ -153,6 +153,7 @@ def tiling_residual(variant: str) -> float:
     return float(np.abs(R[inside]).max() / dx)
 
 
+@pytest.mark.slow
 def test_domains_tile_a_swirled_body():
     """CPDI2's corners are shared by neighbours, so its domains tile the swirled body and the interior node sums
     vanish to round-off; CPDI1's parallelograms x_p + F_p r0 gap and overlap there (a check
@@ -162,6 +163,7 @@ def test_domains_tile_a_swirled_body():
 
 
 # ---------------------------------------------------------------- motion
+@pytest.mark.slow
 def test_moving_block_momentum_and_centroids():
     """The drifting, spinning, breathing block (tests/test_conservation.py) with cpdi2 and APIC: linear momentum
     to 1e-10 of its scale (round-off). Angular momentum is not kept to round-off as with cpdi1: APIC keeps it when

@@ -87,6 +87,7 @@ def test_modified_functions_partition_3d_quadratic():
     _check_partition(blocks_cfg(3, "quadratic", v=0.2, dx=0.1))
 
 
+@pytest.mark.slow
 def test_cell_list_search_matches_all_pairs():
     """The SPH normals from the cell list's pruned row search equal a sum over all particle pairs (of one body:
     these are interface bodies): no neighbour within r is cut (the search walks rows of cells and drops cells out of reach). Interface blocks, 2D, f64,
@@ -191,7 +192,7 @@ def test_two_blocks_separate_with_crack_finder():
     assert gaps[-1] > 0.1
 
 
-@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("dim", fast_subset([2, 3], []))
 def test_threshold_0_keeps_the_blocks_apart_at_the_contact_face_edges(dim):
     """The nodes at the edges of the contact face lie outside both blocks, with normals out of the free surface,
     which both blocks' edge particles kept at threshold 0 (they leaked momentum: 0.193 m/s of 0.2 kept in 2D,
@@ -385,6 +386,7 @@ def _slow_pull(refresh, steps, state=None, state_at=None):
     return sim, end, saved
 
 
+@pytest.mark.slow
 def test_normals_kept_between_steps_stay_close_to_every_step_ones():
     """crack.normal_refresh (default 0.01): the SPH normals are recomputed once a particle has moved 0.5 % of the
     support radius. Over 60 steps of a slow pull that is 9 times (measured); the normals then differ from the
@@ -434,6 +436,7 @@ def test_a_body_moving_as_a_whole_keeps_its_normals():
     np.testing.assert_array_equal(states != 0, exact.state.to_numpy() != 0)
 
 
+@pytest.mark.slow
 def test_kept_normals_travel_with_the_state():
     """get_state carries the kept normals, the positions they belong to and whether they are due, so a run
     continued from a checkpoint is bit-identical to the one that went on (which reused normals across the
@@ -449,6 +452,7 @@ def test_kept_normals_travel_with_the_state():
     assert sim.extension("crack").refreshes == before + 1
 
 
+@pytest.mark.slow
 def test_contact_list_holds_every_facing_neighbour():
     """With normals kept between steps, the contact test sums over a list per particle built when they were: the
     particles that can come within reach and face it before they are recomputed. Checked by brute force each step
@@ -484,6 +488,7 @@ def test_contact_gap_without_interface_bodies_is_refused():
     assert e.value.key == "crack.contact_gap"
 
 
+@pytest.mark.slow
 def test_contact_gap_keeps_contact_to_surfaces_that_touch():
     """crack.contact_gap 0.3: two interface blocks a cell (two spacings) apart close at 1 m/s. A particle counts as
     in contact only while the nearest particle facing it lies within 1.3 particle spacings, checked by brute force

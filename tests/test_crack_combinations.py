@@ -12,10 +12,10 @@ from test_crack import push_bar
 F_T, H, NOTCH = 500.0, 0.2, 0.05      # tensile strength (Pa), bar height and notch depth (m)
 
 # What the same scenes give without the crack finder (or, for the disks, the finder's two-disk impact), measured
-# once (f64). The default run compares each cracked scene with these figures; under -m slow
-# test_references_without_the_finder_still_hold re-measures them, and with them the point of each comparison (the
-# uncracked scene carries the stress, welded disks rebound slower): each reference run is a scene of its own and its
-# cold compile and steps took half of this file's time in the default run.
+# once (f64). Each cracked scene is compared with these figures; test_references_without_the_finder_still_hold
+# re-measures them, and with them the point of each comparison (the uncracked scene carries the stress, welded disks
+# rebound slower): each reference run is a scene of its own. The default run keeps the 1D bar; the 2D combinations
+# (each 6-15 s of a cold run, most of it the crack finder's kernels compiling) run under -m slow.
 UNCRACKED = {
     "x_opening": 1.19e-4, "x_stress": 63.8,                  # X plate: each half-arm's stretch and normal stress
     "two_disks": 0.1673,                                      # the finder's two-disk rebound speed (m/s)
@@ -50,6 +50,7 @@ def notched_bar(end_time, crack=True, **extra):
     return cfg
 
 
+@pytest.mark.slow
 def test_notched_bar_pulled_by_grips_cracks_through():
     """The grips' force (the right grip's mean over 5 ms windows, Simulation.prescribed_impulse) climbs while the bar
     stretches, peaks when the crack runs from the notch and falls once the bar is cut. Measured: peak 63.0 N/m
@@ -124,6 +125,7 @@ def _x_arms(crack):
     return np.array(out)
 
 
+@pytest.mark.slow
 def test_x_shaped_precrack_opens_along_both_arms():
     """The crack finder with two crossing cracks: the particle normals of the damage field at the crossing and along
     both arms. Measured: the four half-arms open by 8.13e-4 to 8.44e-4 m against 1.19e-4 m for the same particle
@@ -178,6 +180,7 @@ def _rebound(n, crack, **crack_keys):
     return np.array(out)
 
 
+@pytest.mark.slow
 def test_three_disks_meeting_at_one_point_separate_without_welding():
     """Three interface disks pressed together at one point rebound as the two-disk impact does. Measured (crack
     finder): two disks 0.1673 m/s (0.84 of 0.2), three 0.1584, 0.1583, 0.1583 (0.947 of the two-disk value; the
@@ -228,6 +231,7 @@ def _bar_sim(cfg):
         return tm.Simulation(tm.load_config(cfg))
 
 
+@pytest.mark.slow
 def test_fbar_with_a_crack_opens_and_closes_at_nu_049():
     """F-bar (solver.volumetric: fbar) with the crack finder at nu 0.49: the particles the finder takes keep their
     own volume change, the others average with their own side only. Measured (sigma_xx right of the crack, Pa):
@@ -278,6 +282,7 @@ def _expanded_ring(crack):
     return hoop[near].mean(), hoop[far].mean(), gap
 
 
+@pytest.mark.slow
 def test_crack_on_the_annulus_map_opens():
     """The crack finder on a mapped grid (its node normals at the map's control points): a radial crack in an
     expanding ring opens. Measured at 0.3 s: hoop stress beside the crack 8.3 Pa against 128.0 uncracked, the
@@ -301,6 +306,7 @@ def knots_bar(crack):
     return cfg
 
 
+@pytest.mark.slow
 def test_crack_on_graded_knots_opens_and_closes():
     """The crack finder with domain.knots (node normals at the knot vectors' Greville abscissae): test_crack's
     pre-cracked bar on graded knots (spans 1.3 to 0.7 of the mean, 20 per axis). Measured (sigma_xx right of the

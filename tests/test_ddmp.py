@@ -183,6 +183,7 @@ def test_fold_shares_force_and_keeps_momentum():
     assert np.abs(sim.momentum()["linear"] - m0).max() < 1e-12 * scale
 
 
+@pytest.mark.slow
 def test_fold_makes_the_impact_stable_at_the_default_cfl():
     """The 16-cell impact of the CFL table (0.1 c on the slip floor, APIC, CFL 0.4; 12 of its 24 wave transits, 199
     steps, the block landing at step 50): without the fold the energy check stops it as the block lands (measured
@@ -194,6 +195,7 @@ def test_fold_makes_the_impact_stable_at_the_default_cfl():
     assert on["outcome"] == "ok" and on["energy_ratio_max"] <= 1.05, on
 
 
+@pytest.mark.slow
 def test_fold_keeps_the_1d_rebound_stable():
     """1D: the bar lands at 0.01 c on the slip floor and rebounds, 6 wave transits. Without the fold the energy check
     stops it at the second landing (measured: step 508, the floor node entered with a tiny mass); with it the run

@@ -159,6 +159,7 @@ def test_granular_collapse_quick(tmp_path):
     assert p["plastic_strain"].max() > 0.1 and p["Jp"].min() > 0
 
 
+@pytest.mark.slow
 def test_clay_slope_quick(tmp_path):
     """The cut at dx 0.05 (6 x 8 cells, 192 particles) for 0.3 s slumps: the toe moves out past the cut (measured
     0.43 m against 0.3), the crest comes down (0.33 m against 0.4), every particle finite and above the floor. The

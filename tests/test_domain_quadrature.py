@@ -106,6 +106,7 @@ def bar_error(cells, quadrature, basis="cubic", ppc=2):
     return an.run_problem(pr)[1]["error_rms"]
 
 
+@pytest.mark.slow
 def test_cubic_fixed_free_bar_second_order_at_2_ppc_with_domain_quadrature():
     """Measured, 16 -> 64 cells, 2 particles per cell: point 1.88e-6 -> 3.94e-7 (rate 1.13), domain 3.81e-7 ->
     6.76e-9 (rate 2.91). About 6 s. The bounds (issue 32: >= 1.8 with the remedy, about 1 without) fail if the
@@ -115,6 +116,7 @@ def test_cubic_fixed_free_bar_second_order_at_2_ppc_with_domain_quadrature():
     assert rate["point"] < 1.4, rate
 
 
+@pytest.mark.slow
 def test_free_block_keeps_momentum_with_domain_quadrature_3d():
     """A drifting, spinning, breathing block in free space (cubic, APIC, 3D): the averaged weights sum to one and
     reproduce linears, so P2G, the grid update and G2P keep linear and angular momentum to round-off (1e-10 of

@@ -50,6 +50,7 @@ def blocks():
     return {"standard": resting_block("standard", steps=500), "fbar": resting_block("fbar", steps=3000)}
 
 
+@pytest.mark.slow
 def test_standard_pressure_alternates_row_by_row(blocks):
     """The check below can fail: measured 0.62 rho g H row to row with the standard method after 500 steps
     (2.25 after 4000, still growing; GIMP at nu = 0.499: 2.8)."""

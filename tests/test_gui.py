@@ -258,6 +258,7 @@ def mapped_scene():
     return cfg
 
 
+@pytest.mark.slow
 def test_session_on_a_mapped_grid_draws_its_cells_and_runs():
     """A mapped scene in the windowless session: the cell edges of the annulus (render.grid_lines: 25 spokes and
     5 circles) as window segments, which map back to the circles r = 0.5 .. 1.0 (1e-12: the view is affine);

@@ -42,6 +42,7 @@ def as_nurbs(cfg, coarse=False):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("grid", [pytest.param("annulus", marks=pytest.mark.slow), "nurbs"])
 def test_uniform_stretch_is_reproduced_exactly(grid):
     """An affine velocity v = L x (stretch + shear + spin) on a solid inside the ring, APIC (C_p = L): P2G gives
@@ -198,6 +199,7 @@ def spin_against_the_outer_circle(walls, steps=20):
     return np.array(L), out, vn, vt, m_min
 
 
+@pytest.mark.slow
 def test_sticky_outer_circle_holds_its_wall_layer_still():
     """Sticky walls on the curved face: every node of the outer circle is loaded (mass > 0 at all 28) and its
     grid velocity after the update is zero in both the normal and the tangential direction (bound 1e-14 of the rim
@@ -210,6 +212,7 @@ def test_sticky_outer_circle_holds_its_wall_layer_still():
     assert L.min() < 0.5 * L[0]
 
 
+@pytest.mark.slow
 def test_wall_probe_on_the_outer_circle_accounts_for_the_momentum():
     """A wall probe on a curved face: the ring of the sticky test drifting at 0.5 m/s in x (no gravity) runs into
     the sticky outer circle (and its trailing side reaches the inner one). P2G, the grid update's internal forces
@@ -285,6 +288,7 @@ def test_cubic_basis_raises_the_map_to_degree_three():
         assert len(radial) == len(np.unique(radial)) + 6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("basis", ["cubic"])
 def test_spinning_ring_conserves_momentum_on_a_cubic_map(basis):
     """The free spinning ring of test_every_scheme_conserves_momentum_of_a_free_spinning_ring on the annulus raised
@@ -495,6 +499,7 @@ def couette_cfg(transfer="apic", cells=(48, 8), end_time=1.0):
                      material="m")])
 
 
+@pytest.mark.slow
 def test_turning_wall_sets_omega_cross_r_at_its_control_points():
     """A velocity wall with `angular_velocity` on a mapped face: after a step every inner-circle control point
     P_i has exactly omega e_z x (P_i - centre) (the rotation's value there: with sum R_i P_i = x, a rigid turn

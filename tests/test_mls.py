@@ -138,6 +138,7 @@ def mpm88_runs():
     return x0, out
 
 
+@pytest.mark.slow
 def test_mls_reproduces_mpm88(mpm88_runs):
     """mpm88's scene: the centre of mass and every particle within 1e-3 of the domain (the issue's tolerance);
     measured 2e-16, round-off (the uniform fall leaves C = 0 and J = 1 in both)."""
@@ -151,6 +152,7 @@ def test_mls_reproduces_mpm88(mpm88_runs):
     assert np.abs(p["x"] - xr).max() < 1e-12
 
 
+@pytest.mark.slow
 def test_mls_force_matches_mpm88(mpm88_runs):
     """The squeezed square: the stress acts (J from 0.97 to 1.06) and MLS follows mpm88 within 1e-3 of the domain
     (measured 1.7e-4, centre of mass 2e-15). The whole residual is the fluid law: against the reference with the
@@ -166,6 +168,7 @@ def test_mls_force_matches_mpm88(mpm88_runs):
     assert np.abs(np.linalg.det(p["F"]) - Js).max() < 1e-12
 
 
+@pytest.mark.slow
 def test_mls_is_not_apic_here(mpm88_runs):
     """The scheme matters: APIC (grad w for the force and grad v) on the squeezed square differs from mpm88 with
     the same fluid law by 7e-4 (measured), MLS by round-off: the agreement is the MLS force, not the shared

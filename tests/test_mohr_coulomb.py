@@ -126,7 +126,7 @@ def log_principal(F3):
     return 0.5 * np.log(np.linalg.eigvalsh(F3 @ np.swapaxes(F3, 1, 2)))[:, ::-1]
 
 
-@pytest.mark.parametrize("dim", fast_subset([1, 2, 3], [2, 3]))
+@pytest.mark.parametrize("dim", fast_subset([1, 2, 3], [3]))
 def test_return_lands_on_the_pyramid_in_every_region(dim):
     """2000 trials in random frames: inside ones unchanged bit for bit; every yielded one on f = 0 to 1e-10 of the
     stress scale (f evaluated in numpy from the principal stresses of the returned F); all four returns occur
@@ -191,6 +191,7 @@ def closest_point(sB, phi, c):
     return best
 
 
+@pytest.mark.slow
 def test_associated_return_is_the_closest_point_in_the_energy_norm():
     """Associated flow (psi = phi): the return of 48 yielded 3D trials (12 in each region) equals the brute-force
     closest point of the six-plane pyramid in the energy norm to 1e-9 of the stress scale (f64; the enumeration's
@@ -208,7 +209,7 @@ def test_associated_return_is_the_closest_point_in_the_energy_norm():
         assert np.abs(s_new[i] - ref).max() <= 1e-9 * scale[i], (i, s_new[i], ref)
 
 
-@pytest.mark.parametrize("psi", fast_subset([PSI, 0.0], [PSI]))
+@pytest.mark.parametrize("psi", fast_subset([PSI, 0.0], []))
 def test_drucker_prager_compression_cone_coincides_on_the_compression_meridian(psi):
     """drucker_prager with fit: compression is the cone through Mohr-Coulomb's compression meridian
     (s1 = s2 > s3): for trials on that meridian (triaxial compression, in random frames) both models return to the

@@ -208,16 +208,21 @@ def test_drucker_prager_friction_in_steady_simple_shear(fit, mu):
     assert t[0, 0] == pytest.approx(t[1, 1], rel=0.02) and t[2, 2] == pytest.approx(t[1, 1], rel=0.02)  # pure shear
 
 
+def loose_sand_trials():
+    """Rotated plane-strain trials of 9.75 % less area than the step before, from three states: (R, F, q0)."""
+    c, s_ = math.cos(0.3), math.sin(0.3)
+    R = np.array([[c, -s_], [s_, c]])
+    q0 = np.array([[0.0, 1.3, 1.0],                        # loose by 30 %: still loose after the step
+                   [0.0, 1.05, 1.0],                       # loose by 5 %: packed, then compressed by 5.2 %
+                   [0.0, 1.0, 1.0]])                       # packed: compressed elastically (inside the cone)
+    return R, np.array([R * 0.95, R * 0.95, R * 0.95]), q0
+
+
 def test_drucker_prager_volume_correction():
     """volume_correction: sand loosened by the tension cut-off (J_p > 1) compacts at no stress until it is back at its packed volume
     (Tampubolon et al. 2017), then bears load as packed sand does; det F_e J_p (the particle's volume) is kept.
     Rotated plane-strain trials, c = 0, psi = 0 (the correction's domain); f64, so 1e-12."""
-    c, s_ = math.cos(0.3), math.sin(0.3)
-    R = np.array([[c, -s_], [s_, c]])
-    Fs = np.array([R * 0.95, R * 0.95, R * 0.95])        # trial: 9.75 % less area than the step before
-    q0 = np.array([[0.0, 1.3, 1.0],                        # loose by 30 %: still loose after the step
-                   [0.0, 1.05, 1.0],                       # loose by 5 %: packed, then compressed by 5.2 %
-                   [0.0, 1.0, 1.0]])                       # packed: compressed elastically (inside the cone)
+    R, Fs, q0 = loose_sand_trials()
     Fn, qn, diss, t_tr, t_new = run_projection("drucker_prager", 2, Fs, q0, cohesion=0.0, dilatancy=0.0,
                                                volume_correction=True)
     J = np.linalg.det(Fs) * q0[:, 2] * q0[:, 1]                                     # plane strain: held F_zz
@@ -229,7 +234,13 @@ def test_drucker_prager_volume_correction():
     assert np.allclose(Fn[1], R * 0.95 * third, rtol=1e-12) and qn[1, 2] == pytest.approx(third, rel=1e-12)
     assert (Fn[2] == Fs[2]).all() and (qn[2] == q0[2]).all()                        # packed: unchanged
     assert (diss >= 0).all()
-    # switched off (the default), or with dilatancy (whose added volume must stay), the loose sand bears load at once
+
+
+@pytest.mark.slow   # two more return maps to compile (~3 s cold)
+def test_loose_sand_bears_load_at_once_without_the_volume_correction():
+    """Switched off (the default), or with dilatancy (whose added volume must stay), the loose sand of
+    test_drucker_prager_volume_correction bears load at once."""
+    _, Fs, q0 = loose_sand_trials()
     for over in (dict(dilatancy=0.0), dict(dilatancy=5.0, volume_correction=True)):
         Fo, qo, _, _, to = run_projection("drucker_prager", 2, Fs[:1], q0[:1], cohesion=0.0, **over)
         assert qo[0, 1] == pytest.approx(1.3, rel=1e-12) and np.trace(to[0]) < -0.05 * E

@@ -11,7 +11,7 @@ import taichi_mpm as tm
 from taichi_mpm import analytic as an
 from taichi_mpm.errors import ConfigError
 
-from conftest import make_cfg
+from conftest import fast_subset, make_cfg
 from test_cpdi import lsq_rate
 
 SIGMA, DX, DT = -1.0e3, 0.05, 1.0e-5
@@ -34,7 +34,7 @@ def interior_speed(basis, stress_difference):
     return speed / (abs(SIGMA) * DT / (1000.0 * DX)), int(inside.sum())
 
 
-@pytest.mark.parametrize("basis", ["quadratic", "ck", pytest.param("gimp", marks=pytest.mark.slow)])
+@pytest.mark.parametrize("basis", fast_subset(["quadratic", "ck", "gimp"], ["quadratic"]))
 def test_a_uniform_stress_on_uneven_particles_exerts_no_force_inside(basis):
     """Without the difference the particles integrate grad S_i with an error of a few percent of a cell's stress
     (measured: quadratic 0.038, gimp 0.077, ck 0.159 of sigma dx: ck's gradient peaks mid-cell); with it
@@ -122,6 +122,7 @@ def test_linear_momentum_is_kept_approximately():
         assert np.abs(m1["linear"] - m0["linear"]).max() < 1e-3 * scale
 
 
+@pytest.mark.slow
 def test_a_block_flying_at_a_wall_keeps_the_plain_stability():
     """The stability map's impact (a block at 0.1 of its wave speed against a sticky wall, 32 cells, APIC, CFL 0.4):
     a body short of a wall leaves the wall's nodes short of particles, which must count as a free surface. A first

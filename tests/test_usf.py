@@ -25,6 +25,7 @@ def bar(update, cells, dt_factor):
     return (en["kinetic"] + en["strain"]) / e0, e["error_rms"]
 
 
+@pytest.mark.slow
 def test_usf_keeps_the_bar_energy_better_than_usl():
     ratio_usf, err_usf = bar("usf", 32, 0.1)
     ratio_usl, err_usl = bar("usl", 32, 0.1)

@@ -125,6 +125,7 @@ MMS_RATE = {"linear": 1.8, "gimp": 1.8, "quadratic": 1.8, "cubic": 1.55}
 
 @pytest.mark.parametrize("basis", [pytest.param("linear", marks=pytest.mark.slow), pytest.param("gimp", marks=pytest.mark.slow), "quadratic",
                                    pytest.param("cubic", marks=pytest.mark.slow)])
+@pytest.mark.slow
 def test_mms_small_amplitude_converges(basis):
     cells = [8, 16, 32]
     errs = mms_errors(basis, 1e-4, cells)
@@ -132,6 +133,7 @@ def test_mms_small_amplitude_converges(basis):
     assert errs[-1] < 2.5e-6
 
 
+@pytest.mark.slow
 def test_time_integration_is_second_order_between_periods():
     """The one-period instant (exact displacement zero) hides a first-order time integration; at 3/4 period
     (displacement at its extreme) it shows. cpdi at G = 0.05 (small spatial error), 16 and 32 cells, CFL 0.2:

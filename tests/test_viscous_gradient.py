@@ -3,6 +3,7 @@ field (grad_v), not APIC's C_p = B_p D_p^-1: the latter fits the grid velocities
 their gradient wherever the field is not linear, and a viscous stress read from it does not dissipate the energy
 the grid's forces take out (the slow Couette test in test_mapped.py measures the balance)."""
 import numpy as np
+import pytest
 import taichi_mpm as tm
 from conftest import make_cfg
 
@@ -48,6 +49,7 @@ def test_grad_v_is_part_of_the_state_a_resume_restores():
     assert np.array_equal(sim.get_state()["grad_v"], saved["grad_v"])
 
 
+@pytest.mark.slow
 def test_a_resumed_viscous_apic_run_continues_bit_for_bit(tmp_path):
     """solver.deterministic: 12 steps in one go against 6, a checkpoint file and 6 more in a new Simulation. The
     checkpoint carries grad_v: resumed without it (the field's zeros), the first step's viscous stress differs and

@@ -154,7 +154,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize("sig", [signal.SIGINT, pytest.param(signal.SIGTERM, marks=pytest.mark.slow)])
 def test_a_run_killed_while_the_writer_is_busy_loses_nothing_and_resumes_bit_for_bit(tmp_path, sig):
     path = scene(tmp_path, end_time=0.3)
     env = dict(os.environ, PYTHONPATH=str(REPO))
@@ -191,7 +191,7 @@ def test_a_run_killed_while_the_writer_is_busy_loses_nothing_and_resumes_bit_for
     same_checkpoint(tmp_path / "full" / io.CHECKPOINT_NAME, out / io.CHECKPOINT_NAME)
 
 
-@pytest.mark.parametrize("stop_at", [0.02, 0.06])
+@pytest.mark.parametrize("stop_at", [0.02, pytest.param(0.06, marks=pytest.mark.slow)])
 def test_a_stop_on_a_step_that_lands_on_an_output_time_keeps_that_output(tmp_path, stop_at):
     """A stop asked during the step that reaches an output time (0.02: mid-run) writes that output before the
     checkpoint; the resumed run then writes every later one, bit for bit as an uninterrupted run. (Before: the

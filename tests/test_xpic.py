@@ -8,6 +8,7 @@ import taichi_mpm.analytic as an
 import test_conservation as tcons    # module object: its tests are not collected again here
 
 
+@pytest.mark.slow
 def test_xpic_order_1_is_pic(cfg_factory):
     """v* = v at order 1, so v_p = S (v_L - v + v) = S v_L: PIC's velocities and positions, to round-off. Not to the
     bit: (v_L - v) + v rounds to within an ulp of v_L, and whether the compiler folds it depends on the CPU's
@@ -58,6 +59,7 @@ def disks(order, end_time=3.5, transfer="xpic"):
     return e["energy_ratio_end"]
 
 
+@pytest.mark.slow
 def test_xpic_dissipates_less_with_order():
     """The disks through their impact (t = 2.5 s): PIC (m = 1) loses the most, m = 2 and 4 less in turn."""
     r1, r2, r4 = (disks(m, end_time=2.5) for m in (1, 2, 4))
