@@ -120,3 +120,11 @@ def test_outputs_benchmark_reports_every_mode():
     assert [r["mode"] for r in rows] == ["thread", "inline", "off", "vtu", "vtu_inline"]
     assert all(r["total_over_solver"] >= 1.0 and r["particle_steps_per_s"] > 0 and r["folder_mb"] > 0 for r in rows)
     assert rows[0]["folder_mb"] > rows[2]["folder_mb"]     # snapshots and frames cost room; off writes none
+
+
+@pytest.mark.slow
+def test_targets_table_reports_each_target_met_or_not():
+    rows = load("targets").main(["--only", "elements", "crack", "--tiny", "--rounds", "1"])
+    elements, crack = rows
+    assert elements["met"] == "not measured" and "--taichi-elements" in elements["note"]
+    assert crack["goal"] == "<= 1.3" and crack["measured"] > 0 and crack["met"] in ("yes", "no")
