@@ -90,7 +90,9 @@ def node_owner_funcs(ctx):
                     for o in ti.grouped(ti.ndrange(*sten.outer)):
                       for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split)
                         I, w, gw, r = sten.node(sd, o + sten.inner[k])
-                        if node_mark[I] > 0:
+                        # read first: wmax only grows, so a smaller w changes nothing, and the atomic (a
+                        # compare-and-swap loop on floats) is what made this pass cost as much as G2P
+                        if node_mark[I] > 0 and w > wmax[I]:
                             ti.atomic_max(wmax[I], w)
             for p in x:
                 if side[p] >= 0:
