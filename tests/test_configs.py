@@ -1,7 +1,7 @@
 """Every file in configs/: each run config validates, builds its scene and runs a few steps; each study file
 (configs/studies) validates with every case's config. Compiling a config's kernel set costs 5-30 s on the shared
 2-core machine (measured: all 20 configs, 3 steps each, about 400 s), so the default run validates and builds every
-config and steps a few of them (one crack scene among them); `pytest -m slow` steps them all."""
+config and steps two of them; `pytest -m slow` steps them all."""
 from pathlib import Path
 
 import numpy as np

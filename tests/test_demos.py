@@ -184,6 +184,25 @@ def test_silo_quick(tmp_path):
     assert np.abs(p["v"][~beads]).max() == 0.0
 
 
+def test_silo_discharge_geometry_and_beverloo_fit():
+    """demos/silo_discharge.py without a run: the resized silo has a centred slot of the asked width between plates
+    two cells thick, beads filling the depth above them; the Beverloo fit recovers C and D0 from rates made with
+    them (to the D0 grid's step), and the power law its exponent from exact D^n rates."""
+    demo = load_demo("silo_discharge")
+    cfg, below = demo.silo_config(0.032, 0.002, 0.16, 0.1, 0.3)
+    left, right, beads = (b.shape for b in cfg.bodies)
+    assert right.lower[0] - left.upper[0] == pytest.approx(0.032) and left.upper[0] == pytest.approx(0.064)
+    assert left.upper[1] - left.lower[1] == pytest.approx(0.004) and below == pytest.approx(left.lower[1])
+    assert beads.lower[1] == pytest.approx(left.upper[1]) and beads.upper[1] - beads.lower[1] == pytest.approx(0.1)
+    D = np.array([0.024, 0.032, 0.048])
+    rows = [dict(outlet=d, rate=1.3 * 1500 * math.sqrt(9.81) * (d - 0.0075) ** 1.5) for d in D]
+    fit = demo.fits(rows, 1500.0)["beverloo"]
+    assert fit["C"] == pytest.approx(1.3, rel=0.02) and fit["D0"] == pytest.approx(0.0075, abs=1e-4)
+    assert fit["max_error"] < 0.01
+    power = demo.fits([dict(outlet=d, rate=7.0 * d ** 1.96) for d in D], 1500.0)["power_law_exponent"]
+    assert power == pytest.approx(1.96, abs=1e-9)
+
+
 @pytest.mark.slow   # two kernel sets (Cartesian and polar) and a full period at 24 cells: ~40 s on 2 cores
 def test_vortex_polar_side_by_side(tmp_path):
     """demos/vortex_polar.py: the two grids' frames side by side (two panels and a 2-pixel separator), and each
