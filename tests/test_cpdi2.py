@@ -103,6 +103,7 @@ def test_stretched_sheared_block_partition_of_unity():
     assert stencil_sums(sim).max() < 1e-12
 
 
+@pytest.mark.slow
 def test_stretched_sheared_block_interior_force_vanishes():
     """Uniform stress in the body stretched 5x and sheared 3x: the internal force at every interior node is zero
     to round-off at 11 rigid shifts (tests/test_cpdi.py's parallelogram_force)."""

@@ -168,6 +168,7 @@ def test_granular_gas_is_stress_free_when_loose_and_tracks_the_density():
     assert p == pytest.approx(-K * math.log(0.995), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_no_excess_stress_below_yield():
     """An elastic point (pressure 1 kPa, shear far below mu_s p) with a large velocity gradient: the stress is the
     elastic one (bit for bit) and the excess power zero; at yield it is 2 J eta dev D with power tau_ex : L > 0."""

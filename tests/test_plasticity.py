@@ -97,7 +97,7 @@ def dev_norm(t):
 
 
 @pytest.mark.parametrize("model, dim", fast_subset([(m, d) for m in PLASTIC for d in (1, 2, 3)],
-                                                  [("von_mises", 2), ("drucker_prager", 2)]))
+                                                  [("drucker_prager", 2)]))   # von_mises: the uniaxial closed form below
 def test_return_mapping_lands_on_or_inside_the_yield_surface(model, dim):
     """1500 random F from far inside to far outside: the returned state is admissible to 1e-10 relative; a trial
     inside is returned unchanged (bit for bit); a trial outside lands on the surface; the dissipation is >= 0

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from conftest import make_cfg
+from conftest import fast_subset, make_cfg
 from taichi_mpm.io import files as io
 from taichi_mpm.cli import EXIT_IO, main
 from taichi_mpm.io.runner import LOCK_NAME, FolderLock, Interrupted, Run, Simulation
@@ -92,9 +92,10 @@ def plant(link: Path, target: Path):
 
 
 # ---------------------------------------------------------------- links in a run folder are never followed
-@pytest.mark.parametrize("name,to_dir", [(LOCK_NAME, False), ("probes", True), ("probes/tip.csv", False),
-                                         ("frames", True), ("movie.gif", False), ("diagnostics.csv", False),
-                                         ("plots", True)])
+# each guarded path under -m slow; the default run keeps a file, a folder and the lock (one guard serves them all)
+@pytest.mark.parametrize("name,to_dir", fast_subset(
+    [(LOCK_NAME, False), ("probes", True), ("probes/tip.csv", False), ("frames", True), ("movie.gif", False),
+     ("diagnostics.csv", False), ("plots", True)], [(LOCK_NAME, False), ("probes", True), ("movie.gif", False)]))
 def test_links_in_a_fresh_or_overwritten_run_folder_are_refused_and_nothing_outside_changes(tmp_path, capsys, name,
                                                                                           to_dir):
     """Before: the lock file's target was truncated to the pid, probes/ and probes/tip.csv were written through,
@@ -188,7 +189,8 @@ def test_io_helpers_replace_links_instead_of_following_them(tmp_path):
     assert not list(run_dir.glob(".*.tmp*"))
 
 
-@pytest.mark.parametrize("planted", ["probes/tip.csv", "plots/energy.png", "plots/probe_tip.png"])
+@pytest.mark.parametrize("planted", fast_subset(["probes/tip.csv", "plots/energy.png", "plots/probe_tip.png"],
+                                                ["probes/tip.csv", "plots/energy.png"]))
 def test_results_guard_covers_probe_files_and_plots(tmp_path, capsys, planted):
     """Before: probe files (and plots) of an earlier run were replaced by a fresh run without a word."""
     path = scene(tmp_path)
@@ -262,7 +264,8 @@ def test_disk_full_mid_run_keeps_the_last_checkpoint_and_resume_finishes(tmp_pat
     assert list(a["step"]) == list(b["step"])
 
 
-@pytest.mark.parametrize("where", ["checkpoint", "probe row", "diagnostics row"])
+@pytest.mark.parametrize("where", fast_subset(["checkpoint", "probe row", "diagnostics row"],
+                                              ["checkpoint", "probe row"]))
 def test_disk_full_in_any_writer_mid_run_is_exit_4_and_the_checkpoint_stays_valid(tmp_path, capsys, monkeypatch,
                                                                                 where):
     path = scene(tmp_path, end_time=0.06)
