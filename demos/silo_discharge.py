@@ -45,7 +45,7 @@ def discharge(outlet: float, dx: float, width: float, depth: float, window, over
     """Step one silo to the window's end; the mass below the plates against time and its slope over the window."""
     cfg, below = silo_config(outlet, dx, width, depth, window[1], overrides)
     sim = tm.Simulation(cfg)
-    beads = sim.scene.body == 2
+    beads = sim.scene.body == [b.name for b in cfg.bodies].index("beads")
     mass = sim.scene.mass[beads]
     times, passed = [], []
     for t in np.linspace(window[0], window[1], samples):
