@@ -5,6 +5,7 @@ cache). Ratios against the first basis named.
 
     python benchmarks/basis_cost.py                       # ck against quadratic, 2D and 3D
     python benchmarks/basis_cost.py --bases quadratic,cubic,ck --rounds 5
+    python benchmarks/basis_cost.py --bases ddmp,ddmp:ddmp.sub_points=true   # a basis with solver options
 
 Writes nothing outside temporary folders.
 """
@@ -21,12 +22,29 @@ SCENES = {2: 1 / 128, 3: 1 / 40}   # dx: 16 384 and 64 000 particles
 STEPS = 30
 
 
-def block(dim, basis, dx):
+def solver_options(variant):
+    """'ddmp:ddmp.sub_points=true' -> ('ddmp', {'ddmp': {'sub_points': True}}): a basis and solver keys."""
+    import yaml
+
+    name, *sets = variant.split(":")
+    options = {}
+    for item in sets:
+        key, _, value = item.partition("=")
+        *path, last = key.split(".")
+        node = options
+        for k in path:
+            node = node.setdefault(k, {})
+        node[last] = yaml.safe_load(value)
+    return name, options
+
+
+def block(dim, variant, dx):
+    basis, options = solver_options(variant)
     body = dict(name="block", shape=dict(type="box", lower=[0.2] * dim, upper=[0.7] * dim), material="m",
                 velocity=[0.3, -0.2, 0.1][:dim])
     return dict(name="cost", dim=dim, precision="f32", arch="cpu",
                 domain=dict(lower=[0.0] * dim, upper=[1.0] * dim, dx=dx, boundaries=dict(default="slip")),
-                solver=dict(basis=basis, transfer="apic", end_time=100.0),
+                solver=dict(basis=basis, transfer="apic", end_time=100.0, **options),
                 output=dict(every=100.0),   # (a Simulation writes nothing; this only quiets the size check)
                 materials=dict(m=dict(model="neo_hookean", E=1e5, nu=0.3, density=1000.0)), bodies=[body])
 
@@ -61,7 +79,7 @@ def main(argv=None):
         ref = statistics.median(r[2] for r in rows[bases[0]])
         for b in bases:
             ms = statistics.median(r[2] for r in rows[b])
-            print(f"{dim}D {b:10s} {rows[b][0][0]:7d} particles  {ms:7.1f} ms/step ({ms / ref:.2f}x {bases[0]})  "
+            print(f"{dim}D {b:30s} {rows[b][0][0]:7d} particles  {ms:7.1f} ms/step ({ms / ref:.2f}x {bases[0]})  "
                   f"rounds {', '.join(f'{r[2]:.1f}' for r in rows[b])}  first steps "
                   f"{', '.join(f'{r[1]:.2f}' for r in rows[b])} s")
 

@@ -23,7 +23,7 @@ import numpy as np
 from .extensions import scatter
 from .backend import resolve_arch
 from .bases import registry as bases
-from .bases.shape_functions import make_basis
+from .bases.shape_functions import configured_basis
 from .bases.knots import grid_knots, smallest_span
 from .bases import mapgeom
 from .config import Config, ConfigError
@@ -121,7 +121,7 @@ def _limit(cfg: Config) -> tuple[float | None, str]:
 def needs(cfg: Config, body_force: bool = False) -> layout.Needs:
     """The scene's optional fields, from the config alone (layout.Needs.of_config; the solver's of_simulation
     agrees: tests/test_layout_budget.py)."""
-    return layout.Needs.of_config(cfg, body_force, _coloured_scatter(cfg), make_basis(cfg.solver.basis, grid_knots(cfg)))
+    return layout.Needs.of_config(cfg, body_force, _coloured_scatter(cfg), configured_basis(cfg))
 
 
 def device_bytes_per_particle(cfg: Config, body_force: bool = False) -> int:
@@ -213,7 +213,7 @@ def _nurbs_h_min(m, net, cells) -> float:
 def grid_layout(cfg: Config, mapped: MapSize | None = None) -> dict:
     """Nodes per axis and, for a sparse grid, the pointer levels as `grid.Grid` builds them. A mapped grid's
     nodes are its control points (parameter space), not the box divided by domain.dx."""
-    basis = make_basis(cfg.solver.basis, grid_knots(cfg))
+    basis = configured_basis(cfg)
     mapped = mapped if mapped is not None else map_size(cfg)
     if mapped is not None:
         cells, nodes = list(mapped.cells), list(mapped.shape)

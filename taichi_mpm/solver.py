@@ -26,8 +26,8 @@ from . import budget, host_copy, states, tearing   # states: the API's refusals 
 from .budget import VISCOUS_DIFFUSION  # noqa: F401 (the dt rule's constant, shared with the estimate)
 from .backend import GPU_ARCHS, _live, available_archs, choose as choose_backend, init_taichi, resolve_arch  # noqa: F401
 from .bases import registry as bases
-from .bases.shape_functions import domain_averaged, make_basis
-from .bases.knots import grid_knots, smallest_span
+from .bases.shape_functions import configured_basis
+from .bases.knots import smallest_span
 from .bases.mapped import MappedGrid
 from .bases.stencils import make_stencil, resolve_unroll
 from . import layout as field_layout   # the declared fields (layout.py)
@@ -100,9 +100,7 @@ class Simulation:
         self.backend = choose_backend(c, size_check=_fits)  # arch and grid, and why
         self._id = init_taichi(self.backend, c.precision, c.solver.deterministic,
                                c.solver.deterministic and thread_independent(c, self.n, body_force is not None))
-        self.basis = make_basis(c.solver.basis, grid_knots(c))   # domain.knots: per-axis knot vectors
-        if c.solver.quadrature == "domain":
-            self.basis = domain_averaged(self.basis)
+        self.basis = configured_basis(c)   # domain.knots' per-axis knot vectors, the basis' options
         self.basis.materialize()
         self.h_cfl = smallest_span(c)   # dx, or the shortest knot span of domain.knots
         self.mapped = MappedGrid(c) if c.domain.map is not None else None   # domain.map: a curvilinear grid

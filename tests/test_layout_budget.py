@@ -219,6 +219,7 @@ CASES = {
     "3d ck sparse f32": lambda: make_cfg(3, basis="ck", precision="f32", dx=0.1),
     "2d ck fbar": lambda: make_cfg(2, basis="ck", volumetric="fbar", dx=0.05),
     "2d ddmp dense": lambda: _dense(make_cfg(2, basis="ddmp", dx=0.05)),
+    "2d ddmp sub-points dense": lambda: _dense(make_cfg(2, basis="ddmp", dx=0.05, ddmp=dict(sub_points=True))),
     "2d fbar quadratic": lambda: make_cfg(2, volumetric="fbar", dx=0.05),
     "2d fbar linear dense": lambda: _dense(make_cfg(2, basis="linear", volumetric="fbar", dx=0.05)),
     "2d crack, normals each step": lambda: _crack(0.0),

@@ -61,6 +61,7 @@ class Basis:
     # lp its half-width); `domain_averaged` swaps it in
     averaged_1d: Optional[Callable] = None
     domain_quadrature: bool = False        # weights_1d is averaged_1d: the stencil passes each particle's lp
+    sub_points: bool = False               # ddmp: the gradient averaged over two sub-points per axis (stencil 5)
 
     @property
     def spec(self) -> registry.Spec:
@@ -382,3 +383,24 @@ def make_basis(name: str, knots=None) -> Basis:
     """The shape functions of the registered basis `name`; `knots`: per axis a knot vector in grid units or None
     (knots.grid_knots), for the bases that take domain.knots."""
     return registry.get(name).build(knots)
+
+
+def with_sub_points(basis: Basis) -> Basis:
+    """ddmp with solver.ddmp.sub_points: the gradient averaged over two sub-points per axis (stencils.py), whose
+    stencil reaches one node further (5 per axis; one more ghost node beyond the upper wall)."""
+    if basis.smooth_1d is None:
+        raise ValueError(f"basis {basis.name} has no sub-points (solver.ddmp.sub_points is ddmp's)")
+    nodes = basis.nodes
+    return replace(basis, stencil=basis.stencil + 1, nodes=lambda n: nodes(n) + 1, sub_points=True)
+
+
+def configured_basis(cfg) -> Basis:
+    """The shape functions a config runs with: solver.basis on domain.knots' vectors, with the options that change
+    them (solver.quadrature domain, solver.ddmp.sub_points). The solver and the memory estimate build it alike."""
+    from .knots import grid_knots
+    basis = make_basis(cfg.solver.basis, grid_knots(cfg))
+    if cfg.solver.quadrature == "domain":
+        basis = domain_averaged(basis)
+    if cfg.solver.basis == "ddmp" and cfg.solver.ddmp.sub_points:
+        basis = with_sub_points(basis)
+    return basis

@@ -36,6 +36,7 @@ from .. import traced
 from .compact_kernel import staggered_stencil
 from .corners import cpdi_stencil
 from .nurbs import UNROLL_TERMS
+from .ddmp_gradient import ddmp_parts, volume_weights
 from .stencil_parts import (AUTO_INNER, KernelContext, Stencil, domain_half_width, flat_index,  # noqa: F401
                             loops)
 
@@ -119,6 +120,9 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     outer, inner = loops(span, ctx.unroll, auto_inner=AUTO_INNER)
     dual = _dual_domain_fill(ctx, span) if smooth else None
     prepare, fill = (dual.prepare, dual.fill) if smooth else (None, None)
+    # ddmp's gradient (ddmp_gradient.py); with sub-points its stencil is one node wider than its 1D functions
+    ddmp = ddmp_parts(basis, axes, n_cells, S, dx, half_width, F, fill) if smooth else None
+    S1 = S - 1 if smooth and basis.sub_points else S
 
     @traced.traced
     def at(p):
@@ -129,7 +133,8 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     def axes_of(p, with_fill):
         u = traced.local((traced.at(x, p) - lower) * inv_dx)
         base, W, DW, R = [], [], [], []
-        WS = [[0.0] * S for _ in range(dim)]   # ddmp: smoothed weights and derivatives, blend (unused otherwise)
+        # ddmp: smoothed weights and derivatives, blend (sub-points: their per-axis means); unused otherwise
+        WS = [[0.0] * (ddmp.width if smooth else S) for _ in range(dim)]
         DS = [[0.0] * S for _ in range(dim)]
         alpha = 1.0
         for a in range(dim):
@@ -160,17 +165,15 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
                 lp = ti.min(lp, uw, n_cells[a] - uw)
             b, w, dw = (traced.local(v) for v in axes[a].weights_1d(uw, n_cells[a], lp))   # axes[a]: its knots
             base.append(b)
-            W.append([traced.at(w, k) for k in range(S)])
-            DW.append([traced.at(dw, k) * inv_dx for k in range(S)])
-            R.append([(axes[a].coord(b + k, n_cells[a]) - uw) * dx for k in range(S)])
+            W.append([traced.at(w, k) for k in range(S1)])
+            DW.append([traced.at(dw, k) * inv_dx for k in range(S1)])
+            R.append([(axes[a].coord(b + k, n_cells[a]) - uw) * dx for k in range(S1)])
             if smooth:
-                ws, ds, al = (traced.local(v) for v in basis.smooth_1d(uw, n_cells[a]))
+                base[a], W[a], DW[a], R[a], WS[a], DS[a], al = ddmp.axis(p, a, uw, b, W[a], DW[a], R[a])
                 alpha = alpha * al
-                WS[a] = [traced.at(ws, k) for k in range(S)]
-                DS[a] = [traced.at(ds, k) * inv_dx for k in range(S)]
         base = make_matrix(base, int)
-        if smooth and with_fill:
-            alpha = ti.max(alpha, 1.0 - fill(base))
+        if smooth:
+            alpha = ddmp.blend(alpha, base, with_fill)
         return (base, make_matrix(W, float), make_matrix(DW, float), make_matrix(R, float), make_matrix(WS, float),
                 make_matrix(DS, float), alpha)
 
@@ -196,17 +199,14 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
         for a in range(1, dim):
             w = w * Wo[a]
         grad = []
+        factors = ddmp.factors(WS, o, pick) if smooth else None
         for a in range(dim):
             g = pick(DW, a, o[a])
             for b in range(dim):
                 if b != a:
                     g = g * Wo[b]
             if smooth:
-                gs = pick(DS, a, o[a])
-                for b in range(dim):
-                    if b != a:
-                        gs = gs * pick(WS, b, o[b])
-                g = alpha * g + (1.0 - alpha) * gs
+                g = ddmp.gradient(g, a, o, pick, DW, factors, DS, alpha)
             grad.append(g)
         r = [pick(R, a, o[a]) for a in range(dim)]
         return base + off, w, make_matrix(grad, float), make_matrix(r, float)
@@ -256,6 +256,7 @@ def _dual_domain_fill(ctx: KernelContext, span: list) -> DualDomains:
     dim, dx, basis, n_cells, lower = ctx.dim, ctx.dx, ctx.basis, ctx.n_cells, ctx.lower
     x, F, vol0 = ctx.x, ctx.F, ctx.vol0
     S = span[0]
+    spread = volume_weights(basis, [basis.axis(a) for a in range(dim)], n_cells, S, domain_half_width(ctx), F)
     decl = ddmp_grid(ctx.feat.small_node_fold > 0)
     grid = Grid(dim, ctx.grid.shape, ctx.grid.sparse, list(decl.vectors), apart=list(decl.apart),
                 apart_scalars=list(decl.scalars))
@@ -270,7 +271,7 @@ def _dual_domain_fill(ctx: KernelContext, span: list) -> DualDomains:
             base = ti.Vector.zero(int, dim)
             W = ti.Matrix.zero(float, dim, S)
             for a in ti.static(range(dim)):
-                b, w, dw = basis.weights_1d(u[a], n_cells[a], 0.0)
+                b, w = spread(p, a, u[a])
                 base[a] = b
                 for k in ti.static(range(S)):
                     W[a, k] = w[k]

@@ -51,7 +51,8 @@ def coloured(cfg, gpu: bool, particles: int) -> bool:
     The solver passes its count, budget.py its estimate of it."""
     spec = bases.get(cfg.solver.basis)   # its declaration: nothing is built
     kind = "mapped" if cfg.domain.map is not None else spec.stencil_kind
-    return applies(gpu, kind, spec.stencil, cfg.dim, cfg.solver.scatter, particles, cfg.solver.deterministic)
+    width = spec.stencil + (cfg.solver.basis == "ddmp" and cfg.solver.ddmp.sub_points)   # sub-points: one node wider
+    return applies(gpu, kind, width, cfg.dim, cfg.solver.scatter, particles, cfg.solver.deterministic)
 
 
 class BlockBins:
