@@ -93,13 +93,26 @@ def _mean(lo, hi, c_lo=1.0, c_hi=1.0):
 
 
 def _sub_point_pair(half_width, F, n_cells):
-    """(p, a, uw) -> the sub-points' coordinates along axis a (grid units; uw inside the domain)."""
+    """(p, a, uw) -> the sub-points' coordinates along axis a (grid units; uw inside the domain). The half-width
+    follows |F_aa|, as gimp's deforming domains do (solver.gimp_domain): a rotated particle's pair draws together
+    (at a quarter turn it coincides: plain ddmp's quadrature for that particle)."""
     def pair(p, a, uw):
         n = n_cells[a]
         d = ti.min(0.5 * half_width(p) * ti.abs(traced.at(traced.at(F, p), a, a)), 0.5)
         d = traced.local(ti.min(d, uw, n - uw))   # symmetric about uw at the walls too
         return traced.local(uw - d), traced.local(uw + d)
     return pair
+
+
+def _sub_point_linear(axes, n_cells, pair):
+    """(p, a, uw) -> (the left sub-point's cell, the right one's cell minus it, (w, dw) at the left one, (w, dw) at
+    the right one): the linear 1D functions at the two sub-points of axis a."""
+    def linear(p, a, uw):
+        um, up = pair(p, a, uw)
+        bm, nm, dnm = (traced.local(v) for v in axes[a].weights_1d(um, n_cells[a], 0.0))
+        bp, np_, dnp = (traced.local(v) for v in axes[a].weights_1d(up, n_cells[a], 0.0))
+        return bm, traced.local(bp - bm), (nm, dnm), (np_, dnp), um, up
+    return linear
 
 
 def volume_weights(basis, axes, n_cells, S, half_width, F):
@@ -111,14 +124,13 @@ def volume_weights(basis, axes, n_cells, S, half_width, F):
             b, w, _ = axes[a].weights_1d(u, n_cells[a], 0.0)
             return b, _entries(w, S)
         return own
-    pair = _sub_point_pair(half_width, F, n_cells)
+    linear = _sub_point_linear(axes, n_cells, _sub_point_pair(half_width, F, n_cells))
 
     @traced.traced
     def sub(p, a, u):
-        um, up = pair(p, a, traced.local(ti.min(ti.max(u, 0.0), ti.cast(n_cells[a], float))))
-        bm, nm, _ = (traced.local(v) for v in axes[a].weights_1d(um, n_cells[a], 0.0))
-        bp, np_, _ = (traced.local(v) for v in axes[a].weights_1d(up, n_cells[a], 0.0))
-        return bm, _mean(_place(S, _entries(nm, S - 1), 0), _place(S, _entries(np_, S - 1), bp - bm))
+        uw = traced.local(ti.min(ti.max(u, 0.0), ti.cast(n_cells[a], float)))
+        bm, shift, (nm, _), (np_, _), _, _ = linear(p, a, uw)
+        return bm, _mean(_place(S, _entries(nm, S - 1), 0), _place(S, _entries(np_, S - 1), shift))
     return sub
 
 
@@ -126,19 +138,16 @@ def _sub_point_parts(basis, axes, n_cells, S, dx, half_width, F, fill) -> DdmpPa
     """axis: S-entry lists over the nodes from the left sub-point's cell: W and DW the mean linear weights and
     derivatives, R the node offsets, WS the FACTORS means side by side, DS the mean Ds."""
     inv_dx = 1.0 / dx
-    pair = _sub_point_pair(half_width, F, n_cells)
+    linear = _sub_point_linear(axes, n_cells, _sub_point_pair(half_width, F, n_cells))
 
     def place(vec, shift, scale=1.0):
         return _place(S, _entries(vec, S - 1, scale), shift)
 
     def axis(p, a, uw, b, W, DW, R):
         n = n_cells[a]
-        um, up = pair(p, a, uw)
-        bm, nm, dnm = (traced.local(v) for v in axes[a].weights_1d(um, n, 0.0))
-        bp, np_, dnp = (traced.local(v) for v in axes[a].weights_1d(up, n, 0.0))
+        bm, shift, (nm, dnm), (np_, dnp), um, up = linear(p, a, uw)
         sm, dsm, am = (traced.local(v) for v in basis.smooth_1d(um, n))
         sp, dsp, ap = (traced.local(v) for v in basis.smooth_1d(up, n))
-        shift = traced.local(bp - bm)
         N = (place(nm, 0), place(np_, shift))
         dN = (place(dnm, 0, inv_dx), place(dnp, shift, inv_dx))
         Ns = (place(sm, 0), place(sp, shift))
