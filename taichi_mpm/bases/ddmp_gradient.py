@@ -163,15 +163,8 @@ def _sub_point_parts(basis, axes, n_cells, S, dx, half_width, F, fill) -> DdmpPa
         share of the linear gradient's cell-crossing error: 1D G = 0.05 at 256 cells 9.46e-6 against 5.07e-6."""
         return 1.0 - ti.min(fill(base) / FULL, 1.0) if with_fill else 0.0
 
-    def entry(M, a, i, j):
-        """Entry i of the j-th S-wide block of row a of M."""
-        v = traced.at(M, a, j * S)
-        for k in range(1, S):
-            v = traced.select(i == k, traced.at(M, a, j * S + k), v)
-        return v
-
     def factors(WS, o, pick):
-        return [[traced.local(entry(WS, b, o[b], j)) for j in range(FACTORS)] for b in range(len(o))]
+        return [[traced.local(pick(WS, b, o[b], j * S)) for j in range(FACTORS)] for b in range(len(o))]
 
     def gradient(g, a, o, pick, DW, blocks, DS, beta):
         """The mean of the sub-points' gradients at a node blended with their mean linear one, g (module docstring):

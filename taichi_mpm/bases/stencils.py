@@ -177,16 +177,17 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
         return (base, make_matrix(W, float), make_matrix(DW, float), make_matrix(R, float), make_matrix(WS, float),
                 make_matrix(DS, float), alpha)
 
-    def pick(M, a, i):
-        """M[a, i]. Along an axis the run-time loop walks, next to unrolled ones, by selects: indexing a local
+    def pick(M, a, i, start=0):
+        """M[a, start + i]. Along an axis the run-time loop walks, next to unrolled ones, by selects: indexing a local
         matrix at run time moves it from registers to the stack (3D quadratic, 3 nodes unrolled: G2P 23-28 against
-        14-17 ms, one thread). A loop that runs all at run time keeps the indexing (selects: G2P 16 against 13 ms)."""
+        14-17 ms, one thread). A loop that runs all at run time keeps the indexing (selects: G2P 16 against 13 ms).
+        `start`: the first column of an S-wide block (ddmp's sub-point arrays lie side by side)."""
         if outer[a] > 1 and len(inner) > 1:
-            v = traced.at(M, a, 0)
+            v = traced.at(M, a, start)
             for k in range(1, S):
-                v = traced.select(i == k, traced.at(M, a, k), v)
+                v = traced.select(i == k, traced.at(M, a, start + k), v)
             return v
-        return traced.at(M, a, i)
+        return traced.at(M, a, start + i if start else i)
 
     @traced.traced
     def node(st, off):
