@@ -357,9 +357,9 @@ class Ddmp(Strict):
     # enters a cell) shares part of its force with its fullest neighbour: linear weights leave such a node a tiny
     # mass and a full force (extensions/ddmp_fill.py; docs/bases.md, "DDMP's small nodes"); 0: off
     fold_below: Annotated[float, Field(ge=0, lt=1)] = 0.2
-    # the gradient (force and velocity gradient) averaged over two sub-points per axis, at the centres of the halves of
-    # the particle's domain stretched by F_aa (Dhakal & Zhang 2016's sub-points): the particles' quadrature of the
-    # force then converges where point quadrature stalls (docs/bases.md, "DDMP's sub-points"); a 5-node stencil
+    # each particle's weights and gradient averaged over two sub-points per axis, the centres of the halves of its
+    # domain stretched by |F_aa| (Dhakal & Zhang 2016's sub-points): the particles' quadrature of the force then
+    # converges where one point per particle stalls (docs/bases.md, "DDMP's sub-points"); a 5-node stencil
     sub_points: bool = False
 
 

@@ -61,7 +61,7 @@ class Basis:
     # lp its half-width); `domain_averaged` swaps it in
     averaged_1d: Optional[Callable] = None
     domain_quadrature: bool = False        # weights_1d is averaged_1d: the stencil passes each particle's lp
-    sub_points: bool = False               # ddmp: the gradient averaged over two sub-points per axis (stencil 5)
+    sub_points: bool = False               # ddmp: weights and gradient averaged over two sub-points per axis
 
     @property
     def spec(self) -> registry.Spec:
@@ -386,8 +386,9 @@ def make_basis(name: str, knots=None) -> Basis:
 
 
 def with_sub_points(basis: Basis) -> Basis:
-    """ddmp with solver.ddmp.sub_points: the gradient averaged over two sub-points per axis (stencils.py), whose
-    stencil reaches one node further (5 per axis; one more ghost node beyond the upper wall)."""
+    """ddmp with solver.ddmp.sub_points: weights and gradient averaged over two sub-points per axis
+    (ddmp_gradient.py), whose stencil reaches one node further (5 per axis; one more ghost node beyond the upper
+    wall)."""
     if basis.smooth_1d is None:
         raise ValueError(f"basis {basis.name} has no sub-points (solver.ddmp.sub_points is ddmp's)")
     nodes = basis.nodes

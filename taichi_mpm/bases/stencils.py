@@ -17,7 +17,8 @@ contributions (CPDI: once per corner that reaches it); sums over contributions a
   (basis.make_ddmp; derivation in docs/bases.md). Where a node of the smoothed stencil has a partly filled dual
   domain (free surfaces), the blend moves to the linear gradient: alpha_p = max(alpha_p, 1 - min fill), fill =
   sum_q V_q N_j(x_q) / (the dual domain's volume), from a nodal-volume pass before P2G (`Stencil.prepare`), so that
-  no node without material receives force.
+  no node without material receives force. ddmp's part lives in ddmp_gradient.py, with its sub-points
+  (solver.ddmp.sub_points: weights and gradient averaged over two points per axis, a 5-node stencil).
 - cpdi (CPDI1 and CPDI2): the linear grid functions sampled at the corners of each particle's domain, built in
   corners.py.
 - mapped (domain.map): the rational basis R_i at the particle's parametric coordinates, (p + 1)^d control points, with

@@ -117,11 +117,12 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                     "neighbour, the pair taking one acceleration along the axes its walls leave free "
                                     "(docs/bases.md, \"DDMP's small nodes\"); 0: off. Off with grips, multi-field "
                                     "contact and xpic"),
-    "solver.ddmp.sub_points": ("", "the gradient (force and velocity gradient) averaged over two sub-points per axis, "
-                                   "the centres of the halves of the particle's domain stretched by F_aa (Dhakal & "
-                                   "Zhang 2016's sub-points): second-order convergence with 2 particles per cell where "
-                                   "one point per particle stalls; a stencil of 5 nodes per axis instead of 4 "
-                                   "(docs/bases.md, \"DDMP's sub-points\")"),
+    "solver.ddmp.sub_points": ("", "each particle's weights and gradient (mass, momentum, force, F) averaged over "
+                                   "two sub-points per axis, the centres of the halves of its domain stretched by "
+                                   "|F_aa| (Dhakal & Zhang 2016's sub-points): second-order convergence with 2 "
+                                   "particles per cell where one point per particle stalls, at 1.5x the step in 2D "
+                                   "and 2.2x in 3D (a stencil of 5 nodes per axis instead of 4; docs/bases.md, "
+                                   "\"DDMP's sub-points\")"),
     "solver.cpdi.variant": ("", "cpdi1: parallelogram / parallelepiped domains with half-edges F r0 (Sadeghirad et "
                                 "al. 2011); cpdi2: quadrilateral / hexahedral domains whose corners move with the "
                                 "grid (Sadeghirad et al. 2013; not with a crack section or asflip)"),
