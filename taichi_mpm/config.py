@@ -547,7 +547,10 @@ class Body(Strict):
     material: str
     # per axis; capped so that dx / particles_per_cell stays a number (10**400 overflowed: tests/test_fuzz.py)
     particles_per_cell: Annotated[int, Field(gt=0, le=1000)] = 2
-    placement: Literal["regular", "jittered"] = "regular"
+    # regular / jittered: a lattice of spacing dx / particles_per_cell; map: particles_per_cell per axis in every
+    # cell of domain.map's parameter space (volumes |det J| dxi^d), so a body's faces follow the map's (tractions'
+    # `faces` then name the map's parameter faces)
+    placement: Literal["regular", "jittered", "map"] = "regular"
     velocity: Optional[list[SpaceExpr]] = None    # per axis: a number or an expression of x, y, z
     # initial Cauchy stress (Voigt list or matrix; numbers or expressions of x, y, z), kept as a stored stress
     stress: Annotated[Optional[list[Union[float, str, list[Union[float, str]]]]], BeforeValidator(_stress_value)] = None
@@ -783,6 +786,9 @@ class Config(Strict):
         _check_loads(key, b, d)
         if b.geostatic is not None:
             self._check_geostatic(key, b)
+        if b.placement == "map" and self.domain.map is None:
+            raise _Located(f"{key}.placement", "map places particles in the cells of domain.map's parameter space: "
+                                               "this domain has no map (use regular or jittered)")
 
     def _check_geostatic(self, key, b):
         """A geostatic start: a cam_clay body (it sets that model's consolidated state), gravity down the last axis,

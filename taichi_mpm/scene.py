@@ -11,7 +11,7 @@ import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 
@@ -423,22 +423,29 @@ def _exposed_faces(pts, origin, h) -> np.ndarray:
     return out
 
 
-def _traction_forces(t, exposed, pts, h, key, base_dir):
+def _traction_forces(t, exposed, pts, h, key, base_dir, areas=None):
     """Particles and forces (at ramp 1) of one traction entry: every exposed face of the particles inside the
-    region (or all), restricted to `faces`, gets traction x h^(d-1) or -pressure n h^(d-1)."""
+    region (or all), restricted to `faces`, gets traction x h^(d-1) or -pressure n h^(d-1). With `areas` (placement
+    map: (N, d, 2, d) outward area vectors of the particles' faces in the map's parameter lattice, whose faces the
+    names then mean), traction x |area| or -pressure x area."""
     d = pts.shape[1]
     chosen = np.ones(len(pts), bool) if t.region is None else inside(t.region, pts, base_dir, f"{key}.region")
     mask = exposed & chosen[:, None, None]
     if t.faces is not None:
         keep = np.zeros((d, 2), bool)
         for face in t.faces:
-            keep["xyz".index(face[0]), face.endswith("max")] = True
+            keep["xyz".index(face[0]), int(face.endswith("max"))] = True   # int: a bool index is a mask
         mask &= keep[None]
     n_faces = mask.sum(axis=(1, 2))
     sel = np.flatnonzero(n_faces)
     if len(sel) == 0:
         raise ConfigError("loads no particle face: no surface particle of the body lies in the region"
                           + (" with the faces named" if t.faces else ""), key=key)
+    if areas is not None:
+        vec = (areas * mask[..., None])[sel].sum(axis=(1, 2))            # the loaded faces' outward area vectors
+        size = (np.linalg.norm(areas, axis=-1) * mask)[sel].sum(axis=(1, 2))
+        force = np.outer(size, np.asarray(t.traction, float)) if t.traction is not None else -t.pressure * vec
+        return sel, force
     area = h ** (d - 1)
     if t.traction is not None:
         force = np.outer(n_faces[sel], np.asarray(t.traction, float)) * area
@@ -446,6 +453,49 @@ def _traction_forces(t, exposed, pts, h, key, base_dir):
         normals = mask[sel, :, 1].astype(float) - mask[sel, :, 0].astype(float)
         force = -t.pressure * normals * area
     return sel, force
+
+
+def _map_net(cfg):
+    from .bases.mapped import build_map
+    return build_map(cfg.domain.map)
+
+
+def _map_periodic(cfg) -> bool:
+    return bool(_map_net(cfg)[1])
+
+
+def _map_lattice(cfg, per_cell: int):
+    """placement map: `per_cell` particles per axis in every cell of the mapped grid's parameter space, at the
+    centres of equal parameter sub-cells: (xi (N, d), x (N, d), volume (N,) = |det J| dxi^d, J (N, d, d))."""
+    from .bases import mapgeom
+
+    net, _ = _map_net(cfg)
+    axes = [(np.arange(round(t[-1] * per_cell)) + 0.5) / per_cell for t in net.knots]   # knots in cell units
+    xi = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
+    x, J = mapgeom.surface(net.knots, net.degrees, net.P, net.w, xi)
+    return xi, x, np.abs(np.linalg.det(J)) / per_cell ** len(axes), J
+
+
+def _map_face_areas(cfg, xi, J, exposed, per_cell: int):
+    """(N, d, 2, d): the outward area vector of each exposed face of the particles' parameter sub-cells (zero for
+    the others), -+|det J| J^-T e_a dxi^(d-1) with J taken at the face's centre."""
+    from .bases import mapgeom
+
+    net, _ = _map_net(cfg)
+    n, d = xi.shape
+    out = np.zeros((n, d, 2, d))
+    for a in range(d):
+        for side in (0, 1):
+            sel = np.flatnonzero(exposed[:, a, side])
+            if not len(sel):
+                continue
+            face = xi[sel].copy()
+            face[:, a] += (side - 0.5) / per_cell
+            _, Jf = mapgeom.surface(net.knots, net.degrees, net.P, net.w, face)
+            # |det J| J^-T e_a: the face's area vector along increasing xi_a (whatever the map's handedness)
+            cof = np.abs(np.linalg.det(Jf))[:, None, None] * np.linalg.inv(Jf).transpose(0, 2, 1)
+            out[sel, a, side] = (2 * side - 1) * cof[:, :, a] / per_cell ** (d - 1)
+    return out
 
 
 def _label(bi, body) -> str:
@@ -477,6 +527,50 @@ def _overlap_free(cfg, bi, body, pts, base_dir) -> np.ndarray:
     return keep
 
 
+class _Placed(NamedTuple):
+    x: np.ndarray          # (N, d) positions
+    volume: np.ndarray     # (N,)
+    lattice: np.ndarray    # (N, d) the lattice the neighbours are found on: x, or the map's parameters (placement map)
+    h: float               # its spacing
+    origin: np.ndarray     # and origin
+    xi: Optional[np.ndarray] = None   # placement map: the parameters (= lattice) and dx/dxi there
+    J: Optional[np.ndarray] = None
+
+
+def _placed_particles(cfg, bi, body, key, base_dir, rng, lo, hi, h) -> _Placed:
+    """A body's particles inside its shape and outside earlier bodies: on the lattice of spacing h from the domain's
+    corner, or (placement map) in the mapped grid's parameter cells, volumes and faces following the map."""
+    d, origin = cfg.dim, np.asarray(cfg.domain.lower, float)
+    if body.placement == "map":
+        xi, pts, vol, J = _map_lattice(cfg, body.particles_per_cell)
+    else:
+        pts = _lattice(lo, hi, origin, h, 0.0, rng)
+        xi, vol, J = None, np.full(len(pts), h**d), None
+
+    def take(sel):
+        return tuple(None if a is None else a[sel] for a in (pts, vol, xi, J))
+
+    pts, vol, xi, J = take(inside(body.shape, pts, base_dir, f"{key}.shape"))
+    if len(pts) == 0:
+        raise ConfigError("shape holds no particle at this resolution (make it larger or refine domain.dx / "
+                          "particles_per_cell)", key=f"{key}.shape")
+    pts, vol, xi, J = take(_overlap_free(cfg, bi, body, pts, base_dir))
+    if len(pts) == 0:
+        raise ConfigError("every particle of this body lies inside earlier bodies (overlap: skip left none)",
+                          key=f"{key}.overlap")
+    if xi is None:
+        return _Placed(pts, vol, pts, h, origin)
+    return _Placed(pts, vol, xi, 1.0 / body.particles_per_cell, np.zeros(d), xi, J)
+
+
+def _placed_faces(cfg, placed: _Placed) -> np.ndarray:
+    """(N, d, 2) the particles' exposed faces on their lattice (a full-turn map's angle wraps: no faces there)."""
+    exposed = _exposed_faces(placed.lattice, placed.origin, placed.h)
+    if placed.xi is not None and _map_periodic(cfg):
+        exposed[:, 0, :] = False   # the angle's first and last particles are neighbours
+    return exposed
+
+
 def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     """Particle arrays of one body."""
     d, dx = cfg.dim, cfg.domain.dx
@@ -488,22 +582,14 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     if np.any(lo < dlo - 1e-9) or np.any(hi > dhi + 1e-9):
         raise ConfigError(f"body lies outside the domain (body bounds {lo.tolist()}..{hi.tolist()}, "
                           f"domain {dlo.tolist()}..{dhi.tolist()})", key=f"{key}.shape")
-    pts = _lattice(lo, hi, origin, h, 0.0, rng)
-    pts = pts[inside(body.shape, pts, base_dir, f"{key}.shape")]
-    if len(pts) == 0:
-        raise ConfigError("shape holds no particle at this resolution (make it larger or refine domain.dx / particles_per_cell)",
-                          key=f"{key}.shape")
-    pts = pts[_overlap_free(cfg, bi, body, pts, base_dir)]
-    if len(pts) == 0:
-        raise ConfigError("every particle of this body lies inside earlier bodies (overlap: skip left none)",
-                          key=f"{key}.overlap")
-    iface = _surface_flags(pts, h) if body.interface else np.zeros(len(pts), np.int32)
-    exposed = _exposed_faces(pts, origin, h) if body.tractions else None  # on the lattice, before jitter
+    placed = _placed_particles(cfg, bi, body, key, base_dir, rng, lo, hi, h)
+    pts, vol, xi = placed.x, placed.volume, placed.xi
+    iface = _surface_flags(placed.lattice, placed.h) if body.interface else np.zeros(len(pts), np.int32)
+    exposed = _placed_faces(cfg, placed) if body.tractions else None   # on the lattice, before jitter
     if body.placement == "jittered":
         pts = pts + rng.uniform(-0.25 * h, 0.25 * h, pts.shape)
         pts = np.clip(pts, dlo + 1e-9, dhi - 1e-9)
     mat = cfg.materials[body.material]
-    vol = np.full(len(pts), h**d)
     coords = {SPACE[a]: pts[:, a] for a in range(d)}
     v = np.zeros_like(pts)
     if body.velocity is not None:
@@ -533,11 +619,12 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     loads = []
     for j, t in enumerate(body.tractions):
         tkey = f"{key}.tractions.{j}"
-        sel, force = _traction_forces(t, exposed, pts, h, tkey, base_dir)
+        areas = None if xi is None else _map_face_areas(cfg, xi, placed.J, exposed, body.particles_per_cell)
+        sel, force = _traction_forces(t, exposed, pts, h, tkey, base_dir, areas)
         loads.append(Load(sel, force, t.ramp, tkey))
     return dict(x=pts, v=v, volume=vol, mass=vol * mat.density, body=np.full(len(pts), bi, np.int32),
                 material=np.full(len(pts), mat_names.index(body.material), np.int32),
-                damage=dmg, interface=iface, spacing=np.full(len(pts), h),
+                damage=dmg, interface=iface, spacing=np.full(len(pts), h) if xi is None else vol ** (1.0 / d),
                 stress=_initial_stress(body.stress, d, coords, f"{key}.stress"), loads=loads, grips=grips,
                 geostatic=_geostatic(cfg, body, pts, key, base_dir))
 

@@ -134,9 +134,13 @@ def test_traction_forces_are_traction_times_face_area():
     np.testing.assert_allclose(f[1], [0.0, 0.0], atol=1e-12)   # a closed surface: no net force
     n_top = len(s.loads[2].particles)                          # top particles within 0.1 of x = 0.4 (y_max faces)
     np.testing.assert_allclose(f[2], [0.0, -2.0 * n_top * 0.1 / 3], rtol=1e-12)
-    with pytest.raises(tm.ConfigError, match="loads no particle face") as e:
-        build_scene(tm.load_config(cfg.to_dict(), overrides={"bodies.0.tractions.0.faces": ["y_min"]}))
+    with pytest.raises(tm.ConfigError, match="loads no particle face") as e:   # no x_min face in that region
+        build_scene(tm.load_config(cfg.to_dict(), overrides={"bodies.0.tractions.0.faces": ["x_min"]}))
     assert e.value.key == "bodies.0.tractions.0"
+    # each name loads its own side: a pressure on x_min alone pushes the left face inward (+x), on y_min up
+    for face, want in (("x_min", [7.0 * 0.2, 0.0]), ("y_min", [0.0, 7.0 * 0.4])):
+        one = build_scene(tm.load_config(cfg.to_dict(), overrides={"bodies.0.tractions.1.faces": [face]}))
+        np.testing.assert_allclose(one.loads[1].force.sum(0), want, rtol=1e-12)
 
 
 def _time_average(sim, quantity, duration, samples):

@@ -226,8 +226,11 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "bodies[].shape.translate": ("m", "shift of the mesh after scaling; null: none"),
     "bodies[].material": ("", "name of a material in `materials`"),
     "bodies[].particles_per_cell": ("", "particles per cell along each axis"),
-    "bodies[].placement": ("", "regular grid of particles, or jittered (each moved randomly by up to a quarter "
-                               "spacing per axis)"),
+    "bodies[].placement": ("", "regular grid of particles, jittered (each moved randomly by up to a quarter "
+                               "spacing per axis), or map (domain.map only: particles_per_cell per axis in every "
+                               "cell of the map's parameter space, volumes |det J| dxi^d, so the body's faces follow "
+                               "the map's curved ones; tractions' faces then name the map's parameter faces; "
+                               "docs/isogeometric.md)"),
     "bodies[].velocity": ("m/s", "initial velocity, per axis a number or an expression of x, y, z such as "
                                  "\"0.1 * sin(pi * x / 25)\" (docs/loads.md); null: at rest"),
     "bodies[].stress": ("Pa", "initial Cauchy stress (tension positive), a number or expression of x, y, z per "
@@ -238,8 +241,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                "faces (docs/loads.md)"),
     "bodies[].tractions[].region": ("", "box or sphere: the surface particles inside it are loaded; null: the "
                                         "whole surface"),
-    "bodies[].tractions[].faces": ("", "outward normals of the particle faces loaded (x_min ... z_max); null: every "
-                                       "exposed face in the region (a corner's faces on both sides)"),
+    "bodies[].tractions[].faces": ("", "outward normals of the particle faces loaded (x_min ... z_max; with "
+                                       "placement map the map's parameter faces, loaded along their exact area "
+                                       "vectors); null: every exposed face in the region (a corner's faces on both "
+                                       "sides)"),
     "bodies[].tractions[].traction": ("Pa", "traction vector, one number per axis (give it or `pressure`)"),
     "bodies[].tractions[].pressure": ("Pa", "normal pressure, positive pushing inward (give it or `traction`)"),
     "bodies[].tractions[].ramp": ("1", "factor on the load, a number or an expression of t such as "
