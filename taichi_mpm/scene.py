@@ -390,12 +390,13 @@ def _lattice(lo, hi, origin, h, jitter, rng):
     return pts
 
 
-def _surface_flags(pts, h):
-    """1 for particles with a missing lattice neighbour along any axis (the body's surface layer)."""
+def _surface_flags(pts, h, first_axis=0):
+    """1 for particles with a missing lattice neighbour along any axis from first_axis on (the body's surface
+    layer; a full-turn map's angle, axis 0 of its parameters, has no surface)."""
     base = np.round(pts / h - 0.5).astype(np.int64)
     occupied = set(map(tuple, base))
     flags = np.zeros(len(pts), np.int32)
-    for a in range(pts.shape[1]):
+    for a in range(first_axis, pts.shape[1]):
         for s in (-1, 1):
             nb = base.copy()
             nb[:, a] += s
@@ -563,11 +564,12 @@ def _placed_particles(cfg, bi, body, key, base_dir, rng, lo, hi, h) -> _Placed:
     return _Placed(pts, vol, xi, 1.0 / body.particles_per_cell, np.zeros(d), xi, J)
 
 
-def _placed_faces(cfg, placed: _Placed) -> np.ndarray:
-    """(N, d, 2) the particles' exposed faces on their lattice (a full-turn map's angle wraps: no faces there)."""
+def _placed_faces(placed: _Placed, wraps: bool) -> np.ndarray:
+    """(N, d, 2) the particles' exposed faces on their lattice (wraps: a full-turn map, whose angle's first and last
+    particles are neighbours, has no faces along it)."""
     exposed = _exposed_faces(placed.lattice, placed.origin, placed.h)
-    if placed.xi is not None and _map_periodic(cfg):
-        exposed[:, 0, :] = False   # the angle's first and last particles are neighbours
+    if wraps:
+        exposed[:, 0, :] = False
     return exposed
 
 
@@ -584,8 +586,10 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
                           f"domain {dlo.tolist()}..{dhi.tolist()})", key=f"{key}.shape")
     placed = _placed_particles(cfg, bi, body, key, base_dir, rng, lo, hi, h)
     pts, vol, xi = placed.x, placed.volume, placed.xi
-    iface = _surface_flags(placed.lattice, placed.h) if body.interface else np.zeros(len(pts), np.int32)
-    exposed = _placed_faces(cfg, placed) if body.tractions else None   # on the lattice, before jitter
+    wraps = placed.xi is not None and _map_periodic(cfg)
+    iface = (_surface_flags(placed.lattice, placed.h, int(wraps)) if body.interface
+             else np.zeros(len(pts), np.int32))
+    exposed = _placed_faces(placed, wraps) if body.tractions else None   # on the lattice, before jitter
     if body.placement == "jittered":
         pts = pts + rng.uniform(-0.25 * h, 0.25 * h, pts.shape)
         pts = np.clip(pts, dlo + 1e-9, dhi - 1e-9)

@@ -553,3 +553,26 @@ def test_circular_couette_flow_between_a_turning_and_a_fixed_circle():
                                                                 zip(edges[:-1], edges[1:]))]
     assert np.abs(errors).max() < 0.02, errors
     assert np.abs((x[:, 0] * v[:, 0] + x[:, 1] * v[:, 1]) / r).max() < 0.01 * 0.5
+
+
+def test_map_placement_in_a_full_annulus_has_no_seam():
+    """placement: map in the full annulus (r 0.5..1): the particles' areas add up to pi (b^2 - a^2) (midpoint rule
+    on det J), and an interface body's surface layer is the two circles only: the angle wraps, so the particles
+    on either side of the parameter seam are neighbours, not surface."""
+    from taichi_mpm.scene import build_scene
+    cfg = tm.load_config(dict(
+        name="ring", dim=2, precision="f64", arch="cpu",
+        domain=dict(lower=[-1.1, -1.1], upper=[1.1, 1.1], dx=0.05,
+                    map=dict(type="annulus", inner_radius=0.5, outer_radius=1.0, angle=360, center=[0, 0],
+                             cells=[64, 10])),
+        solver=dict(basis="quadratic", end_time=0.01), materials=dict(m=dict(model="neo_hookean", E=1e4, nu=0.3,
+                                                                               density=1000)),
+        bodies=[dict(shape=dict(type="ring", center=[0, 0], inner_radius=0.5, outer_radius=1.0), material="m",
+                     placement="map", interface=True)], crack={}))
+    s = build_scene(cfg)
+    assert s.n == 64 * 10 * 4
+    assert s.volume.sum() == pytest.approx(np.pi * 0.75, rel=1e-4)
+    r = np.hypot(*s.x.T)
+    surface = s.interface.astype(bool)
+    assert surface.sum() == 2 * 64 * 2                  # the first and last radial layer, 2 particles per cell
+    assert np.all((r[surface] < 0.5 + 0.05 / 2) | (r[surface] > 1.0 - 0.05 / 2))
