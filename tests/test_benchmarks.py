@@ -128,3 +128,16 @@ def test_targets_table_reports_each_target_met_or_not():
     elements, crack = rows
     assert elements["met"] == "not measured" and "--taichi-elements" in elements["note"]
     assert crack["goal"] == "<= 1.3" and crack["measured"] > 0 and crack["met"] in ("yes", "no")
+
+
+def test_basis_cost_variants_name_solver_keys():
+    """basis_cost.py's `basis:key=value` variants: the basis and the nested solver keys they set (values read as
+    YAML), which the block's config takes as it is."""
+    bc = load("basis_cost")
+    assert bc.solver_options("quadratic") == ("quadratic", {})
+    assert bc.solver_options("ddmp:ddmp.sub_points=true:ddmp.fold_below=0.1") == (
+        "ddmp", {"ddmp": {"sub_points": True, "fold_below": 0.1}})
+    cfg = bc.block(2, "ddmp:ddmp.sub_points=true", 0.1)
+    assert cfg["solver"]["basis"] == "ddmp" and cfg["solver"]["ddmp"] == {"sub_points": True}
+    import taichi_mpm as tm
+    assert tm.load_config(cfg).solver.ddmp.sub_points is True
