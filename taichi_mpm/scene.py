@@ -456,33 +456,23 @@ def _traction_forces(t, exposed, pts, h, key, base_dir, areas=None):
     return sel, force
 
 
-def _map_net(cfg):
-    from .bases.mapped import build_map
-    return build_map(cfg.domain.map)
-
-
-def _map_periodic(cfg) -> bool:
-    return bool(_map_net(cfg)[1])
-
-
-def _map_lattice(cfg, per_cell: int):
-    """placement map: `per_cell` particles per axis in every cell of the mapped grid's parameter space, at the
-    centres of equal parameter sub-cells: (xi (N, d), x (N, d), volume (N,) = |det J| dxi^d, J (N, d, d))."""
+def _map_lattice(net, per_cell: int):
+    """placement map: `per_cell` particles per axis in every cell of the mapped grid's parameter space (net: its
+    nurbs.Map), at the centres of equal parameter sub-cells: (xi (N, d), x (N, d), volume (N,) = |det J| dxi^d,
+    J (N, d, d))."""
     from .bases import mapgeom
 
-    net, _ = _map_net(cfg)
     axes = [(np.arange(round(t[-1] * per_cell)) + 0.5) / per_cell for t in net.knots]   # knots in cell units
     xi = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
     x, J = mapgeom.surface(net.knots, net.degrees, net.P, net.w, xi)
-    return xi, x, np.abs(np.linalg.det(J)) / per_cell ** len(axes), J
+    return xi, x, np.abs(np.linalg.det(J)) / per_cell ** len(axes)
 
 
-def _map_face_areas(cfg, xi, J, exposed, per_cell: int):
+def _map_face_areas(net, xi, exposed, per_cell: int):
     """(N, d, 2, d): the outward area vector of each exposed face of the particles' parameter sub-cells (zero for
     the others), -+|det J| J^-T e_a dxi^(d-1) with J taken at the face's centre."""
     from .bases import mapgeom
 
-    net, _ = _map_net(cfg)
     n, d = xi.shape
     out = np.zeros((n, d, 2, d))
     for a in range(d):
@@ -534,41 +524,45 @@ class _Placed(NamedTuple):
     lattice: np.ndarray    # (N, d) the lattice the neighbours are found on: x, or the map's parameters (placement map)
     h: float               # its spacing
     origin: np.ndarray     # and origin
-    xi: Optional[np.ndarray] = None   # placement map: the parameters (= lattice) and dx/dxi there
-    J: Optional[np.ndarray] = None
+    xi: Optional[np.ndarray] = None   # placement map: the parameters (= lattice), the map (a nurbs.Map) and
+    net: object = None                #   whether its angle wraps (a full turn: no surface along axis 0)
+    wraps: bool = False
 
 
 def _placed_particles(cfg, bi, body, key, base_dir, rng, lo, hi, h) -> _Placed:
     """A body's particles inside its shape and outside earlier bodies: on the lattice of spacing h from the domain's
     corner, or (placement map) in the mapped grid's parameter cells, volumes and faces following the map."""
     d, origin = cfg.dim, np.asarray(cfg.domain.lower, float)
+    net = wraps = None
     if body.placement == "map":
-        xi, pts, vol, J = _map_lattice(cfg, body.particles_per_cell)
+        from .bases.mapped import build_map
+        net, wraps = build_map(cfg.domain.map)
+        xi, pts, vol = _map_lattice(net, body.particles_per_cell)
     else:
         pts = _lattice(lo, hi, origin, h, 0.0, rng)
-        xi, vol, J = None, np.full(len(pts), h**d), None
+        xi, vol = None, np.full(len(pts), h**d)
 
     def take(sel):
-        return tuple(None if a is None else a[sel] for a in (pts, vol, xi, J))
+        return tuple(None if a is None else a[sel] for a in (pts, vol, xi))
 
-    pts, vol, xi, J = take(inside(body.shape, pts, base_dir, f"{key}.shape"))
+    pts, vol, xi = take(inside(body.shape, pts, base_dir, f"{key}.shape"))
     if len(pts) == 0:
         raise ConfigError("shape holds no particle at this resolution (make it larger or refine domain.dx / "
                           "particles_per_cell)", key=f"{key}.shape")
-    pts, vol, xi, J = take(_overlap_free(cfg, bi, body, pts, base_dir))
+    pts, vol, xi = take(_overlap_free(cfg, bi, body, pts, base_dir))
     if len(pts) == 0:
         raise ConfigError("every particle of this body lies inside earlier bodies (overlap: skip left none)",
                           key=f"{key}.overlap")
     if xi is None:
         return _Placed(pts, vol, pts, h, origin)
-    return _Placed(pts, vol, xi, 1.0 / body.particles_per_cell, np.zeros(d), xi, J)
+    return _Placed(pts, vol, xi, 1.0 / body.particles_per_cell, np.zeros(d), xi, net, bool(wraps))
 
 
-def _placed_faces(placed: _Placed, wraps: bool) -> np.ndarray:
-    """(N, d, 2) the particles' exposed faces on their lattice (wraps: a full-turn map, whose angle's first and last
+def _placed_faces(placed: _Placed) -> np.ndarray:
+    """(N, d, 2) the particles' exposed faces on their lattice (a full-turn map, whose angle's first and last
     particles are neighbours, has no faces along it)."""
     exposed = _exposed_faces(placed.lattice, placed.origin, placed.h)
-    if wraps:
+    if placed.wraps:
         exposed[:, 0, :] = False
     return exposed
 
@@ -586,10 +580,12 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
                           f"domain {dlo.tolist()}..{dhi.tolist()})", key=f"{key}.shape")
     placed = _placed_particles(cfg, bi, body, key, base_dir, rng, lo, hi, h)
     pts, vol, xi = placed.x, placed.volume, placed.xi
-    wraps = placed.xi is not None and _map_periodic(cfg)
-    iface = (_surface_flags(placed.lattice, placed.h, int(wraps)) if body.interface
+    iface = (_surface_flags(placed.lattice, placed.h, int(placed.wraps)) if body.interface
              else np.zeros(len(pts), np.int32))
-    exposed = _placed_faces(placed, wraps) if body.tractions else None   # on the lattice, before jitter
+    exposed = _placed_faces(placed) if body.tractions else None   # on the lattice, before jitter
+    # placement map: every face's area vector, once for all of the body's tractions
+    areas = None if xi is None or exposed is None else _map_face_areas(placed.net, xi, exposed,
+                                                                        body.particles_per_cell)
     if body.placement == "jittered":
         pts = pts + rng.uniform(-0.25 * h, 0.25 * h, pts.shape)
         pts = np.clip(pts, dlo + 1e-9, dhi - 1e-9)
@@ -623,7 +619,6 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     loads = []
     for j, t in enumerate(body.tractions):
         tkey = f"{key}.tractions.{j}"
-        areas = None if xi is None else _map_face_areas(cfg, xi, placed.J, exposed, body.particles_per_cell)
         sel, force = _traction_forces(t, exposed, pts, h, tkey, base_dir, areas)
         loads.append(Load(sel, force, t.ramp, tkey))
     return dict(x=pts, v=v, volume=vol, mass=vol * mat.density, body=np.full(len(pts), bi, np.int32),

@@ -49,9 +49,10 @@ def applies(gpu: bool, stencil_kind: str, width: int, dim: int, setting: str, pa
 def coloured(cfg, gpu: bool, particles: int) -> bool:
     """Whether a run of `cfg` with `particles` particles (on a GPU when `gpu`) bins them for the coloured scatter.
     The solver passes its count, budget.py its estimate of it."""
-    spec = bases.get(cfg.solver.basis)   # its declaration: nothing is built
+    from ..bases.shape_functions import configured_basis
+    spec = bases.get(cfg.solver.basis)
     kind = "mapped" if cfg.domain.map is not None else spec.stencil_kind
-    width = spec.stencil + (cfg.solver.basis == "ddmp" and cfg.solver.ddmp.sub_points)   # sub-points: one node wider
+    width = configured_basis(cfg).stencil   # its options included (ddmp's sub-points: one node wider); no fields
     return applies(gpu, kind, width, cfg.dim, cfg.solver.scatter, particles, cfg.solver.deterministic)
 
 
