@@ -331,6 +331,8 @@ def _grid_bytes(cfg: Config, base_dir, mapped: MapSize | None = None, particles:
     grids = grid_sizes(cfg, base_dir, mapped, body_force)
     total = sum(g.bytes for g in grids) + _bin_list_bytes(cfg, particles, grids[0].nodes, body_force)
     total += (mapped.field_floats() + mapped.knot_floats()) * size if mapped is not None else 0
+    if mapped is not None and any(t.apply_to == "nodes" for b in cfg.bodies for t in b.tractions):
+        total += cfg.dim * math.prod(mapped.shape) * size   # the nodal tractions' forces (extensions/node_loads.py)
     cells = grid_layout(cfg, mapped)["cells"]
     main = grids[0]
     if not main.sparse:

@@ -518,6 +518,9 @@ class Traction(Strict):
     traction: Optional[list[Real]] = None         # Pa, per axis
     pressure: Optional[Real] = None               # Pa, positive pushes inward (along -n)
     ramp: TimeExpr = 1.0                          # factor of time, e.g. "min(t / 0.01, 1)"
+    # particles: forces on the loaded particles, spread by their weights; nodes (placement map): the faces'
+    # consistent nodal forces int R_i t dA on the mapped grid's control points, fixed where the faces start
+    apply_to: Literal["particles", "nodes"] = "particles"
 
     @model_validator(mode="after")
     def _one_load(self):
@@ -789,6 +792,20 @@ class Config(Strict):
         if b.placement == "map" and self.domain.map is None:
             raise _Located(f"{key}.placement", "map places particles in the cells of domain.map's parameter space: "
                                                "this domain has no map (use regular or jittered)")
+        for j, t in enumerate(b.tractions):
+            if t.apply_to == "nodes":
+                self._check_node_traction(f"{key}.tractions.{j}.apply_to", b)
+
+    def _check_node_traction(self, key, b):
+        """apply_to nodes: the loaded faces must be faces of the grid (a map-placed body's faces are the mapped grid's
+        parameter faces), and the forces act on the one velocity field."""
+        if b.placement != "map":
+            raise _Located(key, "nodes puts a traction on the grid's nodes, which needs the loaded faces to be faces "
+                                "of the grid: give the body placement: map on a domain.map (or apply_to: particles)")
+        if self.crack is not None or self.contact is not None:
+            section = "crack" if self.crack is not None else "contact"
+            raise _Located(key, f"nodal forces act on the grid's single velocity field, which the {section} section "
+                                f"splits near the bodies' surfaces: use apply_to: particles")
 
     def _check_geostatic(self, key, b):
         """A geostatic start: a cam_clay body (it sets that model's consolidated state), gravity down the last axis,

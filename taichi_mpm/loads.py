@@ -36,12 +36,17 @@ def _vector(spec, key, dim):
     return given, values
 
 
+def ramp_functions(loads) -> list:
+    """The ramp, a function of t, of each traction entry (scene.Load or scene.NodeLoad)."""
+    return [_TimeValue(load.ramp, f"{load.key}.ramp") for load in loads]
+
+
 class Loads:
     """Tractions, grips and velocity walls of a scene; each part is None/empty when the scene has none."""
 
     def __init__(self, cfg: Config, scene):
         self.dim, self.n = cfg.dim, scene.n
-        self.tractions = [(load, _TimeValue(load.ramp, f"{load.key}.ramp")) for load in scene.loads]
+        self.tractions = list(zip(scene.loads, ramp_functions(scene.loads)))
         self.grips = [(grip, *_vector(grip.velocity, f"{grip.key}.velocity", cfg.dim)) for grip in scene.grips]
         walls = cfg.domain.boundaries
         self.walls = []  # (slot, given, values) of each velocity face

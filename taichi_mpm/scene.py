@@ -30,6 +30,16 @@ class Load:
 
 
 @dataclass
+class NodeLoad:
+    """One traction entry applied as nodal forces (tractions[].apply_to: nodes): the consistent load
+    int R_i t dA over the loaded faces of a map-placed body, on the mapped grid's control points."""
+    nodes: np.ndarray        # (K, d) grid indices of the loaded nodes (a periodic map's seam folded)
+    force: np.ndarray        # (K, d) N at ramp 1
+    ramp: object             # number or expression text of t
+    key: str                 # bodies.I.tractions.J
+
+
+@dataclass
 class Grip:
     """One prescribed-velocity entry: the particles whose velocity is prescribed, and the velocity spec."""
     particles: np.ndarray    # (M,) particle indices
@@ -50,7 +60,8 @@ class Scene:
     spacing: np.ndarray      # (N,) initial particle spacing (dx / ppc)
     materials: list = field(default_factory=list)   # material names, in index order
     stress: Optional[np.ndarray] = None   # (N, d, d) initial Cauchy stress (bodies[].stress); None: no body has one
-    loads: list = field(default_factory=list)   # Load per bodies[].tractions entry, in body order
+    loads: list = field(default_factory=list)   # Load per bodies[].tractions entry on particles, in body order
+    node_loads: list = field(default_factory=list)   # NodeLoad per entry with apply_to: nodes
     grips: list = field(default_factory=list)   # Grip per bodies[].prescribed_velocity entry, in body order
     # (particles, F, material state) per bodies[].geostatic: cam_clay's K0 start (materials.cam_clay.geostatic_state)
     geostatic: list = field(default_factory=list)
@@ -424,11 +435,9 @@ def _exposed_faces(pts, origin, h) -> np.ndarray:
     return out
 
 
-def _traction_forces(t, exposed, pts, h, key, base_dir, areas=None):
-    """Particles and forces (at ramp 1) of one traction entry: every exposed face of the particles inside the
-    region (or all), restricted to `faces`, gets traction x h^(d-1) or -pressure n h^(d-1). With `areas` (placement
-    map: (N, d, 2, d) outward area vectors of the particles' faces in the map's parameter lattice, whose faces the
-    names then mean), traction x |area| or -pressure x area."""
+def _loaded_faces(t, exposed, pts, key, base_dir) -> np.ndarray:
+    """(N, d, 2) the exposed particle faces one traction entry loads: those of the particles inside its region (or
+    all), restricted to its `faces`."""
     d = pts.shape[1]
     chosen = np.ones(len(pts), bool) if t.region is None else inside(t.region, pts, base_dir, f"{key}.region")
     mask = exposed & chosen[:, None, None]
@@ -437,11 +446,20 @@ def _traction_forces(t, exposed, pts, h, key, base_dir, areas=None):
         for face in t.faces:
             keep["xyz".index(face[0]), int(face.endswith("max"))] = True   # int: a bool index is a mask
         mask &= keep[None]
-    n_faces = mask.sum(axis=(1, 2))
-    sel = np.flatnonzero(n_faces)
-    if len(sel) == 0:
+    if not mask.any():
         raise ConfigError("loads no particle face: no surface particle of the body lies in the region"
                           + (" with the faces named" if t.faces else ""), key=key)
+    return mask
+
+
+def _traction_forces(t, mask, h, areas=None):
+    """Particles and forces (at ramp 1) of one traction entry: every loaded face (`mask`, _loaded_faces) gets
+    traction x h^(d-1) or -pressure n h^(d-1). With `areas` (placement map: (N, d, 2, d) outward area vectors of
+    the particles' faces in the map's parameter lattice, whose faces the names then mean), traction x |area| or
+    -pressure x area."""
+    d = mask.shape[1]
+    n_faces = mask.sum(axis=(1, 2))
+    sel = np.flatnonzero(n_faces)
     if areas is not None:
         vec = (areas * mask[..., None])[sel].sum(axis=(1, 2))            # the loaded faces' outward area vectors
         size = (np.linalg.norm(areas, axis=-1) * mask)[sel].sum(axis=(1, 2))
@@ -456,6 +474,22 @@ def _traction_forces(t, exposed, pts, h, key, base_dir, areas=None):
     return sel, force
 
 
+def _node_traction(t, mask, placed, key) -> NodeLoad:
+    """apply_to nodes: the consistent nodal forces sum_q R_i(xi_q) (traction |A_q| or -pressure A_q) of the loaded
+    faces, each face sampled at 2 Gauss points per tangential parameter axis (A_q: their area vectors)."""
+    from .bases import mapgeom
+
+    net = placed.net
+    _, xi, vec = _map_face_points(net, placed.xi, mask, round(1 / placed.h), FACE_GAUSS)
+    f = np.outer(np.linalg.norm(vec, axis=1), t.traction) if t.traction is not None else -t.pressure * vec
+    nodal = mapgeom.node_sums(net.knots, net.degrees, net.w, xi, f)
+    if placed.wraps:   # a full turn: the last layer of control points is the first (the grid stores it once)
+        nodal[0] += nodal[-1]
+        nodal = nodal[:-1]
+    nodes = np.argwhere(np.abs(nodal).sum(-1) > 0)
+    return NodeLoad(nodes.astype(np.int32), nodal[tuple(nodes.T)], t.ramp, key)
+
+
 def _map_lattice(net, per_cell: int):
     """placement map: `per_cell` particles per axis in every cell of the mapped grid's parameter space (net: its
     nurbs.Map), at the centres of equal parameter sub-cells: (xi (N, d), x (N, d), volume (N,) = |det J| dxi^d,
@@ -468,24 +502,58 @@ def _map_lattice(net, per_cell: int):
     return xi, x, np.abs(np.linalg.det(J)) / per_cell ** len(axes)
 
 
+# a face's sample points along each tangential parameter axis (in units of the face) and their weights: the
+# midpoint, or Gauss-Legendre's 2 points (exact for cubics along the face)
+FACE_MIDPOINT = ((0.5,), (1.0,))
+FACE_GAUSS = ((0.5 - 0.5 / 3 ** 0.5, 0.5 + 0.5 / 3 ** 0.5), (0.5, 0.5))
+
+
+def _map_face_points(net, xi, mask, per_cell: int, rule=FACE_MIDPOINT):
+    """The masked faces (N, d, 2) of the particles' parameter sub-cells, sampled by `rule` per tangential axis:
+    (particle (Q,), parameter points (Q, d), outward area vectors (Q, d)); a face's vectors add up to its area
+    vector -+|det J| J^-T e_a dxi^(d-1) (J at each point)."""
+    from itertools import product
+
+    from .bases import mapgeom
+
+    n, d = xi.shape
+    offsets, weights = rule
+    who, where, vectors = [], [], []
+    for a in range(d):
+        tangential = [b for b in range(d) if b != a]
+        for side in (0, 1):
+            sel = np.flatnonzero(mask[:, a, side])
+            if not len(sel):
+                continue
+            for at in product(range(len(offsets)), repeat=d - 1):
+                face = xi[sel].copy()
+                face[:, a] += (side - 0.5) / per_cell
+                weight = 1.0
+                for b, k in zip(tangential, at):
+                    face[:, b] += (offsets[k] - 0.5) / per_cell
+                    weight *= weights[k]
+                _, Jf = mapgeom.surface(net.knots, net.degrees, net.P, net.w, face)
+                # |det J| J^-T e_a: the face's area vector along increasing xi_a (whatever the map's handedness)
+                cof = np.abs(np.linalg.det(Jf))[:, None, None] * np.linalg.inv(Jf).transpose(0, 2, 1)
+                who.append(sel)
+                where.append(face)
+                vectors.append((2 * side - 1) * weight * cof[:, :, a] / per_cell ** (d - 1))
+    if not who:
+        return np.zeros(0, int), np.zeros((0, d)), np.zeros((0, d))
+    return np.concatenate(who), np.concatenate(where), np.concatenate(vectors)
+
+
 def _map_face_areas(net, xi, exposed, per_cell: int):
     """(N, d, 2, d): the outward area vector of each exposed face of the particles' parameter sub-cells (zero for
     the others), -+|det J| J^-T e_a dxi^(d-1) with J taken at the face's centre."""
-    from .bases import mapgeom
-
     n, d = xi.shape
     out = np.zeros((n, d, 2, d))
     for a in range(d):
         for side in (0, 1):
-            sel = np.flatnonzero(exposed[:, a, side])
-            if not len(sel):
-                continue
-            face = xi[sel].copy()
-            face[:, a] += (side - 0.5) / per_cell
-            _, Jf = mapgeom.surface(net.knots, net.degrees, net.P, net.w, face)
-            # |det J| J^-T e_a: the face's area vector along increasing xi_a (whatever the map's handedness)
-            cof = np.abs(np.linalg.det(Jf))[:, None, None] * np.linalg.inv(Jf).transpose(0, 2, 1)
-            out[sel, a, side] = (2 * side - 1) * cof[:, :, a] / per_cell ** (d - 1)
+            one = np.zeros_like(exposed)
+            one[:, a, side] = exposed[:, a, side]
+            who, _, vec = _map_face_points(net, xi, one, per_cell)
+            out[who, a, side] = vec
     return out
 
 
@@ -535,8 +603,10 @@ def _placed_particles(cfg, bi, body, key, base_dir, rng, lo, hi, h) -> _Placed:
     d, origin = cfg.dim, np.asarray(cfg.domain.lower, float)
     net = wraps = None
     if body.placement == "map":
+        from .bases import registry
         from .bases.mapped import build_map
-        net, wraps = build_map(cfg.domain.map)
+        # the solver's net (cubic: degree 3): the same geometry, and the control points nodal loads go to
+        net, wraps = build_map(cfg.domain.map, registry.get(cfg.solver.basis).degree)
         xi, pts, vol = _map_lattice(net, body.particles_per_cell)
     else:
         pts = _lattice(lo, hi, origin, h, 0.0, rng)
@@ -616,15 +686,19 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
             if comp is not None:
                 v[sel, a] = evaluate(comp, f"{gkey}.velocity.{a}", TIME, t=0.0)
         grips.append(Grip(sel, list(g.velocity), gkey))
-    loads = []
+    loads, node_loads = [], []
     for j, t in enumerate(body.tractions):
         tkey = f"{key}.tractions.{j}"
-        sel, force = _traction_forces(t, exposed, pts, h, tkey, base_dir, areas)
-        loads.append(Load(sel, force, t.ramp, tkey))
+        mask = _loaded_faces(t, exposed, pts, tkey, base_dir)
+        if t.apply_to == "nodes":   # (config: only with placement map)
+            node_loads.append(_node_traction(t, mask, placed, tkey))
+        else:
+            loads.append(Load(*_traction_forces(t, mask, h, areas), t.ramp, tkey))
     return dict(x=pts, v=v, volume=vol, mass=vol * mat.density, body=np.full(len(pts), bi, np.int32),
                 material=np.full(len(pts), mat_names.index(body.material), np.int32),
                 damage=dmg, interface=iface, spacing=np.full(len(pts), h) if xi is None else vol ** (1.0 / d),
                 stress=_initial_stress(body.stress, d, coords, f"{key}.stress"), loads=loads, grips=grips,
+                node_loads=node_loads,
                 geostatic=_geostatic(cfg, body, pts, key, base_dir))
 
 
@@ -725,7 +799,7 @@ def build_scene(cfg: Config, seed: int = 0) -> Scene:
     parts = [_body_particles(cfg, bi, body, mat_names, base_dir, rng) for bi, body in enumerate(cfg.bodies)]
     for bi, p in enumerate(parts):
         _inside_map(cfg, bi, p["x"])
-    special = ("stress", "loads", "grips", "geostatic")
+    special = ("stress", "loads", "grips", "geostatic", "node_loads")
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0] if k not in special}
     offsets = np.cumsum([0] + [len(p["x"]) for p in parts])
     stress = None
@@ -737,4 +811,6 @@ def build_scene(cfg: Config, seed: int = 0) -> Scene:
     grips = [Grip(g.particles + off, g.velocity, g.key) for p, off in zip(parts, offsets) for g in p["grips"]]
     geostatic = [(np.arange(len(p["x"])) + off, *p["geostatic"]) for p, off in zip(parts, offsets)
                  if p["geostatic"] is not None]
-    return Scene(materials=mat_names, stress=stress, loads=loads, grips=grips, geostatic=geostatic, **cat)
+    node_loads = [n for p in parts for n in p["node_loads"]]
+    return Scene(materials=mat_names, stress=stress, loads=loads, grips=grips, geostatic=geostatic,
+                 node_loads=node_loads, **cat)

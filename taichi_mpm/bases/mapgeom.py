@@ -423,6 +423,24 @@ def surface(knots, degrees, P, w, xi):
     return x, J
 
 
+def node_sums(knots, degrees, w, xi, values) -> np.ndarray:
+    """sum_q R_i(xi_q) values_q for every control point i: (n0, n1[, n2], c) from parameter points xi (M, d) and
+    their values (M, c), R the rational basis w_i N_i / sum_j w_j N_j (the grid's functions on a mapped grid)."""
+    w = np.asarray(w, float)
+    d = w.ndim
+    xi, values = np.asarray(xi, float).reshape(-1, d), np.asarray(values, float)
+    local = [local_basis(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(knots, degrees))]
+    index = tuple((i[:, None] + np.arange(N.shape[1])).reshape((len(xi),) + (1,) * a + (N.shape[1],)
+                                                               + (1,) * (d - 1 - a))
+                  for a, (i, N, _) in enumerate(local))
+    Nw = _outer([N for _, N, _ in local]) * w[index]
+    R = Nw / Nw.sum(axis=tuple(range(1, d + 1)), keepdims=True)
+    out = np.zeros(w.shape + (values.shape[1],))
+    full = tuple(np.broadcast_to(i, R.shape) for i in index)
+    np.add.at(out, full, R[..., None] * values.reshape((len(xi),) + (1,) * d + (values.shape[1],)))
+    return out
+
+
 def _samples(t, k):
     """k + 1 points per nonzero span of t, both ends included."""
     b = np.unique(t)

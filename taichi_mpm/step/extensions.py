@@ -5,7 +5,8 @@ their moments in that order; it knows none of them by name.
 The list: the ddmp pre-pass (nodal volumes), the coloured scatter's binning, the mapped grid's parametric
 coordinates (before F-bar: its average reads the mapped stencil), cpdi2's domain corners, the crack finder (before
 F-bar: the average leaves out the particles the finder takes), F-bar's volume average, multi-field contact, the
-local stress difference (its force correction is a node acceleration), the tractions, the walls and the grips
+local stress difference (its force correction is a node acceleration), the tractions (on particles, then on
+nodes: a node acceleration), the walls and the grips
 (their conditions close the grid solve's chain in that order). A new extension is one module with an `Extension`
 subclass whose `create(setup)` returns it (or None where the scene does not use it), added here or, from outside
 the package (a plug-in, a test), by `register` (docs/architecture.md, "Adding a step extension").
@@ -20,19 +21,20 @@ from ..extensions.domain_corners import DomainCorners
 from ..extensions.fbar_average import VolumeAverage
 from ..extensions.grips import Grips
 from ..extensions.mapped_coordinates import MappedCoordinates
+from ..extensions.node_loads import NodeLoads
 from ..extensions.stress_difference import StressDifference
 from ..extensions.tractions import Tractions
 from ..extensions.walls import Walls
 from .moments import Degradation, Extension, ForceSums, GridSolve, NodeFields, ParticleTransfer, Setup
 
 __all__ = ["ColouredScatter", "CrackFinder", "Degradation", "DomainCorners", "DualDomainFill", "Extension",
-           "ForceSums", "GridSolve", "Grips", "MappedCoordinates", "MultiField", "NodeFields", "ORDER",
+           "ForceSums", "GridSolve", "Grips", "MappedCoordinates", "MultiField", "NodeFields", "NodeLoads", "ORDER",
            "ParticleTransfer", "Setup", "StressDifference", "Tractions", "VolumeAverage", "Walls", "create",
            "register", "unregister"]
 
 # Extension classes, in the order their moments run
 ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, DomainCorners, CrackFinder, VolumeAverage,
-                     MultiField, StressDifference, Tractions, Walls, Grips]
+                     MultiField, StressDifference, Tractions, NodeLoads, Walls, Grips]
 
 
 def register(cls: type, before: type = None) -> type:

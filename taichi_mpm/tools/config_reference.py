@@ -249,6 +249,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "bodies[].tractions[].pressure": ("Pa", "normal pressure, positive pushing inward (give it or `traction`)"),
     "bodies[].tractions[].ramp": ("1", "factor on the load, a number or an expression of t such as "
                                        "\"min(t / 0.01, 1)\""),
+    "bodies[].tractions[].apply_to": ("", "particles: forces on the loaded particles, spread by their weights; "
+                                          "nodes (placement: map only, no crack or contact section): the faces' "
+                                          "consistent nodal load int R_i t dA on the mapped grid's control points, "
+                                          "fixed where the faces start (docs/loads.md)"),
     "bodies[].prescribed_velocity": ("", "grips: body regions whose velocity is prescribed on the grid nodes "
                                          "their particles touch (docs/loads.md); the reaction: "
                                          "Simulation.prescribed_impulse()"),
