@@ -147,6 +147,20 @@ def _groups(points, group_keys) -> dict:
     return out
 
 
+def _plain_log_ticks(ax):
+    """Log axes labelled at 1, 2 and 5 times the powers of ten (over three decades: at the powers) in plain numbers
+    (matplotlib labels the minor ticks of an axis spanning a decade or two in scientific notation, and the labels
+    run into each other)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    for axis, scale, (lo, hi) in ((ax.xaxis, ax.get_xscale(), ax.get_xlim()),
+                                  (ax.yaxis, ax.get_yscale(), ax.get_ylim())):
+        if scale == "log":
+            wide = hi > 1e3 * lo    # beyond three decades the powers of ten alone
+            axis.set_major_locator(LogLocator(base=10, subs=(1.0,) if wide else (1.0, 2.0, 5.0)))
+            axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            axis.set_minor_formatter(NullFormatter())
+
+
 def plot_pareto(points, front, group_keys, metric, time_metric, path, title):
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=90)
@@ -164,6 +178,7 @@ def plot_pareto(points, front, group_keys, metric, time_metric, path, title):
             ax.set_xscale("log")
         if all(p["error"] > 0 for p in points):
             ax.set_yscale("log")
+        _plain_log_ticks(ax)
     xlabel = {"step_time": "stepping wall time [s] (JIT excluded)", "wall_time": "wall time [s]",
               "compile_time": "first step (JIT) time [s]"}[time_metric]
     ax.set_xlabel(xlabel)
@@ -195,6 +210,7 @@ def plot_convergence(points, fits, group_keys, conv_key, metric, path, title):
         ax.set_xscale("log")
         if all(p["error"] > 0 for p in points):
             ax.set_yscale("log")
+        _plain_log_ticks(ax)
         if len(fits) <= 16:
             ax.legend(fontsize=7)
     else:
