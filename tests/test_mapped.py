@@ -576,3 +576,28 @@ def test_map_placement_in_a_full_annulus_has_no_seam():
     surface = s.interface.astype(bool)
     assert surface.sum() == 2 * 64 * 2                  # the first and last radial layer, 2 particles per cell
     assert np.all((r[surface] < 0.5 + 0.05 / 2) | (r[surface] > 1.0 - 0.05 / 2))
+
+
+def test_pressure_as_nodal_load_pushes_the_ring_out_and_keeps_the_balances():
+    """A ring on the annulus map, its particles in the map's cells, pressurised inside through the inner face's
+    nodal load (tractions[].apply_to: nodes, ramped over about 18 steps): over 40 steps its linear momentum stays
+    zero (the nodal forces of a closed circle cancel: round-off), the inner layer moves outward, and the energy
+    balance, with the loads' work by the trapezoid of each loaded node's velocities, closes as the particle form's
+    does: measured -1.05 % of the largest energy (the same ring with particle forces: -1.08 %, APIC's own loss;
+    with FLIP -0.37 % against -5.1 %). A work counted at the node's new velocity alone read -2.5 % here and drifted
+    to +0.9 % by 80 steps; none counted would read +100 %."""
+    cfg = ring_cfg(walls="free", model="neo_hookean", body=(0.5, 1.0))
+    cfg["bodies"][0].update(placement="map", tractions=[dict(pressure=50.0, faces=["y_min"], apply_to="nodes",
+                                                             ramp="min(t / 0.25, 1)")])
+    sim = tm.Simulation(cfg)
+    assert sim.extension("node_loads") is not None and sim.extension("tractions") is None
+    for _ in range(40):
+        sim.step()
+    p = sim.particles()
+    r = np.hypot(p["x"][:, 0], p["x"][:, 1])
+    radial = np.einsum("pa,pa->p", p["v"], p["x"]) / r
+    momentum = (p["mass"][:, None] * p["v"]).sum(0)
+    assert np.abs(momentum).max() < 1e-10 * (p["mass"][:, None] * np.abs(p["v"])).sum()
+    assert radial[r < 0.55].mean() > 0
+    balance = sim.energy_balance()
+    assert balance["work"] > 0 and -0.02 < balance["ratio"] < 0.005, balance
