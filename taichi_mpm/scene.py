@@ -516,7 +516,7 @@ def _map_face_points(net, xi, mask, per_cell: int, rule=FACE_MIDPOINT):
 
     from .bases import mapgeom
 
-    n, d = xi.shape
+    d = xi.shape[1]
     offsets, weights = rule
     who, where, vectors = [], [], []
     for a in range(d):
