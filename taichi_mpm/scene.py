@@ -480,7 +480,7 @@ def _node_traction(t, mask, placed, key) -> NodeLoad:
     from .bases import mapgeom
 
     net = placed.net
-    _, xi, vec = _map_face_points(net, placed.xi, mask, round(1 / placed.h), FACE_GAUSS)
+    _, _, xi, vec = _map_face_points(net, placed.xi, mask, round(1 / placed.h), FACE_GAUSS)
     f = np.outer(np.linalg.norm(vec, axis=1), t.traction) if t.traction is not None else -t.pressure * vec
     nodal = mapgeom.node_sums(net.knots, net.degrees, net.w, xi, f)
     if placed.wraps:   # a full turn: the last layer of control points is the first (the grid stores it once)
@@ -510,15 +510,15 @@ FACE_GAUSS = ((0.5 - 0.5 / 3 ** 0.5, 0.5 + 0.5 / 3 ** 0.5), (0.5, 0.5))
 
 def _map_face_points(net, xi, mask, per_cell: int, rule=FACE_MIDPOINT):
     """The masked faces (N, d, 2) of the particles' parameter sub-cells, sampled by `rule` per tangential axis:
-    (particle (Q,), parameter points (Q, d), outward area vectors (Q, d)); a face's vectors add up to its area
-    vector -+|det J| J^-T e_a dxi^(d-1) (J at each point)."""
+    (particle (Q,), its face (Q, 2): axis and side, parameter points (Q, d), outward area vectors (Q, d)); a face's
+    vectors add up to its area vector -+|det J| J^-T e_a dxi^(d-1) (J at each point)."""
     from itertools import product
 
     from .bases import mapgeom
 
     d = xi.shape[1]
     offsets, weights = rule
-    who, where, vectors = [], [], []
+    who, faces, where, vectors = [], [], [], []
     for a in range(d):
         tangential = [b for b in range(d) if b != a]
         for side in (0, 1):
@@ -536,11 +536,12 @@ def _map_face_points(net, xi, mask, per_cell: int, rule=FACE_MIDPOINT):
                 # |det J| J^-T e_a: the face's area vector along increasing xi_a (whatever the map's handedness)
                 cof = np.abs(np.linalg.det(Jf))[:, None, None] * np.linalg.inv(Jf).transpose(0, 2, 1)
                 who.append(sel)
+                faces.append(np.tile((a, side), (len(sel), 1)))
                 where.append(face)
                 vectors.append((2 * side - 1) * weight * cof[:, :, a] / per_cell ** (d - 1))
     if not who:
-        return np.zeros(0, int), np.zeros((0, d)), np.zeros((0, d))
-    return np.concatenate(who), np.concatenate(where), np.concatenate(vectors)
+        return np.zeros(0, int), np.zeros((0, 2), int), np.zeros((0, d)), np.zeros((0, d))
+    return np.concatenate(who), np.concatenate(faces), np.concatenate(where), np.concatenate(vectors)
 
 
 def _map_face_areas(net, xi, exposed, per_cell: int):
@@ -548,12 +549,8 @@ def _map_face_areas(net, xi, exposed, per_cell: int):
     the others), -+|det J| J^-T e_a dxi^(d-1) with J taken at the face's centre."""
     n, d = xi.shape
     out = np.zeros((n, d, 2, d))
-    for a in range(d):
-        for side in (0, 1):
-            one = np.zeros_like(exposed)
-            one[:, a, side] = exposed[:, a, side]
-            who, _, vec = _map_face_points(net, xi, one, per_cell)
-            out[who, a, side] = vec
+    who, faces, _, vec = _map_face_points(net, xi, exposed, per_cell)
+    out[who, faces[:, 0], faces[:, 1]] = vec
     return out
 
 
@@ -653,9 +650,9 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
     iface = (_surface_flags(placed.lattice, placed.h, int(placed.wraps)) if body.interface
              else np.zeros(len(pts), np.int32))
     exposed = _placed_faces(placed) if body.tractions else None   # on the lattice, before jitter
-    # placement map: every face's area vector, once for all of the body's tractions
-    areas = None if xi is None or exposed is None else _map_face_areas(placed.net, xi, exposed,
-                                                                        body.particles_per_cell)
+    areas = None   # placement map: every face's area vector, once for all of the body's tractions on particles
+    if xi is not None and any(t.apply_to == "particles" for t in body.tractions):
+        areas = _map_face_areas(placed.net, xi, exposed, body.particles_per_cell)
     if body.placement == "jittered":
         pts = pts + rng.uniform(-0.25 * h, 0.25 * h, pts.shape)
         pts = np.clip(pts, dlo + 1e-9, dhi - 1e-9)

@@ -398,20 +398,29 @@ def _outer(factors):
     return out
 
 
-def surface(knots, degrees, P, w, xi):
-    """x(xi) (M, d) and J = dx/dxi (M, d, d) at parameter points xi (M, d), by the quotient rule (2D and 3D
-    maps). Each point reads only its prod (p_a + 1) control points (local_basis): memory and time grow with the
-    points, not with the points times the net."""
-    P, w = np.asarray(P, float), np.asarray(w, float)
+def _weighted_local(knots, degrees, w, xi):
+    """The functions nonzero at each parameter point xi (M, d): (xi as (M, d), per axis local_basis' (first, N, dN),
+    the index of each point's (p_0 + 1) x ... control points into the net, their weights w_i and w_i N_i (both
+    (M, p_0 + 1, ...)))."""
+    w = np.asarray(w, float)
     d = w.ndim
     xi = np.asarray(xi, float).reshape(-1, d)
     local = [local_basis(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(knots, degrees))]
     index = tuple((i[:, None] + np.arange(N.shape[1])).reshape((len(xi),) + (1,) * a + (N.shape[1],)
                                                                + (1,) * (d - 1 - a))
                   for a, (i, N, _) in enumerate(local))
-    wl = w[index]                                               # (M, p0 + 1, ...)
+    wl = w[index]
+    return xi, local, index, wl, _outer([N for _, N, _ in local]) * wl
+
+
+def surface(knots, degrees, P, w, xi):
+    """x(xi) (M, d) and J = dx/dxi (M, d, d) at parameter points xi (M, d), by the quotient rule (2D and 3D
+    maps). Each point reads only its prod (p_a + 1) control points (local_basis): memory and time grow with the
+    points, not with the points times the net."""
+    P = np.asarray(P, float)
+    xi, local, index, wl, Nw = _weighted_local(knots, degrees, w, xi)
+    d = xi.shape[1]
     Pl = P[index]                                               # (M, p0 + 1, ..., d)
-    Nw = _outer([N for _, N, _ in local]) * wl
     Dw = [_outer([dN if b == a else N for b, (_, N, dN) in enumerate(local)]) * wl for a in range(d)]
     axes = tuple(range(1, d + 1))
     W = Nw.sum(axis=axes)
@@ -426,16 +435,10 @@ def surface(knots, degrees, P, w, xi):
 def node_sums(knots, degrees, w, xi, values) -> np.ndarray:
     """sum_q R_i(xi_q) values_q for every control point i: (n0, n1[, n2], c) from parameter points xi (M, d) and
     their values (M, c), R the rational basis w_i N_i / sum_j w_j N_j (the grid's functions on a mapped grid)."""
-    w = np.asarray(w, float)
-    d = w.ndim
-    xi, values = np.asarray(xi, float).reshape(-1, d), np.asarray(values, float)
-    local = [local_basis(t, p, xi[:, a]) for a, (t, p) in enumerate(zip(knots, degrees))]
-    index = tuple((i[:, None] + np.arange(N.shape[1])).reshape((len(xi),) + (1,) * a + (N.shape[1],)
-                                                               + (1,) * (d - 1 - a))
-                  for a, (i, N, _) in enumerate(local))
-    Nw = _outer([N for _, N, _ in local]) * w[index]
+    xi, _, index, _, Nw = _weighted_local(knots, degrees, w, xi)
+    d, values = xi.shape[1], np.asarray(values, float)
     R = Nw / Nw.sum(axis=tuple(range(1, d + 1)), keepdims=True)
-    out = np.zeros(w.shape + (values.shape[1],))
+    out = np.zeros(np.shape(w) + (values.shape[1],))
     full = tuple(np.broadcast_to(i, R.shape) for i in index)
     np.add.at(out, full, R[..., None] * values.reshape((len(xi),) + (1,) * d + (values.shape[1],)))
     return out

@@ -14,7 +14,7 @@ Physics code only: no CLI, rendering or file I/O here.
 import numpy as np
 import taichi as ti
 
-from ..loads import ramp_functions
+from ..loads import kick_middle, ramp_functions
 from ..step.moments import Extension, GridSolve
 
 
@@ -90,7 +90,7 @@ class NodeLoads(Extension):
         self._ramps, self._first = None, True
 
     def before_step(self, t, dt, lag):
-        ramps = tuple(r(t + 0.25 * dt - 0.5 * lag) for r in self._ramps_of)
+        ramps = tuple(r(kick_middle(t, dt, lag)) for r in self._ramps_of)
         if ramps != self._ramps:
             self._apply(ti.Vector(list(ramps)))
             self._ramps = ramps

@@ -8,7 +8,7 @@ Physics code only: no CLI, rendering or file I/O here.
 import numpy as np
 import taichi as ti
 
-from ..loads import Loads
+from ..loads import Loads, kick_middle
 from ..step.moments import Extension
 
 
@@ -58,7 +58,7 @@ class Tractions(Extension):
         self._ramps = None
 
     def before_step(self, t, dt, lag):
-        ramps = self.loads.ramps(t + 0.25 * dt - 0.5 * lag)
+        ramps = self.loads.ramps(kick_middle(t, dt, lag))
         if ramps != self._ramps:
             self._apply(ti.Vector(list(ramps)))
             self._ramps = ramps
