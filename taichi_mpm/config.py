@@ -435,8 +435,9 @@ class Crack(Strict):
     # 0: recomputed every step (docs/crack_finder.md)
     normal_refresh: Annotated[float, Field(ge=0, le=0.5)] = 0.01
     # Coulomb friction coefficient across the crack faces and body interfaces in contact (0: frictionless, as the
-    # seed's method): a particle in contact loses mu times the normal impulse contact gave it of its slip
-    # against the other side, not beyond sticking (docs/crack_finder.md, "Friction")
+    # seed's method): each node near a contact gets a second velocity field, the particles in contact across it,
+    # and the two fields' relative tangential velocity loses mu times their normal approach, not beyond sticking
+    # (docs/crack_finder.md, "Friction"); not with solver.update musl
     friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
     # between interface bodies, a particle is in contact only while the nearest particle facing it lies within
     # (1 + contact_gap) particle spacings (their domains at most contact_gap spacings apart); null: anywhere within
@@ -930,6 +931,9 @@ class Config(Strict):
             what = "the crack finder (section 'crack')" if self.crack is not None else "volumetric: fbar"
             raise _Located("solver.update", f"usf cannot be combined with {what}: it updates F before the forces, "
                                             "in a pass of its own; use usl or musl")
+        if s.update == "musl" and self.crack is not None and self.crack.friction > 0:
+            raise _Located("solver.update", "musl cannot be combined with crack.friction: friction acts between a "
+                                            "node's two velocity fields, which MUSL's remap does not keep; use usl")
         # the newer schemes' own keys (declared in their `parameters`): a value other than the default with another
         # transfer is refused (solver.flip_blend stays unchecked, as before the registry)
         for key, default in (("xpic_order", 2), ("asflip", Asflip())):

@@ -401,9 +401,12 @@ def _lattice(lo, hi, origin, h, jitter, rng):
     return pts
 
 
-def _surface_flags(pts, h, first_axis=0):
+def _surface_flags(pts, h, first_axis=0, box=None):
     """1 for particles with a missing lattice neighbour along any axis from first_axis on (the body's surface
-    layer; a full-turn map's angle, axis 0 of its parameters, has no surface)."""
+    layer; a full-turn map's angle, axis 0 of its parameters, has no surface). box: the domain's (lower, upper), for
+    a lattice in space: a neighbour whose place lies beyond the domain's faces is not missing (no other body can
+    touch a face on the domain's boundary, and counting it tilted the interface normals of two bodies flush with
+    a common face of the domain: docs/crack_finder.md, "Friction")."""
     base = np.round(pts / h - 0.5).astype(np.int64)
     occupied = set(map(tuple, base))
     flags = np.zeros(len(pts), np.int32)
@@ -411,7 +414,11 @@ def _surface_flags(pts, h, first_axis=0):
         for s in (-1, 1):
             nb = base.copy()
             nb[:, a] += s
-            flags |= np.fromiter((tuple(k) not in occupied for k in nb), bool, len(nb))
+            missing = np.fromiter((tuple(k) not in occupied for k in nb), bool, len(nb))
+            if box is not None:
+                place = pts[:, a] + s * h   # the neighbour's place
+                missing &= (place > box[0][a]) & (place < box[1][a])
+            flags |= missing
     return flags
 
 
@@ -647,8 +654,9 @@ def _body_particles(cfg, bi, body, mat_names, base_dir, rng) -> dict:
                           f"domain {dlo.tolist()}..{dhi.tolist()})", key=f"{key}.shape")
     placed = _placed_particles(cfg, bi, body, key, base_dir, rng, lo, hi, h)
     pts, vol, xi = placed.x, placed.volume, placed.xi
-    iface = (_surface_flags(placed.lattice, placed.h, int(placed.wraps)) if body.interface
-             else np.zeros(len(pts), np.int32))
+    in_space = xi is None   # (a placement map's lattice holds its parameters)
+    iface = (_surface_flags(placed.lattice, placed.h, int(placed.wraps), (dlo, dhi) if in_space else None)
+             if body.interface else np.zeros(len(pts), np.int32))
     exposed = _placed_faces(placed) if body.tractions else None   # on the lattice, before jitter
     areas = None   # placement map: every face's area vector, once for all of the body's tractions on particles
     if xi is not None and any(t.apply_to == "particles" for t in body.tractions):

@@ -38,32 +38,33 @@ def incline(theta_deg, mu, dx=0.025):
     return t, v, sim
 
 
-@pytest.mark.parametrize("mu", fast_subset([0.0, 0.3], []))
+@pytest.mark.parametrize("mu", fast_subset([0.0, 1e-9, 0.3], []))
 def test_block_slides_down_an_incline_with_coulomb_friction(mu):
     """At theta = 30 deg the block's acceleration (a line fitted to its velocity after 0.05 s) against Coulomb's
-    g (sin theta - mu cos theta). Measured: 1.0001 of it at mu 0 (0.914 before the interface bodies' normals were
-    their own surfaces'), 1.042 at mu 0.3 (friction at the nodes takes 0.96 of mu N; 1.158 with the per-particle
-    friction before). Asserted: within 1 % at mu 0, 0.9 to 1.1 at mu 0.3: a welded interface gives 0 (the base
-    does not move), a frictionless one at mu 0.3 2.08, friction twice too strong 0. The friction work at mu 0.3
-    (measured 0.94 of mu N times the distance slid) between 0.8 and 1.1 of it; none at mu 0."""
+    g (sin theta - mu cos theta). mu 0 is the seed's single field (tensor node mass); mu 1e-9 the friction's two
+    fields per node without friction. Measured: 1.0001 at mu 0 and at 1e-9, 1.0009 at mu 0.3 (1.042 with friction
+    on the particles across one field, before 2026-12-07). Asserted: within 1 % without friction, 2 % (the issue's
+    bar) at mu 0.3: a welded interface gives 0, a frictionless one at mu 0.3 2.08. The friction work at mu 0.3
+    against mu N times the distance slid: measured 1.0002, asserted within 3 % (0.94 before); and the energy
+    balance closes: growth (energy made) -0.57 % of the friction work measured (PIC's own loss), asserted within
+    1 % (the issue's bar; uncounted friction would read -100 %)."""
     t, v, sim = incline(30.0, mu)
     a = np.radians(30.0)
     ref = G * (np.sin(a) - mu * np.cos(a))
     late = t > 0.05
     accel = np.polyfit(t[late], v[late], 1)[0]
-    if mu == 0:
-        assert accel == pytest.approx(ref, rel=0.01), (accel, ref)
-    else:
-        assert 0.9 * ref < accel < 1.1 * ref, (accel, ref)
+    assert accel == pytest.approx(ref, rel=0.01 if mu < 0.1 else 0.02), (accel, ref)
     slid = np.trapezoid(v, t) if hasattr(np, "trapezoid") else np.trapz(v, t)
     block_mass = sim.scene.mass[sim.scene.body == 1].sum()
-    work = sim.energy_balance().get("friction", 0.0)
-    if mu == 0:
-        assert work == 0.0
+    balance = sim.energy_balance()
+    work = balance.get("friction", 0.0)
+    if mu < 0.1:
+        assert work == pytest.approx(0.0, abs=1e-6)
     else:
         normal_work = mu * block_mass * G * np.cos(a) * slid
-        print(f"friction work {work:.3f} J, mu N d {normal_work:.3f} J")
-        assert 0.8 * normal_work < work < 1.1 * normal_work, (work, normal_work)
+        print(f"friction work {work:.3f} J, mu N d {normal_work:.3f} J, growth {balance['growth']:.4f} J")
+        assert work == pytest.approx(normal_work, rel=0.03), (work, normal_work)
+        assert abs(balance["growth"]) < 0.01 * work, (balance["growth"], work)
 
 
 @pytest.mark.slow
@@ -71,9 +72,10 @@ def test_friction_is_counted_once_between_two_free_bodies():
     """Both sides of a contact feel friction when neither is held: the dissipation reported is the kinetic energy
     friction takes from the particles, which over both sides is the impulse times the relative slip, once. The
     block on a free base (lying on a sticky floor), APIC, 0.15 s: the friction counted against the energy the
-    friction run loses beyond the frictionless one's (the numerical dissipation both share). Measured 0.926 J
-    against 0.922 J (1.004; 0.972 at dx 0.025): the balance closes to 3 %. Asserted 0.85 to 1.15: the impulse's
-    work at each side's own slip, counted before, gave 0.64 here (and 4.2 on a coarser-threshold scene)."""
+    friction run loses beyond the frictionless one's (the numerical dissipation both share). Measured 1.48 J
+    against 1.38 J (1.071; 1.004 with friction on the particles across one field, before 2026-12-07: the base and
+    block fall together until the floor's compression wave reaches them, and ring after). Asserted 0.85 to 1.15:
+    the impulse's work at each side's own slip, counted in an earlier version, gave 0.64 here."""
     lost = {}
     for mu in (0.0, 0.3):
         sim = tm.Simulation(tm.load_config(incline_config(30.0, mu, gripped=False, transfer="apic")))
@@ -102,8 +104,10 @@ def incline_3d_config(theta_deg, mu, dx=0.025):
 @pytest.mark.slow
 @pytest.mark.parametrize("mu", [0.0, 0.3])
 def test_block_slides_down_an_incline_in_3d(mu):
-    """The 3D incline (6144 particles, ~20 s each on 2 cores): measured 1.0000 of g sin 30 frictionless and 0.9926
-    of g (sin 30 - mu cos 30) at mu 0.3. Asserted within 2 % (the issue's bar) and 1 % frictionless."""
+    """The 3D incline (6144 particles, ~10 s each on 2 cores): measured 1.0000 of g sin 30 frictionless and 1.0004
+    of g (sin 30 - mu cos 30) at mu 0.3 (0.944 while the bodies' faces on the domain's z faces counted as surfaces:
+    their interface normals tilted towards them, and friction grew with the tilted normal impulse). Asserted within
+    2 % (the issue's bar) and 1 % frictionless."""
     sim = tm.Simulation(tm.load_config(incline_3d_config(30.0, mu)))
     t, v, _ = body_motion(sim, 1, T)
     a = np.radians(30.0)
@@ -113,14 +117,22 @@ def test_block_slides_down_an_incline_in_3d(mu):
     assert accel == pytest.approx(ref, rel=0.01 if mu == 0 else 0.02), (accel, ref)
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the crack finder's friction does not hold a block that should stick: it "
-                   "creeps (docs/crack_finder.md, 'Friction')")
-def test_block_stays_at_rest_where_friction_holds_it():
-    """At 20 deg with mu 0.5 > tan 20 the block should stay at rest: drift below 1e-3 of g t^2 / 2 (the issue's bar).
-    Measured: 2.0e-2 at dx 0.025 in 2D (1.9e-2 in 3D; 5.2e-2 at dx 0.05), a steady creep of ~0.011 m/s: friction
-    stops the nodes where the sides meet, but the particles' tangential functions, renormalised over their own
-    side's nodes, read the nodes above them, which gravity moves each step (docs/crack_finder.md, "Friction")."""
-    t, v, sim = incline(20.0, 0.5)
+@pytest.mark.parametrize("dim, dx", fast_subset([(2, 0.05), (2, 0.025), (3, 0.05)], [(2, 0.05)]))
+def test_block_stays_at_rest_where_friction_holds_it(dim, dx):
+    """At 20 deg with mu 0.5 > tan 20 the block should stay at rest: its largest displacement over 0.25 s below 1e-3
+    of g t^2 / 2 (the issue's bar, as multi-field contact's test reads it), and no creep: it moves less than 1e-5 m
+    between 0.1 s and 0.25 s (a creep of 1 mm/s would be 1.5e-4 m). What it moves is the elastic shear of the block
+    under the slope's pull as it settles (rho g sin(t) h^2 / (3 G) = 1.5e-4 m mean, overshooting from rest; multi-
+    field contact moves it 1.9e-4 m on the same scene at dx 0.025). Measured (two velocity fields at the nodes):
+    2D 7.5e-4 (dx 0.05) and 9.1e-4 (dx 0.025) of the bar's g t^2 / 2; before, with friction acting on the particles
+    across a single field, the block crept at ~0.011 m/s (2.0e-2 of g t^2 / 2 in 0.15 s), and with the grip not
+    holding the base's particles in the block's nodes' second fields 6.0e-3."""
+    T = 0.25
+    cfg = incline_3d_config(20.0, 0.5, dx=dx) if dim == 3 else incline_config(20.0, 0.5, dx=dx)
+    cfg["solver"]["end_time"] = T
+    sim = tm.Simulation(tm.load_config(cfg))
+    t, v, _ = body_motion(sim, 1, T)
     x = np.cumsum(np.diff(np.concatenate([[0.0], t])) * v)
-    assert abs(x[-1]) < 1e-3 * 0.5 * G * T**2, x[-1] / (0.5 * G * T**2)
+    print(f"largest displacement {np.max(np.abs(x)):.3e} m = {np.max(np.abs(x)) / (0.5 * G * T**2):.2e} of g t^2/2")
+    assert np.max(np.abs(x)) < 1e-3 * 0.5 * G * T**2
+    assert abs(x[-1] - x[np.searchsorted(t, 0.1)]) < 1e-5

@@ -75,6 +75,8 @@ class Grips(Extension):
         pt = ctx.particle_transfer
         own_side = pt.own_side if pt is not None else None
         sided = own_side is not None
+        second_field = pt.second_field if pt is not None and ctx.dim > 1 else None
+        two_fields = second_field is not None
 
         @ti.func
         def holds(p, off):
@@ -83,18 +85,29 @@ class Grips(Extension):
                 keep = own_side(p, off)
             return keep
 
+        @ti.func
+        def second(p, off, I):
+            res = False
+            if ti.static(two_fields):
+                res = second_field(p, off, I)
+            return res
+
         @ti.kernel
         def flag_grip_nodes():
             """Mark every node in the support (w > 0) of a gripped particle on its side (ParticleTransfer.own_side)
-            with its grip (the largest wins)."""
+            with its grip (the largest wins); component 1, a node that holds the particle in a second velocity
+            field (ParticleTransfer.second_field: the crack finder's friction), for that field."""
             for e in slot:
                 p = slot[e]
                 st = sten.at(p)
                 for o in ti.grouped(ti.ndrange(*outer)):
                   for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
                     I, w, gw, r = sten.node(st, o + inner[k])
-                    if w > 0 and holds(p, o + inner[k]):
-                        ti.atomic_max(grid.vec["grip"][I][0], ti.cast(index[e], float))
+                    if w > 0:
+                        if holds(p, o + inner[k]):
+                            ti.atomic_max(grid.vec["grip"][I][0], ti.cast(index[e], float))
+                        elif second(p, o + inner[k], I):
+                            ti.atomic_max(grid.vec["grip"][I][1], ti.cast(index[e], float))
         return flag_grip_nodes
 
     def _values_kernel(self):

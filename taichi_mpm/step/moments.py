@@ -154,6 +154,9 @@ class ParticleTransfer:
     # (p, off) -> whether node `off` of p's stencil is on p's own side (the crack finder: not across its
     # discontinuity); grips hold only such nodes of their particles. None: every node is
     own_side: Optional[Callable] = None
+    # (p, off, I) -> whether node I (`off` of p's stencil) holds p in a second velocity field of its own (the crack
+    # finder's friction: a particle in contact, across the node); grips hold that field too. None: no node does
+    second_field: Optional[Callable] = None
 
 
 @dataclass(frozen=True)

@@ -197,8 +197,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                   "neighbours moved against each other by that much are recomputed (all if a "
                                   "damage value changed); 0: recomputed every step"),
     "crack.friction": ("1", "Coulomb friction coefficient mu across crack faces and body interfaces in "
-                            "contact: a contact particle loses mu times its normal impulse of its slip against the "
-                            "other side, never beyond sticking; 0: frictionless (the seed's method)"),
+                            "contact: each node near a contact gets a second velocity field (the particles in "
+                            "contact across it), and the two fields' tangential slip loses mu times their normal "
+                            "approach, never beyond sticking; 0: frictionless (the seed's method); not with "
+                            "solver.update musl"),
     "crack.contact_gap": ("1", "between interface bodies, a particle is in contact only while the nearest particle "
                                "facing it lies within (1 + contact_gap) particle spacings (their domains at most "
                                "contact_gap spacings apart); null: anywhere within the SPH support (the seed's "
@@ -262,7 +264,8 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                                        "component free)"),
     "bodies[].angular_velocity": ("rad/s", "initial rotation about the shape's centre, added to velocity: a scalar "
                                            "in 2D, a vector in 3D; null: none"),
-    "bodies[].interface": ("", "flag the surface particles for multi-body interaction (crack finder)"),
+    "bodies[].interface": ("", "flag the surface particles for multi-body interaction (crack finder; a face on "
+                                "the domain's boundary is no surface)"),
     "bodies[].damage_regions": ("", "pre-cracks and notches: regions whose particles start damaged"),
     "bodies[].damage_regions[].shape": ("", "the region (a shape like bodies[].shape)"),
     "bodies[].damage_regions[].value": ("1", "initial damage of the particles inside"),

@@ -16,18 +16,17 @@ from ...schemes import get as transfer_scheme
 from .constants import ALL, CELL_SPLIT, MAX_CELLS
 
 
-def grid_fields(dim: int, sides: int = 0, friction: bool = False) -> tuple[list[str], list[str]]:
+def grid_fields(dim: int, sides: int = 0, friction: bool = False, flip: bool = False) -> tuple[list[str], list[str]]:
     """The crack finder's fields in the solver's grid (cleared with it each step): vectors (the rows of the
-    anisotropic node mass A_i, the node normal; with friction, the normal momentum the particles across bring, then
-    the velocity friction gives them; their momentum and normals; the node's velocity before walls and grips, then
-    its own loss to friction) and scalars (the node's mark: 1 in a near particle's stencil, 2 on the discontinuity;
-    with two or more interface bodies, the largest weight an interface body's particle has at the node and that
-    body, its owner; with friction, the mass the particles across bring in their normal functions, and in their
-    squares)."""
+    anisotropic node mass A_i, the node normal; with friction, the second velocity field of each node, the particles
+    in contact across it: their momentum with its force impulse (then their velocity), their normals, FLIP's old
+    momentum (then velocity), and the node's velocity before walls and grips) and scalars (the node's mark: 1 in a
+    near particle's stencil, 2 on the discontinuity; with two or more interface bodies, the largest weight an
+    interface body's particle has at the node and that body, its owner; with friction, the across field's mass)."""
     owners = ["crack_wmax", "crack_owner"] if sides else []
-    far = ["crack_dv", "crack_pf", "crack_nf", "crack_vc"] if friction else []
+    far = ["crack_pf", "crack_nf", "crack_vc"] + (["crack_of"] if flip else []) if friction else []
     vectors = [f"A{a}" for a in range(dim)] + ["crack_n"] + far
-    return vectors, ["crack_mark"] + owners + (["crack_mf", "crack_mw"] if friction else [])
+    return vectors, ["crack_mark"] + owners + (["crack_mf"] if friction else [])
 
 
 def interface_sides(bodies) -> list[int]:
@@ -60,13 +59,15 @@ class CrackNeeds:
     contact: bool          # crack.contact_in_compression: normals in cell order, contact lists
     kept_normals: bool     # crack.normal_refresh > 0
     sides: int = 0         # interface bodies when two or more: each node's owner tells them apart (classify)
-    friction: bool = False  # crack.friction > 0 (with contact): the node fields of friction at the nodes
+    friction: bool = False  # crack.friction > 0 (with contact): the second velocity field at the nodes
+    flip: bool = False      # a transfer that keeps the grid's old velocity (FLIP): the second field's too
 
     @classmethod
     def of(cls, cfg, materials, basis) -> "CrackNeeds":
         cc = cfg.crack
         # an affine transfer's centroid field (config allows apic only of the affine ones with a crack section)
-        return cls(dim=cfg.dim, apic=transfer_scheme(cfg.solver.transfer).affine, has_law=has_damage_law(materials),
+        scheme = transfer_scheme(cfg.solver.transfer)
+        return cls(dim=cfg.dim, apic=scheme.affine, flip=scheme.keeps_old_grid, has_law=has_damage_law(materials),
                    stencil_nodes=basis.contributions(cfg.dim), sides=max(interface_sides(cfg.bodies)) + 1,
                    **cls.switches(cc))
 
@@ -78,11 +79,11 @@ class CrackNeeds:
 
     @property
     def grid_vectors(self) -> list[str]:
-        return grid_fields(self.dim, self.sides, self.friction)[0]
+        return grid_fields(self.dim, self.sides, self.friction, self.flip)[0]
 
     @property
     def grid_scalars(self) -> list[str]:
-        return grid_fields(self.dim, self.sides, self.friction)[1]
+        return grid_fields(self.dim, self.sides, self.friction, self.flip)[1]
 
     def mask_type(self) -> str:
         return "u64" if self.stencil_nodes > 32 else "u32"   # bit k: stencil node k lies across the discontinuity
@@ -150,7 +151,7 @@ class CrackFields:
         self.has_law = any(law is not None for law in self.laws)
         self.n_nodes = view.basis.contributions(d)       # contributions per particle (stencils.py)
         self.apic = view.apic
-        self.needs = CrackNeeds(dim=d, apic=view.apic, has_law=self.has_law, stencil_nodes=self.n_nodes,
+        self.needs = CrackNeeds(dim=d, apic=view.apic, flip=view.flip, has_law=self.has_law, stencil_nodes=self.n_nodes,
                                 sides=int(view.side.max(initial=-1)) + 1, **CrackNeeds.switches(cc))
         self.sides = self.needs.sides
         # per side, the mass of its body: in contact, a particle takes the normal of a heavier body it faces (Nairn

@@ -202,7 +202,7 @@ class CrackFinder(Extension):
                        node_cache_write=node_cache.write)
         kernel_ctx.contribute("particle_transfer", ParticleTransfer(
             takes=shape.modified, p2g=moves.p2g, p2g_momentum=moves.p2g_momentum, g2p=moves.g2p,
-            own_side=shape.own_side))
+            own_side=shape.own_side, second_field=moves.second_field))
         kernel_ctx.contribute("degradation", Degradation(stress=damage.degrade, energy=damage.degrade_energy))
         kernel_ctx.grid_solve.append(tensor_grid_solve(ctx))   # the tensor node mass, on steps with contact
 

@@ -1,8 +1,9 @@
 """The crack finder's part of the grid solve: a tensor node mass M_i = m_i I + A_i (A_i from particles in contact),
 v_i = M_i^+ p_i. The solver's one grid-solve chain (step.grid_update) takes it as its node solve on steps where a
 particle is in contact (CrackFinder.node_solve_active); gravity, walls and grips follow in the chain as for every
-node. With crack.friction, Coulomb friction at each node between its own side and the particles in contact across
-it (node_friction, after the chain: the velocity those particles read is the node's final one, a grip's included)."""
+node. With crack.friction, a node has a second velocity field, the particles in contact across it, and Coulomb
+contact between the two after the chain (two_field_contact; a wall or grip that set the node's own velocity makes
+that side infinitely heavy)."""
 
 import taichi as ti
 
@@ -16,9 +17,10 @@ def tensor_grid_solve(ctx) -> GridSolve:
     Arows = [grid.vec[f"A{a}"] for a in range(dim)]
     node_mark = grid.scalar["crack_mark"]
     tol = 1e-12 if ctx.view.precision == "f64" else 1e-6   # pseudo-inverse cut-off, relative
-    gdv, gravity_kick, gv = grid.vec.get("crack_dv"), ctx.solver.gravity_kick, grid.vec["v"]
-    gpf, gnf, gvc = (grid.vec.get(k) for k in ("crack_pf", "crack_nf", "crack_vc"))
-    gmf, gmw = grid.scalar.get("crack_mf"), grid.scalar.get("crack_mw")
+    gravity_kick, gv, wall, flip = ctx.solver.gravity_kick, grid.vec["v"], ctx.solver.wall, ctx.view.flip
+    gpf, gnf, gvc, gof = (grid.vec.get(k) for k in ("crack_pf", "crack_nf", "crack_vc", "crack_of"))
+    gmf, lost = grid.scalar.get("crack_mf"), ctx.friction_lost
+    far_grip = _far_grip_func(ctx)
     mu = float(ctx.cc.friction)
 
     @ti.func
@@ -53,50 +55,84 @@ def tensor_grid_solve(ctx) -> GridSolve:
         return m > 0 or tensor(I).norm_sqr() > 0
 
     @ti.func
+    def has_mass_two(I, m):
+        """With friction, a node whose only mass is a second field's solves too (two_field_contact)."""
+        return has_mass(I, m) or gmf[I] > 0
+
+    @ti.func
     def velocity(I, m, p):
         return solve(m, tensor(I), p)
 
     @ti.func
     def before_conditions(I, vel, m, kick_before, kick_after):
-        gvc[I] = vel   # node_friction tells the nodes a wall or grip set by this (then keeps its loss there)
+        gvc[I] = vel   # two_field_contact tells the nodes a wall or grip set by this (an infinitely heavy side)
         return vel
 
     @ti.func
-    def node_friction(I, kick_before, kick_after):
-        """Coulomb friction between node I's own side (mass m = the node's, velocity v) and the particles in
-        contact across it. These bring, in their normal functions Nn, mass mf = sum m_p Nn, mw = sum m_p Nn^2,
-        mean velocity u = pf / mf, normals nf pointing towards this side, and normal momentum with force impulse
-        p_n (P2G's across terms here). They read v along their normals, so their normal impulse here is
-        J = p_n . n - mf (v - gravity's kick) . n (v alone where a wall or grip set v: it gave them no gravity);
-        compressive when J > 0. Friction takes mu J of the tangential slip s = v - u: the node loses L and the
-        particles across gain Nn X each, X = m L / mf (momentum kept), which moves their mean u by X mw / mf; so
-        |L| = min(mu J / m, |s| mf^2 / (mf^2 + m mw)), at most what makes both sides slide together. A node a wall
-        or grip set keeps its velocity (an infinitely heavy side): |X| = min(mu J / mf, |s| mf / mw). X goes to
-        crack_dv (and L to crack_vc), which G2P applies. The work is the kinetic energy the particles near the
-        discontinuity lose by both, summed in G2P from each one's velocity and the change it gets over all its
-        nodes (a per-node sum would count (sum Nn X)^2 as sum (Nn X)^2): the energy balance's friction."""
-        far, own = ti.Vector.zero(float, dim), ti.Vector.zero(float, dim)
-        m, mf, mw, nf = grid.m[I], gmf[I], gmw[I], gnf[I]
-        if node_mark[I] > 0 and m > 0 and mf > 0 and nf.norm_sqr() > 0:
-            nh = nf.normalized()
-            v = gv[I]
+    def two_field_contact(I, kick_before, kick_after):
+        """Coulomb contact between node I's two velocity fields (with crack.friction): its own (mass m, velocity v
+        after the chain) and the second, the particles in contact across it (mass mf, momentum with its force
+        impulse pf, their normals nf, which point towards this side). The second field's velocity u = pf / mf plus
+        gravity, under the walls and the grip of its particles (component 1 of the node's grip flag). Where both
+        hold mass and u approaches v's side along n = nf / |nf| (a = (u - v) . n > 0), the relative velocity loses
+        a n and, by Coulomb's law (friction.friction_loss, the walls' and multi-field contact's), mu a of its
+        tangential part s, not below zero (they stick); each field takes its share of that change by the other's
+        mass (all of it where the other is held: a wall or grip set it, an infinitely heavy side), so momentum is
+        kept. The friction's work, the tangential impulse at the slip it leaves, m_red loss . (s - loss) (m_red:
+        the reduced mass, or the free side's), goes to the energy balance. G2P reads the second field where a
+        particle in contact has a node across (two_fields.g2p): crack_pf then holds its velocity, crack_of FLIP's
+        old one."""
+        mf = gmf[I]
+        if mf > 0:
+            u = gpf[I] / mf + gravity_kick(kick_before, kick_after)
+            if ti.static(flip):
+                gof[I] = gof[I] / mf
+            u, held_far = far_grip(I, wall(I, u))
+            m, v, nf = grid.m[I], gv[I], gnf[I]
             held = (v - gvc[I]).norm_sqr() > 0
-            v_read = v
-            if not held:
-                v_read = v - gravity_kick(kick_before, kick_after)
-            J = gdv[I].dot(nh) - mf * v_read.dot(nh)
-            if J > 0:
-                rel = v - gpf[I] / mf
-                slip = rel - rel.dot(nh) * nh
-                if held:
-                    far = friction_loss(slip * (mf / mw), J / mf, mu)
-                else:
-                    own = friction_loss(slip * (mf * mf / (mf * mf + m * mw)), J / m, mu)
-                    gv[I] = v - own
-                    far = own * (m / mf)
-        if node_mark[I] > 0:   # for G2P: the reaction across, and the node's own loss (its work)
-            gdv[I], gvc[I] = far, own
+            if m > 0 and nf.norm_sqr() > 0 and not (held and held_far):
+                n = nf.normalized()
+                rel = u - v
+                a = rel.dot(n)
+                if a > 0:
+                    slip = rel - a * n
+                    loss = friction_loss(slip, a, mu)
+                    change = a * n + loss   # taken off the relative velocity u - v
+                    share = mf / (m + mf)   # the own field's part of it
+                    m_red = m * share
+                    if held:
+                        share, m_red = 0.0, mf
+                    elif held_far:
+                        share, m_red = 1.0, m
+                    u -= (1.0 - share) * change
+                    gv[I] = wall(I, v + share * change)
+                    lost[0][None] += m_red * loss.dot(slip - loss)
+            gpf[I] = wall(I, u)
 
     friction = ctx.fields.needs.friction
-    return GridSolve(has_mass=has_mass, velocity=velocity, accelerate=before_conditions if friction else None,
-                     node_fields=node_friction if friction else None)
+    return GridSolve(has_mass=has_mass_two if friction else has_mass, velocity=velocity,
+                     accelerate=before_conditions if friction else None,
+                     node_fields=two_field_contact if friction else None)
+
+
+def _far_grip_func(ctx):
+    """@ti.func (I, u) -> (u, held): the second field's velocity under the grip of its particles (component 1 of
+    the node's grip flag, extensions/grips.py: a gripped body's particles in contact across a node) and whether a
+    grip holds it."""
+    dim, grid = ctx.fields.dim, ctx.view.grid
+    given, grip_v = ctx.solver.extra.get("grip_given", []), ctx.solver.extra.get("grip_v")
+    gripped = bool(given) and dim > 1
+
+    @ti.func
+    def far_grip(I, u):
+        held = False
+        if ti.static(gripped):
+            g = ti.cast(grid.vec["grip"][I][1], ti.i32)
+            for k in ti.static(range(len(given))):
+                if g == k + 1:
+                    for c in ti.static(range(dim)):
+                        if ti.static(given[k][c]):
+                            u[c] = grip_v[k][c]
+                            held = True
+        return u, held
+    return far_grip

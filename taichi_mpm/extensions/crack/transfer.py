@@ -1,20 +1,21 @@
 """P2G and G2P of a particle near a discontinuity through the tensor weights W_ip = Nt I + (Nn - Nt) n n^T: the
 @ti.funcs the solver's transfer kernels call for such particles (its ParticleTransfer: p2g, p2g_momentum, g2p).
-With crack.friction, P2G adds to each node what the particles in contact across it bring (their normal momentum
-and force impulse, and their mass, momentum and normals in their normal functions), and G2P gives them the
-reaction of the friction the grid solve applied there (tensor_grid.node_friction)."""
+With crack.friction, a particle in contact moves with its normal functions Nn in every direction, on two velocity
+fields: the node's own (the nodes on its side) and the node's second field (the nodes across it: `crack_mf`,
+`crack_pf`, ...), between which the grid solve applies Coulomb contact (tensor_grid.two_field_contact)."""
 
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, Optional
 
 import taichi as ti
 
-from ...step.transfers import moves_x
+from .two_fields import two_field_funcs
 
 
 class Transfers(NamedTuple):
     p2g: Callable            # (p, st, mp, stress, vp, Ap, force_density, kick)
     p2g_momentum: Callable   # (p, st, mp, vp, Ap): MUSL's remap
     g2p: Callable            # (p, st, deform) -> (v_pic, FLIP increment, APIC B, velocity gradient)
+    second_field: Optional[Callable]   # (p, off, I) -> node I holds p in its second field (friction), or None
 
 
 def transfer_funcs(ctx, sf) -> Transfers:
@@ -26,10 +27,7 @@ def transfer_funcs(ctx, sf) -> Transfers:
     Arows = [grid.vec[f"A{a}"] for a in range(dim)]
     family, tangential, normal_family = sf.family, sf.tangential, sf.normal_family
     friction = f.needs.friction
-    gdv, gpf, gnf, gvc = ((grid.vec["crack_dv"], grid.vec["crack_pf"], grid.vec["crack_nf"], grid.vec["crack_vc"])
-                          if friction else (None,) * 4)
-    gmf, gmw = (grid.scalar["crack_mf"], grid.scalar["crack_mw"]) if friction else (None,) * 2
-    lost, density, vol0 = ctx.friction_lost, ctx.solver.density, ctx.view.vol0
+    two = two_field_funcs(ctx, sf.own_side) if friction else None
 
     @ti.func
     def momentum_origins(p, vp, Ap):
@@ -50,6 +48,26 @@ def transfer_funcs(ctx, sf) -> Transfers:
         return mom
 
     @ti.func
+    def p2g_node(I, fam, w, gw, wt, gt, r, mp, stress, vt, vn, vp, Ap, force_density, kick, n):
+        """One node's P2G through W_ip (the normal family's terms for a particle in contact)."""
+        mom_t = node_momentum(vt, Ap, r)
+        f_t = stress @ gt + wt * force_density
+        mv = mp * wt * mom_t + kick * f_t
+        dw = 0.0   # Nn - Nt
+        if fam[1]:
+            wn, gn = normal_family(fam, w, gw)
+            dw = wn - wt
+            f_n = stress @ gn + wn * force_density
+            mom_n = node_momentum(vn, Ap, r)
+            mv += (mp * (wn * n.dot(mom_n) - wt * n.dot(mom_t)) + kick * n.dot(f_n - f_t)) * n
+            for a in ti.static(range(dim)):
+                add(Arows[a], I, mp * dw * n[a] * n)
+        add(gm, I, wt * mp)   # plain adds inside the solver's colour loop (no other thread at this node)
+        add(gv, I, mv)
+        if ti.static(flip):
+            add(gv_old, I, mp * (wt * vp + dw * n.dot(vp) * n))
+
+    @ti.func
     def p2g(p, st, mp, stress, vp, Ap, force_density, kick):
         """P2G of a particle near a discontinuity: mass, momentum (APIC about each family's centroid), stress
         force and body force through W_ip; the normal family's terms only for a particle in contact."""
@@ -61,30 +79,14 @@ def transfer_funcs(ctx, sf) -> Transfers:
             off = o + sten.inner[k]
             I, w, gw, r = sten.node(st, off)
             wt, gt = tangential(fam, off, w, gw)
-            mom_t = node_momentum(vt, Ap, r)
-            f_t = stress @ gt + wt * force_density
-            mv = mp * wt * mom_t + kick * f_t
-            dw = 0.0   # Nn - Nt
-            if fam[1]:
-                wn, gn = normal_family(fam, w, gw)
-                dw = wn - wt
-                f_n = stress @ gn + wn * force_density
-                mom_n = node_momentum(vn, Ap, r)
-                across = (mp * (wn * n.dot(mom_n) - wt * n.dot(mom_t)) + kick * n.dot(f_n - f_t)) * n
-                mv += across
-                if ti.static(friction):
-                    if wt == 0:   # a node across: what this side brings to friction there (tensor_grid)
-                        add(gdv, I, across)
-                        add(gmf, I, mp * wn)
-                        add(gmw, I, mp * wn * wn)
-                        add(gpf, I, mp * wn * mom_n)
-                        add(gnf, I, mp * wn * n)
-                for a in ti.static(range(dim)):
-                    add(Arows[a], I, mp * dw * n[a] * n)
-            add(gm, I, wt * mp)   # plain adds inside the solver's colour loop (no other thread at this node)
-            add(gv, I, mv)
-            if ti.static(flip):
-                add(gv_old, I, mp * (wt * vp + dw * n.dot(vp) * n))
+            if ti.static(friction):   # a particle in contact moves on the nodes' two fields
+                if fam[1]:
+                    wn, gn = normal_family(fam, w, gw)
+                    two.p2g(p, I, mp, wn, gn, node_momentum(vn, Ap, r), stress, force_density, kick, vp, n, wt == 0)
+                else:
+                    p2g_node(I, fam, w, gw, wt, gt, r, mp, stress, vt, vn, vp, Ap, force_density, kick, n)
+            else:
+                p2g_node(I, fam, w, gw, wt, gt, r, mp, stress, vt, vn, vp, Ap, force_density, kick, n)
 
     @ti.func
     def p2g_momentum(p, st, mp, vp, Ap):
@@ -104,6 +106,23 @@ def transfer_funcs(ctx, sf) -> Transfers:
             add(gv2, I, mv)
 
     @ti.func
+    def g2p_node(I, fam, w, gw, wt, gt, vi, vo, n, deform: ti.template(), v_pic, dv, G):
+        """One node's G2P terms through W_ip added to the sums: velocity, FLIP increment, velocity gradient
+        (Pt vg) gt^T + (Pn vg) gn^T."""
+        vg = vi
+        if ti.static(deform):  # MUSL's deform pass reads the remapped velocities
+            vg = vgrad[I]
+        v_pic += wt * vi
+        dv += wt * (vi - vo)
+        G += vg.outer_product(gt)
+        if fam[1]:
+            wn, gn = normal_family(fam, w, gw)
+            v_pic += (wn - wt) * n.dot(vi) * n
+            dv += (wn - wt) * n.dot(vi - vo) * n
+            G += (n.dot(vg) * n).outer_product(gn - gt)
+        return v_pic, dv, G
+
+    @ti.func
     def g2p(p, st, deform: ti.template()):
         """(v_pic, FLIP increment, APIC B, velocity gradient G) with the modified functions.
         APIC's affine C of such a particle is its velocity gradient: B = G D_p makes the solver's
@@ -113,41 +132,26 @@ def transfer_funcs(ctx, sf) -> Transfers:
         v_pic = ti.Vector.zero(float, dim)
         dv = ti.Vector.zero(float, dim)
         G = ti.Matrix.zero(float, dim, dim)
-        # friction's changes (tensor_grid.node_friction): the reaction from the nodes across, the nodes' own loss
-        reaction, own = ti.Vector.zero(float, dim), ti.Vector.zero(float, dim)
         for o in ti.grouped(ti.ndrange(*sten.outer)):
           for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split of the stencil loop)
             off = o + sten.inner[k]
             I, w, gw, r = sten.node(st, off)
             wt, gt = tangential(fam, off, w, gw)
             vi = gv[I]
-            vg = vi
-            if ti.static(deform):  # MUSL's deform pass reads the remapped velocities
-                vg = vgrad[I]
-            dvi = ti.Vector.zero(float, dim)
+            vo = vi
             if ti.static(flip):
-                dvi = vi - gv_old[I]
-            v_pic += wt * vi
-            dv += wt * dvi
-            if ti.static(friction):
-                own -= wt * gvc[I]
-            G += vg.outer_product(gt)
-            if fam[1]:   # (Pt vg) gt^T + (Pn vg) gn^T
-                wn, gn = normal_family(fam, w, gw)
-                v_pic += (wn - wt) * n.dot(vi) * n
-                dv += (wn - wt) * n.dot(dvi) * n
-                G += (n.dot(vg) * n).outer_product(gn - gt)
-                if ti.static(friction):
-                    own -= (wn - wt) * n.dot(gvc[I]) * n
-                    if wt == 0:   # a node across: friction's reaction there, shared in the normal functions
-                        reaction += wn * gdv[I]
-        if ti.static(friction):
-            if ti.static(moves_x(deform)):   # once a step (MUSL and USF read the grid twice)
-                # the kinetic energy friction took from this particle: v_pic holds its own nodes' change already
-                change = own + reaction
-                lost[0][None] -= density(p) * vol0[p] * ((v_pic - own).dot(change) + 0.5 * change.dot(change))
-            v_pic += reaction
-            dv += reaction
+                vo = gv_old[I]
+            if ti.static(friction):   # a particle in contact moves on the nodes' two fields
+                if fam[1]:
+                    wn, gn = normal_family(fam, w, gw)
+                    v_i, dv_i, G_i = two.g2p(p, I, wn, gn, vi, vo, n, wt == 0)
+                    v_pic += v_i
+                    dv += dv_i
+                    G += G_i
+                else:
+                    v_pic, dv, G = g2p_node(I, fam, w, gw, wt, gt, vi, vo, n, deform, v_pic, dv, G)
+            else:
+                v_pic, dv, G = g2p_node(I, fam, w, gw, wt, gt, vi, vo, n, deform, v_pic, dv, G)
         return v_pic, dv, G @ sten.inertia(st), G
 
-    return Transfers(p2g=p2g, p2g_momentum=p2g_momentum, g2p=g2p)
+    return Transfers(p2g=p2g, p2g_momentum=p2g_momentum, g2p=g2p, second_field=two.holds if friction else None)
