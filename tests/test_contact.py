@@ -126,6 +126,19 @@ def test_block_rests_on_an_inclined_body_below_the_friction_angle(dim):
     assert sim.energy_balance()["friction"] < 1e-3 * 0.5 * sim.scene.mass[sim.scene.body == 1].sum() * (G * T) ** 2
 
 
+def rolling_disk_config(dx, T):
+    """A disk (r = 0.1, E 1 MPa, quadratic APIC) resting on a gripped base 0.06 thick, gravity tilted by 30 deg; no
+    contact section (each test adds its method's)."""
+    a = np.radians(30)
+    cfg = make_cfg(2, basis="quadratic", transfer="apic", dx=dx, model="neo_hookean", E=1.0e6, nu=0.3,
+                   end_time=T, gravity=[G * np.sin(a), -G * np.cos(a)])
+    cfg["domain"].update(upper=[1.0, 0.3])
+    cfg["bodies"] = [dict(name="base", shape=dict(type="box", lower=[0.0, 0.0], upper=[1.0, 0.06]), material="m",
+                          prescribed_velocity=[dict(velocity=[0.0, 0.0])]),
+                     dict(name="disk", shape=dict(type="sphere", center=[0.15, 0.16], radius=0.1), material="m")]
+    return cfg
+
+
 @pytest.mark.parametrize("dx", fast_subset([0.02, 0.01], fast=[]))
 def test_disk_rolls_down_an_inclined_body(dx):
     """A disk (r = 0.1, ten cells) on a gripped body with enough friction (mu = 1 > tan(t) / 3, t = 30 deg) rolls:
@@ -135,12 +148,7 @@ def test_disk_rolls_down_an_inclined_body(dx):
     spin (PIC takes it). Before the gap check the disk did not roll (-0.06 of it at dx 0.02): the nodes ahead of the
     contact point, which the disk shares with the base a stencil away, stopped its front (docs/contact.md, "Gap")."""
     a, T = np.radians(30), 0.3
-    cfg = make_cfg(2, basis="quadratic", transfer="apic", dx=dx, model="neo_hookean", E=1.0e6, nu=0.3,
-                   end_time=T, gravity=[G * np.sin(a), -G * np.cos(a)])
-    cfg["domain"].update(upper=[1.0, 0.3])
-    cfg["bodies"] = [dict(name="base", shape=dict(type="box", lower=[0.0, 0.0], upper=[1.0, 0.06]), material="m",
-                          prescribed_velocity=[dict(velocity=[0.0, 0.0])]),
-                     dict(name="disk", shape=dict(type="sphere", center=[0.15, 0.16], radius=0.1), material="m")]
+    cfg = rolling_disk_config(dx, T)
     cfg["contact"] = dict(method="multi_field", friction=1.0)
     sim = tm.Simulation(cfg)
     t, v, _ = body_motion(sim, 1, T)

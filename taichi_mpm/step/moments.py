@@ -168,12 +168,13 @@ class Degradation:
 
 @dataclass(frozen=True)
 class NodeFields:
-    """Node fields of an extension's own that every particle's standard transfer also writes (P2G) and reads
-    instead of the grid's velocity (G2P): multi-field contact's velocity field per body. The grid's own fields
-    still get every particle's mass and momentum (the centre-of-mass field)."""
+    """Node fields of an extension's own that every particle's standard transfer also writes (P2G) and, where it
+    gives `velocity`, reads instead of the grid's velocity (G2P): multi-field contact's velocity field per body (the
+    grid's own fields still get every particle's mass and momentum: the centre-of-mass field); the crack finder's
+    node mass moments with friction (written only)."""
     scatter: Callable        # (p, I, w, gw, r = x_i - x_p, mp, momentum, momentum_old): P2G's node contribution
-    velocity: Callable       # (p, I) -> the node velocity G2P gives particle p (v_i, and grad v from it)
-    velocity_old: Callable   # (p, I) -> FLIP's v_old_i for particle p
+    velocity: Optional[Callable] = None       # (p, I) -> the node velocity G2P gives particle p (v_i, grad v from it)
+    velocity_old: Optional[Callable] = None   # (p, I) -> FLIP's v_old_i for particle p
 
 
 @dataclass(frozen=True)

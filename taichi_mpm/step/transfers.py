@@ -246,7 +246,7 @@ def make_node_reads(ctx):
     grid's (MUSL's grad v from the remapped v2), or an extension's NodeFields (multi-field contact: the
     particle's own body field; usl only, so grad v takes v_i)."""
     gv, gv_old, vgrad, nf = ctx.gv, ctx.gv_old, ctx.vgrad, ctx.node_fields
-    if nf is not None:
+    if nf is not None and nf.velocity is not None:
         @ti.func
         def own_grad(p, I, vi):
             return vi

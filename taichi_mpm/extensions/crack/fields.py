@@ -20,11 +20,13 @@ def grid_fields(dim: int, sides: int = 0, friction: bool = False, flip: bool = F
     """The crack finder's fields in the solver's grid (cleared with it each step): vectors (the rows of the
     anisotropic node mass A_i, the node normal; with friction, the second velocity field of each node, the particles
     in contact across it: their momentum with its force impulse (then their velocity), their normals, FLIP's old
-    momentum (then velocity), and the node's velocity before walls and grips) and scalars (the node's mark: 1 in a
+    momentum (then velocity), the node's velocity before walls and grips, and both fields' mass moments about the
+    node, for the gap between their surfaces) and scalars (the node's mark: 1 in a
     near particle's stencil, 2 on the discontinuity; with two or more interface bodies, the largest weight an
     interface body's particle has at the node and that body, its owner; with friction, the across field's mass)."""
     owners = ["crack_wmax", "crack_owner"] if sides else []
-    far = ["crack_pf", "crack_nf", "crack_vc"] + (["crack_of"] if flip else []) if friction else []
+    far = (["crack_pf", "crack_nf", "crack_vc", "crack_xm", "crack_xf"] + (["crack_of"] if flip else [])
+           if friction else [])
     vectors = [f"A{a}" for a in range(dim)] + ["crack_n"] + far
     return vectors, ["crack_mark"] + owners + (["crack_mf"] if friction else [])
 

@@ -26,7 +26,7 @@ from .state import check_state, get_state, set_state
 from .tensor_grid import tensor_grid_solve
 from .transfer import transfer_funcs
 from .view import view_of
-from ...step.moments import Degradation, Extension, ParticleTransfer
+from ...step.moments import Degradation, Extension, NodeFields, ParticleTransfer
 
 
 class CrackFinder(Extension):
@@ -203,6 +203,8 @@ class CrackFinder(Extension):
         kernel_ctx.contribute("particle_transfer", ParticleTransfer(
             takes=shape.modified, p2g=moves.p2g, p2g_momentum=moves.p2g_momentum, g2p=moves.g2p,
             own_side=shape.own_side, second_field=moves.second_field))
+        if moves.standard_moment is not None:   # with friction: the node's own field's mass moment (its gap)
+            kernel_ctx.contribute("node_fields", NodeFields(scatter=moves.standard_moment))
         kernel_ctx.contribute("degradation", Degradation(stress=damage.degrade, energy=damage.degrade_energy))
         kernel_ctx.grid_solve.append(tensor_grid_solve(ctx))   # the tensor node mass, on steps with contact
 

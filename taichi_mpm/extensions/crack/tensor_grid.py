@@ -10,6 +10,8 @@ import taichi as ti
 from ...friction import friction_loss
 from ...materials import sym_eig
 from ...step.moments import GridSolve
+from ..contact.multifield import TOUCH
+from ..contact.surface import surface_offset
 
 
 def tensor_grid_solve(ctx) -> GridSolve:
@@ -21,6 +23,8 @@ def tensor_grid_solve(ctx) -> GridSolve:
     gpf, gnf, gvc, gof = (grid.vec.get(k) for k in ("crack_pf", "crack_nf", "crack_vc", "crack_of"))
     gmf, lost = grid.scalar.get("crack_mf"), ctx.friction_lost
     far_grip = _far_grip_func(ctx)
+    gxm, gxf, inv_dx = grid.vec.get("crack_xm"), grid.vec.get("crack_xf"), 1.0 / ctx.view.dx
+    surface = surface_offset(ctx.solver.basis.spec.degree) if ctx.fields.needs.friction else None
     mu = float(ctx.cc.friction)
 
     @ti.func
@@ -69,12 +73,23 @@ def tensor_grid_solve(ctx) -> GridSolve:
         return vel
 
     @ti.func
+    def gap(I, n, m, mf):
+        """Cells between the second field's surface and the own field's along n (< 0: overlap), each placed from
+        its particles' centroid at the node as if flat (multi-field contact's check, extensions/contact/surface.py):
+        without it the nodes a stencil ahead of a rolling disk's contact point, whose particles face the base within
+        the SPH reach, stuck to the base."""
+        own = gxf[I].dot(n) * inv_dx / mf
+        rest = gxm[I].dot(n) * inv_dx / m
+        return -surface(-rest) - surface(own)
+
+    @ti.func
     def two_field_contact(I, kick_before, kick_after):
         """Coulomb contact between node I's two velocity fields (with crack.friction): its own (mass m, velocity v
         after the chain) and the second, the particles in contact across it (mass mf, momentum with its force
         impulse pf, their normals nf, which point towards this side). The second field's velocity u = pf / mf plus
         gravity, under the walls and the grip of its particles (component 1 of the node's grip flag). Where both
-        hold mass and u approaches v's side along n = nf / |nf| (a = (u - v) . n > 0), the relative velocity loses
+        hold mass, u approaches v's side along n = nf / |nf| (a = (u - v) . n > 0) and their surfaces touch by the
+        end of the step (the gap, within multi-field contact's TOUCH), the relative velocity loses
         a n and, by Coulomb's law (friction.friction_loss, the walls' and multi-field contact's), mu a of its
         tangential part s, not below zero (they stick); each field takes its share of that change by the other's
         mass (all of it where the other is held: a wall or grip set it, an infinitely heavy side), so momentum is
@@ -94,7 +109,7 @@ def tensor_grid_solve(ctx) -> GridSolve:
                 n = nf.normalized()
                 rel = u - v
                 a = rel.dot(n)
-                if a > 0:
+                if a > 0 and gap(I, n, m, mf) - 2.0 * kick_after * a * inv_dx < TOUCH:
                     slip = rel - a * n
                     loss = friction_loss(slip, a, mu)
                     change = a * n + loss   # taken off the relative velocity u - v

@@ -16,6 +16,7 @@ class Transfers(NamedTuple):
     p2g_momentum: Callable   # (p, st, mp, vp, Ap): MUSL's remap
     g2p: Callable            # (p, st, deform) -> (v_pic, FLIP increment, APIC B, velocity gradient)
     second_field: Optional[Callable]   # (p, off, I) -> node I holds p in its second field (friction), or None
+    standard_moment: Optional[Callable]   # with friction, NodeFields.scatter: a standard particle's mass moment
 
 
 def transfer_funcs(ctx, sf) -> Transfers:
@@ -28,6 +29,7 @@ def transfer_funcs(ctx, sf) -> Transfers:
     family, tangential, normal_family = sf.family, sf.tangential, sf.normal_family
     friction = f.needs.friction
     two = two_field_funcs(ctx, sf.own_side) if friction else None
+    gxm = grid.vec.get("crack_xm")
 
     @ti.func
     def momentum_origins(p, vp, Ap):
@@ -66,6 +68,8 @@ def transfer_funcs(ctx, sf) -> Transfers:
         add(gv, I, mv)
         if ti.static(flip):
             add(gv_old, I, mp * (wt * vp + dw * n.dot(vp) * n))
+        if ti.static(friction):   # the own field's mass moment (the two fields' gap, tensor_grid)
+            add(gxm, I, -wt * mp * r)
 
     @ti.func
     def p2g(p, st, mp, stress, vp, Ap, force_density, kick):
@@ -82,7 +86,8 @@ def transfer_funcs(ctx, sf) -> Transfers:
             if ti.static(friction):   # a particle in contact moves on the nodes' two fields
                 if fam[1]:
                     wn, gn = normal_family(fam, w, gw)
-                    two.p2g(p, I, mp, wn, gn, node_momentum(vn, Ap, r), stress, force_density, kick, vp, n, wt == 0)
+                    two.p2g(p, I, mp, wn, gn, r, node_momentum(vn, Ap, r), stress, force_density, kick, vp, n,
+                            wt == 0)
                 else:
                     p2g_node(I, fam, w, gw, wt, gt, r, mp, stress, vt, vn, vp, Ap, force_density, kick, n)
             else:
@@ -154,4 +159,5 @@ def transfer_funcs(ctx, sf) -> Transfers:
                 v_pic, dv, G = g2p_node(I, fam, w, gw, wt, gt, vi, vo, n, deform, v_pic, dv, G)
         return v_pic, dv, G @ sten.inertia(st), G
 
-    return Transfers(p2g=p2g, p2g_momentum=p2g_momentum, g2p=g2p, second_field=two.holds if friction else None)
+    return Transfers(p2g=p2g, p2g_momentum=p2g_momentum, g2p=g2p, second_field=two.holds if friction else None,
+                     standard_moment=two.standard_moment if friction else None)

@@ -13,7 +13,8 @@ from .nodes import node_owner_funcs
 
 class TwoFields(NamedTuple):
     holds: Callable   # (p, off, I) -> node I holds particle p in its second field (ParticleTransfer.second_field)
-    p2g: Callable   # (p, I, mp, wn, gn, node momentum, stress, force density, kick, vp, n, across)
+    p2g: Callable   # (p, I, mp, wn, gn, r, node momentum, stress, force density, kick, vp, n, across)
+    standard_moment: Callable   # NodeFields.scatter: a standard particle's mass moment about the node
     g2p: Callable   # (p, I, wn, gn, v, v_old, n, across) -> (v_pic, FLIP increment, velocity gradient) terms
 
 
@@ -21,6 +22,7 @@ def two_field_funcs(ctx, own_side) -> TwoFields:
     grid, flip, add = ctx.view.grid, ctx.view.flip, ctx.solver.add
     gm, gv, gv_old = grid.m, grid.vec["v"], grid.vec.get("v_old")
     gpf, gnf, gmf, gof = grid.vec["crack_pf"], grid.vec["crack_nf"], grid.scalar["crack_mf"], grid.vec.get("crack_of")
+    gxm, gxf = grid.vec["crack_xm"], grid.vec["crack_xf"]
     node_mark, node_n = grid.scalar["crack_mark"], grid.vec["crack_n"]
     sides = ctx.fields.sides > 0
     state, normal = ctx.fields.state, ctx.fields.normal if ctx.fields.cnormal is None else ctx.fields.cnormal
@@ -41,7 +43,7 @@ def two_field_funcs(ctx, own_side) -> TwoFields:
         return res
 
     @ti.func
-    def p2g(p, I, mp, wn, gn, mom_n, stress, force_density, kick, vp, n, across):
+    def p2g(p, I, mp, wn, gn, r, mom_n, stress, force_density, kick, vp, n, across):
         """A particle in contact with friction: all of it in its normal function, to the node's own field or, at a
         node across, to its second field (with the particle's normal, for the contact's direction)."""
         mv = mp * wn * mom_n + kick * (stress @ gn + wn * force_density)
@@ -49,11 +51,13 @@ def two_field_funcs(ctx, own_side) -> TwoFields:
             add(gmf, I, mp * wn)
             add(gpf, I, mv)
             add(gnf, I, mp * wn * n)
+            add(gxf, I, -wn * mp * r)   # mass moments about the node (r = x_i - x_p): the gap's surfaces
             if ti.static(flip):
                 add(gof, I, mp * wn * vp)
         else:
             add(gm, I, wn * mp)
             add(gv, I, mv)
+            add(gxm, I, -wn * mp * r)
             if ti.static(flip):
                 add(gv_old, I, mp * wn * vp)
 
@@ -72,4 +76,10 @@ def two_field_funcs(ctx, own_side) -> TwoFields:
     def holds(p, off, I):
         return state[p] == CONTACT and not own_side(p, off) and second_field(p, I, normal[p])
 
-    return TwoFields(holds=holds, p2g=p2g, g2p=g2p)
+    @ti.func
+    def standard_moment(p, I, w, gw, r, mp, momentum, momentum_old):
+        """A particle with standard functions: its mass moment about the node, to the node's own field's
+        (NodeFields.scatter)."""
+        add(gxm, I, -w * mp * r)
+
+    return TwoFields(holds=holds, p2g=p2g, g2p=g2p, standard_moment=standard_moment)
