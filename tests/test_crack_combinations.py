@@ -50,8 +50,7 @@ def notched_bar(end_time, crack=True, **extra):
     return cfg
 
 
-@pytest.mark.slow
-def test_notched_bar_pulled_by_grips_cracks_through():
+def test_notched_bar_pulled_by_grips_cracks_through():   # in the default run: issue 27's fast test of its capability
     """The grips' force (the right grip's mean over 5 ms windows, Simulation.prescribed_impulse) climbs while the bar
     stretches, peaks when the crack runs from the notch and falls once the bar is cut. Measured: peak 63.0 N/m
     at t = 0.07 s, 0.84 of f_t times the net section (75 N/m; below it: the notch concentrates the stress), then
@@ -125,8 +124,7 @@ def _x_arms(crack):
     return np.array(out)
 
 
-@pytest.mark.slow
-def test_x_shaped_precrack_opens_along_both_arms():
+def test_x_shaped_precrack_opens_along_both_arms():   # in the default run: issue 27's fast test of its capability
     """The crack finder with two crossing cracks: the particle normals of the damage field at the crossing and along
     both arms. Measured: the four half-arms open by 8.13e-4 to 8.44e-4 m against 1.19e-4 m for the same particle
     pairs in the uncracked plate (7x), and carry 7.1-9.7 Pa of normal stress against its 63.8 Pa. Asserted: each
