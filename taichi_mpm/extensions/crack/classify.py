@@ -27,14 +27,14 @@ def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
     two_fields = f.needs.friction
 
     @ti.func
-    def compressive(traction):
-        """The trial normal traction closes the contact: negative; with friction's two fields any (their nodes'
-        contact acts only while the fields approach, tensor_grid.two_field_contact, so a particle facing material
-        across within reach joins the second fields whatever its stress: with the traction test, the particles near
-        a resting block's face went in and out of contact as its stress rang, and the block crept)."""
-        res = traction < 0.0
-        if ti.static(two_fields):
-            res = True
+    def closes(p, n, vc):
+        """Whether particle p, facing material across within reach, is in contact: its trial normal traction is
+        compressive; with friction's two fields always (their nodes' contact acts only while the fields approach
+        and their surfaces touch, tensor_grid.two_field_contact: with the traction test the particles near a
+        resting block's face went in and out of contact as its stress rang, and the block crept)."""
+        res = True
+        if ti.static(not two_fields):
+            res = n.dot(effective_stress(p) @ n) + impedance(p) * vc < 0.0
         return res
 
     @ti.func
@@ -108,7 +108,7 @@ def classify_kernel(ctx, normals, contact_test, node_normals, effective_stress):
                     if ti.static(contact):  # material across within reach, and trial normal traction < 0
                         vc, touching, heavy, peer = closing_speed(p, n, pool)
                         if touching:   # nested: Taichi's `and` evaluates both sides; the stress costs
-                            if compressive(n.dot(effective_stress(p) @ n) + impedance(p) * vc):
+                            if closes(p, n, vc):
                                 st = CONTACT
                                 contacts[None] += 1
                                 if ti.static(not own_normals):

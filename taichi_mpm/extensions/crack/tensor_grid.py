@@ -120,9 +120,11 @@ def tensor_grid_solve(ctx) -> GridSolve:
                     elif held_far:
                         share, m_red = 1.0, m
                     u -= (1.0 - share) * change
-                    gv[I] = wall(I, v + share * change)
+                    if not held:   # (walls then grips, as in the chain: a held node keeps its velocity)
+                        gv[I] = wall(I, v + share * change)
+                        u, _ = far_grip(I, wall(I, u))
                     lost[0][None] += m_red * loss.dot(slip - loss)
-            gpf[I] = wall(I, u)
+            gpf[I] = u
 
     friction = ctx.fields.needs.friction
     return GridSolve(has_mass=has_mass_two if friction else has_mass, velocity=velocity,
