@@ -39,7 +39,7 @@ from ...friction import friction_loss
 from ...step.moments import Extension, GridSolve, NodeFields
 from ...sums import Slots
 from .fields import ContactNeeds
-from .surface import surface_offset
+from .surface import particle_half_width, surface_offset
 
 # cells of gap still taken as touching: the surfaces' estimates from a few particles at a stencil's tail err by
 # about this much on a flat contact (at 0.05 a block resting on an incline crept 1.5e-3 of g t^2/2, 3.7e-4 at 0.1;
@@ -79,7 +79,8 @@ class MultiField(Extension):
         self.p = [g.vec[f"contact_p{k}"] for k in range(self.K)]
         self.g = [g.vec[f"contact_g{k}"] for k in range(self.K)]
         self.x = [g.vec[f"contact_x{k}"] for k in range(self.K)]
-        self.surface = surface_offset(setup.basis.spec.degree)
+        self.surface = surface_offset(setup.basis.spec.degree,
+                                      particle_half_width(setup.basis.spec, setup.scene.spacing / setup.dx))
         self.o = [g.vec[f"contact_o{k}"] for k in range(self.K)] if self.needs.flip else None
         self.table = ti.field(ti.i32, len(self.field_of_body))   # body -> field
         self.slots = Slots(2)   # the energy the correction removed: friction, normal

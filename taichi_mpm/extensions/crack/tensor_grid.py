@@ -11,7 +11,7 @@ from ...friction import friction_loss
 from ...materials import sym_eig
 from ...step.moments import GridSolve
 from ..contact.multifield import TOUCH
-from ..contact.surface import surface_offset
+from ..contact.surface import particle_half_width, surface_offset
 
 
 def tensor_grid_solve(ctx) -> GridSolve:
@@ -24,7 +24,9 @@ def tensor_grid_solve(ctx) -> GridSolve:
     gmf, lost = grid.scalar.get("crack_mf"), ctx.friction_lost
     far_grip = _far_grip_func(ctx)
     gxm, gxf, inv_dx = grid.vec.get("crack_xm"), grid.vec.get("crack_xf"), 1.0 / ctx.view.dx
-    surface = surface_offset(ctx.solver.basis.spec.degree) if ctx.fields.needs.friction else None
+    spec = ctx.solver.basis.spec
+    surface = (surface_offset(spec.degree, particle_half_width(spec, ctx.view.spacing / ctx.view.dx))
+               if ctx.fields.needs.friction else None)
     mu = float(ctx.cc.friction)
 
     @ti.func
