@@ -424,6 +424,12 @@ class Solver(Strict):
     deterministic: bool = False
 
 
+class FrictionPair(Strict):
+    """One pair of bodies with a friction coefficient of its own (crack.friction_pairs, contact.friction_pairs)."""
+    bodies: Annotated[list[Union[int, str]], Field(min_length=2, max_length=2)]   # names or indices
+    mu: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)]
+
+
 class Crack(Strict):
     threshold: Real = 0.0
     kernel_radius: PositiveFloat = 2.0
@@ -439,6 +445,8 @@ class Crack(Strict):
     # and the two fields' relative tangential velocity loses mu times their normal approach, not beyond sticking
     # (docs/crack_finder.md, "Friction"); not with solver.update musl
     friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
+    # pairs of interface bodies with a coefficient of their own instead of `friction` (docs/crack_finder.md)
+    friction_pairs: list[FrictionPair] = []
     # between interface bodies, a particle is in contact only while the nearest particle facing it lies within
     # (1 + contact_gap) particle spacings (their domains at most contact_gap spacings apart); null: anywhere within
     # the SPH support, as the seed's method (docs/crack_finder.md, "Contact gap")
@@ -449,8 +457,10 @@ class Contact(Strict):
     """Contact between bodies by a method of its own (docs/contact.md); the crack finder keeps its `crack:` section."""
     # multi_field: one velocity field per body or group of bodies (Bardenhagen et al. 2000)
     method: Literal["multi_field"] = "multi_field"
-    # Coulomb friction coefficient between the fields (every pair alike)
+    # Coulomb friction coefficient between the fields (every pair alike but those in friction_pairs)
     friction: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)] = 0.0
+    # pairs of bodies in different fields with a coefficient of their own instead of `friction` (docs/contact.md)
+    friction_pairs: list[FrictionPair] = []
     # groups of bodies (names or indices) sharing one velocity field; a body in no group gets a field of its own;
     # null: every body its own field
     bodies: Optional[list[Annotated[list[Union[int, str]], Field(min_length=1)]]] = None
@@ -863,8 +873,48 @@ class Config(Strict):
                 out[i], extra = extra, extra + 1
         return out
 
+    def friction_table(self, section) -> np.ndarray:
+        """(bodies, bodies) Coulomb coefficients of a crack or contact section: its `friction`, and each of its
+        friction_pairs' own (symmetric)."""
+        names = {b.name: i for i, b in enumerate(self.bodies) if b.name}
+        table = np.full((len(self.bodies), len(self.bodies)), float(section.friction))
+        for pair in section.friction_pairs:
+            a, b = (e if isinstance(e, int) else names[e] for e in pair.bodies)
+            table[a, b] = table[b, a] = pair.mu
+        return table
+
+    def _check_friction_pairs(self, name: str, section, together):
+        """Each pair names two bodies (names or indices) that can touch under the section's method (`together`:
+        (i, j) -> why not, or None), and no pair twice."""
+        names = {b.name: i for i, b in enumerate(self.bodies) if b.name}
+        seen = set()
+        for k, pair in enumerate(section.friction_pairs):
+            found = []
+            for j, entry in enumerate(pair.bodies):
+                key = f"{name}.friction_pairs.{k}.bodies.{j}"
+                if isinstance(entry, bool) or (isinstance(entry, int) and not 0 <= entry < len(self.bodies)):
+                    raise _Located(key, f"a body name or index from 0 to {len(self.bodies) - 1}, got {entry!r}")
+                if isinstance(entry, str) and entry not in names:
+                    raise _Located(key, f"no body is named {entry!r} (bodies: {', '.join(names) or 'none named'})")
+                found.append(entry if isinstance(entry, int) else names[entry])
+            key = f"{name}.friction_pairs.{k}.bodies"
+            if found[0] == found[1]:
+                raise _Located(key, "names one body twice: a pair is two bodies")
+            why = together(*found)
+            if why:
+                raise _Located(key, why)
+            if frozenset(found) in seen:
+                raise _Located(key, "this pair is given twice")
+            seen.add(frozenset(found))
+
     def _check_contact(self):
-        """contact: its groups name bodies once each, at least two fields, and options the method works with."""
+        """contact: its groups name bodies once each, at least two fields, and options the method works with;
+        crack.friction_pairs: pairs of interface bodies."""
+        if self.crack is not None:
+            iface = [b.interface for b in self.bodies]
+            self._check_friction_pairs("crack", self.crack, lambda i, j: (
+                None if iface[i] and iface[j] else "friction between bodies acts between interface bodies: set "
+                                                   f"interface: true on bodies {i} and {j}"))
         c = self.contact
         if c is None:
             return
@@ -887,9 +937,13 @@ class Config(Strict):
                 if i in seen:
                     raise _Located(key, f"body {i} is in group {seen[i]} already: a body has one velocity field")
                 seen[i] = k
-        if len(set(self.contact_fields())) < 2:
+        fields = self.contact_fields()
+        if len(set(fields)) < 2:
             raise _Located("contact.bodies", "multi_field contact needs at least two velocity fields (two bodies, "
                                              "or two groups)")
+        self._check_friction_pairs("contact", c, lambda i, j: (
+            f"bodies {i} and {j} share a velocity field (contact.bodies): no contact between them"
+            if fields[i] == fields[j] else None))
         s = self.solver
         if s.update != "usl":
             raise _Located("solver.update", f"{s.update} cannot be combined with multi_field contact (section "

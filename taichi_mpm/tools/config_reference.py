@@ -182,7 +182,9 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "contact": ("", "contact between bodies by a method of its own (docs/contact.md); absent or null: off, nothing "
                     "allocated; not with a crack section"),
     "contact.method": ("", "multi_field: one velocity field per body or group (Bardenhagen et al. 2000)"),
-    "contact.friction": ("1", "Coulomb coefficient between the fields (>= 0)"),
+    "contact.friction": ("1", "Coulomb coefficient between the fields (>= 0), but the friction_pairs' own"),
+    "contact.friction_pairs": ("", "pairs of bodies in different fields with a Coulomb coefficient of their own "
+                                   "(with contact.bodies groups: the two bodies' fields')"),
     "contact.bodies": ("", "groups of bodies (names or indices) sharing one field; a body in no group gets its own; "
                            "null: every body its own field"),
     "crack": ("", "crack finder (damage gradients, opposite-side flags); absent or null: off, nothing compiled"),
@@ -201,6 +203,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                             "contact across it), and the two fields' tangential slip loses mu times their normal "
                             "approach, never beyond sticking; 0: frictionless (the seed's method); not with "
                             "solver.update musl"),
+    "crack.friction_pairs": ("", "pairs of interface bodies with a Coulomb coefficient of their own instead of "
+                                 "crack.friction (the node's owner body and its second field's)"),
+    "crack.friction_pairs[].bodies": ("", "the two bodies (names or indices; under crack, interface bodies)"),
+    "crack.friction_pairs[].mu": ("1", "their Coulomb coefficient (>= 0)"),
     "crack.contact_gap": ("1", "between interface bodies, a particle is in contact only while the nearest particle "
                                "facing it lies within (1 + contact_gap) particle spacings (their domains at most "
                                "contact_gap spacings apart); null: anywhere within the SPH support (the seed's "

@@ -64,6 +64,16 @@ class MultiField(Extension):
         self.field_of_body = np.asarray(cfg.contact_fields(), dtype=np.int32)
         self.needs = ContactNeeds.of(cfg)
         self.K = self.needs.n_fields
+        # contact.friction_pairs: the coefficient between each pair of fields (a pair of bodies sets its two
+        # bodies' fields'); None: contact.friction between all
+        self.pair_mu = None
+        if cfg.contact.friction_pairs:
+            bodies, f = cfg.friction_table(cfg.contact), self.field_of_body
+            self.pair_mu = np.full((self.K, self.K), self.mu)
+            for a in range(len(f)):
+                for b in range(len(f)):
+                    if f[a] != f[b] and bodies[a, b] != self.mu:
+                        self.pair_mu[f[a], f[b]] = bodies[a, b]
         # per field, the grips (indices from 0) of its bodies
         body_of_grip = [int(setup.scene.body[g.particles[0]]) for g in setup.scene.grips]
         self.grips = [[j for j, b in enumerate(body_of_grip) if self.field_of_body[b] == k] for k in range(self.K)]
@@ -171,8 +181,31 @@ class MultiField(Extension):
             return vel, held
         return grip
 
+    def _coefficient_func(self):
+        """@ti.func (I, k: template) -> field k's Coulomb coefficient at node I: contact.friction, or with
+        friction_pairs the pair's of k and the heaviest other field there."""
+        K, mu, table, m = self.K, self.mu, self.pair_mu, self.m
+        by_pair = table is not None
+
+        @ti.func
+        def coefficient(I, k: ti.template()):
+            res = ti.cast(mu, float)
+            if ti.static(by_pair):
+                heaviest = 0.0
+                for j in ti.static(range(K)):
+                    if ti.static(j != k):
+                        if m[j][I] > heaviest:
+                            heaviest = m[j][I]
+                            # (an expression: a Python constant assigned in a branch would be bound at compile
+                            # time, whichever branch runs)
+                            res = ti.cast(float(table[k][j]), float)
+            return res
+        return coefficient
+
     def _node_solve(self, ctx):
-        dim, K, mu, flip = self.dim, self.K, self.mu, self.needs.flip
+        dim, K, flip = self.dim, self.K, self.needs.flip
+        mu = self.mu if self.pair_mu is None else float(self.pair_mu.max())   # (> 0: friction compiled in)
+        coefficient = self._coefficient_func()
         m, p, g, o, slots, rank = self.m, self.p, self.g, self.o, self.slots, self.rank
         xf, surface, inv_dx = self.x, self.surface, 1.0 / ctx.dx
         wall, gravity_kick, grip = ctx.wall, ctx.gravity_kick, self._grip_func(ctx)
@@ -218,7 +251,7 @@ class MultiField(Extension):
                     lost[1] = 0.5 * mk * (e0 - v.norm_sqr())
                     if ti.static(mu > 0 and dim > 1):
                         slip = rel - into * n
-                        loss = friction_loss(slip, into, mu)
+                        loss = friction_loss(slip, into, coefficient(I, k))
                         v -= loss
                         # the friction impulse's work at the slip it leaves (none where the fields stick)
                         lost[0] = mk * loss.dot(slip - loss)

@@ -36,9 +36,10 @@ class CrackContext:
     rows_wide: list
     wide2: float
     friction_lost: Any      # sums.Slots(1): the energy friction dissipated (crack.friction), or None
+    pair_mu: Any = None     # with crack.friction_pairs: (sides, sides) coefficients between interface bodies
 
 
-def crack_context(fields, view, cc, kernel_ctx, friction_lost=None) -> CrackContext:
+def crack_context(fields, view, cc, kernel_ctx, friction_lost=None, pair_mu=None) -> CrackContext:
     dim, radius = fields.dim, fields.radius
     radius2 = radius * radius
     inv_cell = CELL_SPLIT / radius
@@ -52,4 +53,5 @@ def crack_context(fields, view, cc, kernel_ctx, friction_lost=None) -> CrackCont
                         gthr=float(cc.gradient_threshold), contact_thr=max(thr, 0.0),
                         contact=bool(cc.contact_in_compression), rows=nbr[:-1], nbr=nbr, wide_span=wide_span,
                         wide_reach2=wide_cells * wide_cells, rows_wide=[(-wide_span, wide_span + 1)] * (dim - 1),
-                        wide2=(wide_cells / inv_cell) ** 2 * (1 + 1e-4), friction_lost=friction_lost)
+                        wide2=(wide_cells / inv_cell) ** 2 * (1 + 1e-4), friction_lost=friction_lost,
+                        pair_mu=pair_mu)

@@ -16,19 +16,21 @@ from ...schemes import get as transfer_scheme
 from .constants import ALL, CELL_SPLIT, MAX_CELLS
 
 
-def grid_fields(dim: int, sides: int = 0, friction: bool = False, flip: bool = False) -> tuple[list[str], list[str]]:
+def grid_fields(dim: int, sides: int = 0, friction: bool = False, flip: bool = False,
+                pairs: bool = False) -> tuple[list[str], list[str]]:
     """The crack finder's fields in the solver's grid (cleared with it each step): vectors (the rows of the
     anisotropic node mass A_i, the node normal; with friction, the second velocity field of each node, the particles
     in contact across it: their momentum with its force impulse (then their velocity), their normals, FLIP's old
     momentum (then velocity), the node's velocity before walls and grips, and both fields' mass moments about the
     node, for the gap between their surfaces) and scalars (the node's mark: 1 in a
     near particle's stencil, 2 on the discontinuity; with two or more interface bodies, the largest weight an
-    interface body's particle has at the node and that body, its owner; with friction, the across field's mass)."""
+    interface body's particle has at the node and that body, its owner; with friction, the across field's mass, and
+    with friction_pairs its body)."""
     owners = ["crack_wmax", "crack_owner"] if sides else []
     far = (["crack_pf", "crack_nf", "crack_vc", "crack_xm", "crack_xf"] + (["crack_of"] if flip else [])
            if friction else [])
     vectors = [f"A{a}" for a in range(dim)] + ["crack_n"] + far
-    return vectors, ["crack_mark"] + owners + (["crack_mf"] if friction else [])
+    return vectors, ["crack_mark"] + owners + (["crack_mf"] if friction else []) + (["crack_sf"] if pairs else [])
 
 
 def interface_sides(bodies) -> list[int]:
@@ -63,6 +65,7 @@ class CrackNeeds:
     sides: int = 0         # interface bodies when two or more: each node's owner tells them apart (classify)
     friction: bool = False  # crack.friction > 0 (with contact): the second velocity field at the nodes
     flip: bool = False      # a transfer that keeps the grid's old velocity (FLIP): the second field's too
+    pairs: bool = False     # crack.friction_pairs (with friction): the second field's body at each node
 
     @classmethod
     def of(cls, cfg, materials, basis) -> "CrackNeeds":
@@ -77,15 +80,17 @@ class CrackNeeds:
     def switches(cc) -> dict:
         """What the crack section itself switches on (from the config or the allocated fields alike)."""
         contact = bool(cc.contact_in_compression)
-        return dict(contact=contact, kept_normals=cc.normal_refresh > 0, friction=contact and cc.friction > 0)
+        friction = contact and (cc.friction > 0 or any(p.mu > 0 for p in cc.friction_pairs))
+        return dict(contact=contact, kept_normals=cc.normal_refresh > 0, friction=friction,
+                    pairs=friction and bool(cc.friction_pairs))
 
     @property
     def grid_vectors(self) -> list[str]:
-        return grid_fields(self.dim, self.sides, self.friction, self.flip)[0]
+        return grid_fields(self.dim, self.sides, self.friction, self.flip, self.pairs)[0]
 
     @property
     def grid_scalars(self) -> list[str]:
-        return grid_fields(self.dim, self.sides, self.friction, self.flip)[1]
+        return grid_fields(self.dim, self.sides, self.friction, self.flip, self.pairs)[1]
 
     def mask_type(self) -> str:
         return "u64" if self.stencil_nodes > 32 else "u32"   # bit k: stencil node k lies across the discontinuity

@@ -16,7 +16,7 @@ from .contact import contact_test_funcs
 from .contact_lists import ContactPool, contact_list_kernel
 from .context import crack_context
 from .damage import damage_funcs
-from .fields import CrackFields
+from .fields import CrackFields, interface_sides
 from .inspection import partition_check_kernel
 from .nodes import node_cache_kernels, node_normals_func
 from .normals import particle_normal_funcs
@@ -46,6 +46,10 @@ class CrackFinder(Extension):
     def __init__(self, setup):
         self.dim = setup.dim
         self.cc = setup.cfg.crack
+        # crack.friction_pairs: the coefficients between interface bodies, by their sides (fields.interface_sides)
+        iface = [i for i, side in enumerate(interface_sides(setup.cfg.bodies)) if side >= 0]
+        self.pair_mu = (setup.cfg.friction_table(self.cc)[np.ix_(iface, iface)] if self.cc.friction_pairs
+                        else None)
         self.epoch = 0             # periods of kept normals (masks found in another belong to other normals)
         self.refreshes = 0         # steps that refreshed the kept normals (diagnostics, tests)
         self._cells_due = True     # the cell list must be built before the next step's searches
@@ -185,7 +189,7 @@ class CrackFinder(Extension):
     def build(self, kernel_ctx):
         """Build the crack finder's funcs and kernels from the step context (step.StepContext): its stencil of
         (node, weight, gradient, offset) contributions and material funcs; add its contributions to it."""
-        ctx = crack_context(self.fields, self.view, self.cc, kernel_ctx, self.friction_lost)
+        ctx = crack_context(self.fields, self.view, self.cc, kernel_ctx, self.friction_lost, self.pair_mu)
         cells = cell_list_funcs(ctx)
         sph = sph_funcs(ctx, cells)
         damage = damage_funcs(ctx)

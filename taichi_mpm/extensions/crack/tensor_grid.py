@@ -27,7 +27,8 @@ def tensor_grid_solve(ctx) -> GridSolve:
     spec = ctx.solver.basis.spec
     surface = (surface_offset(spec.degree, particle_half_width(spec, ctx.view.spacing / ctx.view.dx))
                if ctx.fields.needs.friction else None)
-    mu = float(ctx.cc.friction)
+    mu, pair_mu = float(ctx.cc.friction), _pair_friction(ctx)
+    by_pair = pair_mu is not None
 
     @ti.func
     def tensor(I):
@@ -113,7 +114,10 @@ def tensor_grid_solve(ctx) -> GridSolve:
                 a = rel.dot(n)
                 if a > 0 and gap(I, n, m, mf) - 2.0 * kick_after * a * inv_dx < TOUCH:
                     slip = rel - a * n
-                    loss = friction_loss(slip, a, mu)
+                    coefficient = mu
+                    if ti.static(by_pair):   # crack.friction_pairs: the two bodies' own
+                        coefficient = pair_mu(I)
+                    loss = friction_loss(slip, a, coefficient)
                     change = a * n + loss   # taken off the relative velocity u - v
                     share = mf / (m + mf)   # the own field's part of it
                     m_red = m * share
@@ -155,3 +159,24 @@ def _far_grip_func(ctx):
                             held = True
         return u, held
     return far_grip
+
+
+def _pair_friction(ctx):
+    """With crack.friction_pairs: @ti.func (I) -> the coefficient between node I's owner (its own field's interface
+    body) and its second field's body (crack_sf); else None (crack.friction everywhere)."""
+    table = ctx.pair_mu
+    if table is None or not ctx.fields.needs.friction:
+        return None
+    grid, mu = ctx.view.grid, ti.field(float, table.shape)
+    mu.from_numpy(table.astype(mu.to_numpy().dtype))
+    owner, far = grid.scalar["crack_owner"], grid.scalar["crack_sf"]
+    default = float(ctx.cc.friction)
+
+    @ti.func
+    def pair_mu(I):
+        a, b = ti.cast(owner[I], ti.i32) - 1, ti.cast(far[I], ti.i32) - 1
+        res = ti.cast(default, float)   # a Taichi variable (a Python float would be rebound at compile time)
+        if a >= 0 and b >= 0:
+            res = mu[a, b]
+        return res
+    return pair_mu

@@ -25,6 +25,8 @@ def two_field_funcs(ctx, own_side) -> TwoFields:
     gxm, gxf = grid.vec["crack_xm"], grid.vec["crack_xf"]
     node_mark, node_n = grid.scalar["crack_mark"], grid.vec["crack_n"]
     sides = ctx.fields.sides > 0
+    pairs, side = ctx.fields.needs.pairs, ctx.fields.side
+    gsf = grid.scalar.get("crack_sf")
     state, normal = ctx.fields.state, ctx.fields.normal if ctx.fields.cnormal is None else ctx.fields.cnormal
     _, owned_by_another = node_owner_funcs(ctx)
 
@@ -52,6 +54,8 @@ def two_field_funcs(ctx, own_side) -> TwoFields:
             add(gpf, I, mv)
             add(gnf, I, mp * wn * n)
             add(gxf, I, -wn * mp * r)   # mass moments about the node (r = x_i - x_p): the gap's surfaces
+            if ti.static(pairs):   # the second field's body, for its friction coefficient with the node's owner
+                ti.atomic_max(gsf[I], ti.cast(side[p] + 1, float))
             if ti.static(flip):
                 add(gof, I, mp * wn * vp)
         else:
