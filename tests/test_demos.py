@@ -13,7 +13,7 @@ import taichi_mpm as tm
 ROOT = Path(__file__).resolve().parents[1]
 DEMOS = {"sphere_impact": 3, "colliding_disks": 2, "vibrating_bar": 1, "cantilever": 2, "dam_break": 2,
          "jelly_drop": 3, "granular_collapse": 2, "sand_pile": 2, "snowball": 2, "necking": 2,
-         "granular_collapse_3d": 3, "round_tank": 2, "clay_slope": 2, "silo": 2}
+         "granular_collapse_3d": 3, "round_tank": 2, "clay_slope": 2, "silo": 2, "friction_incline": 2}
 
 
 def load_demo(name):
