@@ -204,7 +204,7 @@ class MultiField(Extension):
 
     def _node_solve(self, ctx):
         dim, K, flip = self.dim, self.K, self.needs.flip
-        mu = self.mu if self.pair_mu is None else float(self.pair_mu.max())   # (> 0: friction compiled in)
+        friction = (self.mu if self.pair_mu is None else float(self.pair_mu.max())) > 0   # compiled in or not
         coefficient = self._coefficient_func()
         m, p, g, o, slots, rank = self.m, self.p, self.g, self.o, self.slots, self.rank
         xf, surface, inv_dx = self.x, self.surface, 1.0 / ctx.dx
@@ -249,7 +249,7 @@ class MultiField(Extension):
                     e0 = v.norm_sqr()
                     v -= into * n
                     lost[1] = 0.5 * mk * (e0 - v.norm_sqr())
-                    if ti.static(mu > 0 and dim > 1):
+                    if ti.static(friction and dim > 1):
                         slip = rel - into * n
                         loss = friction_loss(slip, into, coefficient(I, k))
                         v -= loss
