@@ -13,6 +13,24 @@ from ..loads import Loads
 from ..step.moments import Extension, GridSolve
 
 
+
+def grip_setter(dim: int, given, grip_v, indices):
+    """@ti.func (flag, vel) -> (vel, held) for other extensions' own velocity fields (multi-field contact's body
+    fields, the crack finder's second fields): vel with the prescribed components of grip `flag` (numbered from 1,
+    as the nodes' grip flags) when it is one of `indices` (from 0), and held 1 for those components."""
+
+    @ti.func
+    def setter(flag, vel):
+        held = ti.Vector.zero(float, dim)
+        for j in ti.static(indices):
+            if flag == j + 1:
+                for c in ti.static(range(dim)):
+                    if ti.static(given[j][c]):
+                        vel[c] = grip_v[j][c]
+                        held[c] = 1.0
+        return vel, held
+    return setter
+
 class Grips(Extension):
     name = "grips"
     work_term = "prescribed velocities"

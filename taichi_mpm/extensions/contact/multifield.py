@@ -37,14 +37,10 @@ import taichi as ti
 
 from ...friction import friction_loss
 from ...step.moments import Extension, GridSolve, NodeFields
+from ..grips import grip_setter
 from ...sums import Slots
 from .fields import ContactNeeds
-from .surface import particle_half_width, surface_offset
-
-# cells of gap still taken as touching: the surfaces' estimates from a few particles at a stencil's tail err by
-# about this much on a flat contact (at 0.05 a block resting on an incline crept 1.5e-3 of g t^2/2, 3.7e-4 at 0.1;
-# a rolling disk lost 5 % of its acceleration at 0.2, docs/contact.md "Gap")
-TOUCH = 0.1
+from .surface import TOUCH, particle_half_width, surface_gap, surface_offset
 
 
 class MultiField(Extension):
@@ -167,17 +163,13 @@ class MultiField(Extension):
         dim, grips, has_grips = self.dim, self.grips, ctx.feat.grips
         grid, grip_given, grip_v = ctx.grid, ctx.extra.get("grip_given", []), ctx.extra.get("grip_v")   # Grips
 
+        setters = [grip_setter(dim, grip_given, grip_v, grips[k]) for k in range(self.K)]
+
         @ti.func
         def grip(I, vel, k: ti.template()):
             held = ti.Vector.zero(float, dim)   # 1 for the components a grip prescribes
             if ti.static(has_grips and len(grips[k]) > 0):
-                flag = ti.cast(grid.vec["grip"][I][0], ti.i32)
-                for j in ti.static(grips[k]):
-                    if flag == j + 1:
-                        for c in ti.static(range(dim)):
-                            if ti.static(grip_given[j][c]):
-                                vel[c] = grip_v[j][c]
-                                held[c] = 1.0
+                vel, held = ti.static(setters[k])(ti.cast(grid.vec["grip"][I][0], ti.i32), vel)
             return vel, held
         return grip
 
@@ -215,14 +207,13 @@ class MultiField(Extension):
             """The walls and field k's grips: (vel, the components a grip holds)."""
             return grip(I, wall(I, vel), k)
 
+        gap_between = surface_gap(surface, inv_dx)
+
         @ti.func
         def gap(I, k: ti.template(), n, mass, x_all):
-            """Cells between field k's surface and the others' along n (< 0: overlap), each surface placed from
-            its centroid at the node as if flat (surface.py)."""
+            """Cells between field k's surface and the others' along n (< 0: overlap)."""
             mk = m[k][I]
-            own = xf[k][I].dot(n) * inv_dx / mk
-            rest = (x_all - xf[k][I]).dot(n) * inv_dx / (mass - mk)
-            return -surface(-rest) - surface(own)
+            return gap_between(n, xf[k][I], mk, x_all - xf[k][I], mass - mk)
 
         @ti.func
         def correct(I, k: ti.template(), v_cm, g_all, first, mass, x_all, dt, held):

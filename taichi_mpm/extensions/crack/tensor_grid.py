@@ -10,8 +10,8 @@ import taichi as ti
 from ...friction import friction_loss
 from ...materials import sym_eig
 from ...step.moments import GridSolve
-from ..contact.multifield import TOUCH
-from ..contact.surface import particle_half_width, surface_offset
+from ..contact.surface import TOUCH, particle_half_width, surface_gap, surface_offset
+from ..grips import grip_setter
 
 
 def tensor_grid_solve(ctx) -> GridSolve:
@@ -75,15 +75,10 @@ def tensor_grid_solve(ctx) -> GridSolve:
         gvc[I] = vel   # two_field_contact tells the nodes a wall or grip set by this (an infinitely heavy side)
         return vel
 
-    @ti.func
-    def gap(I, n, m, mf):
-        """Cells between the second field's surface and the own field's along n (< 0: overlap), each placed from
-        its particles' centroid at the node as if flat (multi-field contact's check, extensions/contact/surface.py):
-        without it the nodes a stencil ahead of a rolling disk's contact point, whose particles face the base within
-        the SPH reach, stuck to the base."""
-        own = gxf[I].dot(n) * inv_dx / mf
-        rest = gxm[I].dot(n) * inv_dx / m
-        return -surface(-rest) - surface(own)
+    # the cells between the second field's surface and the own field's (multi-field contact's check): without it
+    # the nodes a stencil ahead of a rolling disk's contact point, whose particles face the base within the SPH
+    # reach, stuck to the base
+    gap = surface_gap(surface, inv_dx) if surface is not None else None
 
     @ti.func
     def two_field_contact(I, kick_before, kick_after):
@@ -112,7 +107,7 @@ def tensor_grid_solve(ctx) -> GridSolve:
                 n = nf.normalized()
                 rel = u - v
                 a = rel.dot(n)
-                if a > 0 and gap(I, n, m, mf) - 2.0 * kick_after * a * inv_dx < TOUCH:
+                if a > 0 and gap(n, gxf[I], mf, gxm[I], m) - 2.0 * kick_after * a * inv_dx < TOUCH:
                     slip = rel - a * n
                     coefficient = mu
                     if ti.static(by_pair):   # crack.friction_pairs: the two bodies' own
@@ -145,18 +140,14 @@ def _far_grip_func(ctx):
     dim, grid = ctx.fields.dim, ctx.view.grid
     given, grip_v = ctx.solver.extra.get("grip_given", []), ctx.solver.extra.get("grip_v")
     gripped = bool(given) and dim > 1
+    setter = grip_setter(dim, given, grip_v, list(range(len(given)))) if gripped else None
 
     @ti.func
     def far_grip(I, u):
         held = False
         if ti.static(gripped):
-            g = ti.cast(grid.vec["grip"][I][1], ti.i32)
-            for k in ti.static(range(len(given))):
-                if g == k + 1:
-                    for c in ti.static(range(dim)):
-                        if ti.static(given[k][c]):
-                            u[c] = grip_v[k][c]
-                            held = True
+            u, components = setter(ti.cast(grid.vec["grip"][I][1], ti.i32), u)
+            held = components.sum() > 0
         return u, held
     return far_grip
 
