@@ -78,30 +78,47 @@ def _cofactor(dim: int):
     return cof
 
 
+def _gauss_jacobian(dim: int):
+    """(@ti.func () -> the tables, @ti.func (tables, X: the corners as rows, g: a run-time Gauss point) -> J =
+    dx/dxi there, M[g][c]): the tables are local matrices indexed by the run-time g, built once per particle."""
+    nc = 2 ** dim
+    M, dM = _gauss_tables(dim)
+    dM_lists = [[[dM[g][c][a] for c in range(nc)] for g in range(nc)] for a in range(dim)]
+
+    @ti.func
+    def tables():
+        return [ti.Matrix(dM_lists[a]) for a in ti.static(range(dim))]   # [g, c] per axis a
+
+    @ti.func
+    def jacobian(dM_tables: ti.template(), X, g):
+        J = ti.Matrix.zero(float, dim, dim)
+        for c in ti.static(range(nc)):
+            for a in ti.static(range(dim)):
+                for b in ti.static(range(dim)):
+                    J[b, a] += X[c, b] * dM_tables[a][g, c]
+        return J
+    return tables, jacobian, M
+
+
 def make_domain_geometry(dim: int):
     """@ti.func (X: the corners as rows, 2^d x d) -> (V_p, share_c, g_c as rows, the smallest det J at a Gauss
     point): the multilinear domain's volume and the corner functions' averages, exact (module docstring). The
     Gauss points are a run-time loop over constant tables: unrolled, 3D's eight made every kernel that reads the
     stencil compile for minutes."""
     nc = 2 ** dim
-    M, dM = _gauss_tables(dim)
-    dM_lists = [[[dM[g][c][a] for c in range(nc)] for g in range(nc)] for a in range(dim)]
+    tables, jacobian, M = _gauss_jacobian(dim)
     cof = _cofactor(dim)
 
     @ti.func
     def geometry(X):
         M_table = ti.Matrix(M)   # [g, c], local: indexed by the run-time g
-        dM_tables = [ti.Matrix(dM_lists[a]) for a in ti.static(range(dim))]
+        dM_tables = tables()
         V = 0.0
         det_min = 1e30   # det J ~ (domain size)^d, far below this in any unit a scene uses
         shares = ti.Vector.zero(float, nc)
         grads = ti.Matrix.zero(float, nc, dim)
         for g in range(nc):
-            J = ti.Matrix.zero(float, dim, dim)
-            for c in ti.static(range(nc)):
-                for a in ti.static(range(dim)):
-                    for b in ti.static(range(dim)):
-                        J[b, a] += X[c, b] * dM_tables[a][g, c]
+            J = jacobian(dM_tables, X, g)
             det = J.determinant()
             C = cof(J)
             V += det
@@ -117,15 +134,28 @@ def make_domain_geometry(dim: int):
 
 def make_centroid(dim: int):
     """@ti.func (X: corners as rows) -> (the domain's centroid sum_c share_c x_c, the smallest det J at a Gauss
-    point: <= 0 where the domain folded)."""
-    geometry = make_domain_geometry(dim)
+    point: <= 0 where the domain folded). The shares only (no corner gradients): with them G2P's cpdi2 compile
+    took 6 s more in 3D."""
+    nc = 2 ** dim
+    tables, jacobian, M = _gauss_jacobian(dim)
 
     @ti.func
     def centroid(X):
-        V, shares, g, det_min = geometry(X)
+        M_table = ti.Matrix(M)
+        dM_tables = tables()
+        V = 0.0
+        det_min = 1e30
+        shares = ti.Vector.zero(float, nc)
+        for g in range(nc):
+            J = jacobian(dM_tables, X, g)
+            det = J.determinant()
+            V += det
+            det_min = ti.min(det_min, det)
+            for c in ti.static(range(nc)):
+                shares[c] += M_table[g, c] * det
         out = ti.Vector.zero(float, dim)
-        for c in ti.static(range(2 ** dim)):
-            out += shares[c] * ti.Vector([X[c, a] for a in range(dim)])
+        for c in ti.static(range(nc)):
+            out += shares[c] / V * ti.Vector([X[c, a] for a in range(dim)])
         return out, det_min
     return centroid
 
@@ -160,7 +190,11 @@ def cpdi_stencil(ctx: KernelContext) -> Stencil:
     half_width = domain_half_width(ctx)
     signs = ti.Matrix(corner_signs(dim))
     corner_weights = _corner_weights(basis, n_cells, lower, inv_dx, dim)
-    geometry, centroid = make_domain_geometry(dim), make_centroid(dim)
+    geometry = make_domain_geometry(dim)
+    # The loops over corners: unrolled in long runs (solver.unroll), a run-time loop in short ones, where 3D cpdi2's
+    # G2P compiled for 18 s unrolled (its 2^d x 2^d sparse reads) and 6-7 s with these loops at run time; the steps
+    # were ~10-20 % slower (64 000 particles).
+    unrolled = ctx.unroll is not False
 
     @ti.func
     def corner_sign(c):
@@ -168,6 +202,17 @@ def cpdi_stencil(ctx: KernelContext) -> Stencil:
         for a in ti.static(range(dim)):
             s[a] = signs[c, a]
         return s
+
+    @ti.func
+    def corner_stencil(c, X, xp, shares, base: ti.template(), W0: ti.template(), spread: ti.template()):
+        """Corner c's first node and weights into row c of base and W0; cpdi2: its share of the spread."""
+        xc = ti.Vector([X[c, a] for a in ti.static(range(dim))])
+        b, w0 = corner_weights(xc)
+        for a in ti.static(range(dim)):
+            base[c, a] = b[a]
+            W0[c, a] = w0[a]
+        if ti.static(tracked):
+            spread += shares[c] * (xc - xp).outer_product(xc - xp)
 
     @ti.func
     def at(p):
@@ -195,14 +240,12 @@ def cpdi_stencil(ctx: KernelContext) -> Stencil:
                 for a in ti.static(range(dim)):
                     X[c, a] = xc[a]
                     GS[c, a] = g[a]
-        for c in ti.static(range(nc)):
-            xc = ti.Vector([X[c, a] for a in range(dim)])
-            b, w0 = corner_weights(xc)
-            for a in ti.static(range(dim)):
-                base[c, a] = b[a]
-                W0[c, a] = w0[a]
-            if ti.static(tracked):
-                spread += shares[c] * (xc - xp).outer_product(xc - xp)
+        if ti.static(unrolled):
+            for c in ti.static(range(nc)):
+                corner_stencil(c, X, xp, shares, base, W0, spread)
+        else:
+            for c in range(nc):
+                corner_stencil(c, X, xp, shares, base, W0, spread)
         return base, W0, GS, xp, shares, spread
 
     @ti.func
@@ -243,41 +286,55 @@ def cpdi_stencil(ctx: KernelContext) -> Stencil:
     def inertia_inverse(st):
         return inertia(st).inverse()   # positive definite while the domain has volume
 
-    node_bits = list(itertools.product(range(2), repeat=dim))
+    span = [2] * (2 * dim)
+    outer, inner = loops(span, ctx.unroll)
+    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), 4 ** dim,
+                   advance=_corner_advance(ctx, corners, unrolled) if tracked else None)
 
+
+def _corner_advance(ctx: KernelContext, corners, unrolled: bool):
+    """cpdi2's advance (Stencil.advance): (read_v) -> @ti.func (p, st, dt) -> the new x_p after moving each
+    corner with the node velocities read_v(p, I) at it (the linear weights `at` found), the corners written back;
+    the particle at its new centroid. A domain that folded (det J <= 0 at a Gauss point) sets the failure flag with
+    FOLD_CODE here, from the geometry the centroid needs anyway (another evaluation in the G2P checks added 10 s to
+    a 3D compile)."""
+    dim = ctx.dim
+    nc = 2 ** dim
+    node_bits = list(itertools.product(range(2), repeat=dim))
+    centroid = make_centroid(dim)
     fail, n_codes = getattr(ctx, "fail", None), getattr(ctx, "fail_codes", 8)   # the solver's failure flag
 
     def advance(read_v):
-        """cpdi2: @ti.func (p, st, dt) -> the new x_p after moving each corner with the node velocities read_v(p, I)
-        at it (the linear weights `at` found), the corners written back; the particle at its new centroid. A domain
-        that folded (det J <= 0 at a Gauss point) sets the failure flag with FOLD_CODE here, from the geometry the
-        centroid needs anyway (another evaluation in the G2P checks added 10 s to a 3D compile)."""
+        @ti.func
+        def move_corner(p, c, base, W0, dt, X: ti.template()):
+            vc = ti.Vector.zero(float, dim)
+            for k in ti.static(node_bits):
+                N = 1.0
+                I = ti.Vector.zero(int, dim)
+                for a in ti.static(range(dim)):
+                    N *= W0[c, a] if k[a] == 0 else 1.0 - W0[c, a]
+                    I[a] = base[c, a] + k[a]
+                vc += N * read_v(p, I)
+            for a in ti.static(range(dim)):
+                X[c, a] += dt * vc[a]
+
         @ti.func
         def move(p, st, dt):
             base, W0, GS, xp, shares, spread = st
             X = corners[p]
-            for c in ti.static(range(nc)):
-                vc = ti.Vector.zero(float, dim)
-                for k in ti.static(node_bits):
-                    N = 1.0
-                    I = ti.Vector.zero(int, dim)
-                    for a in ti.static(range(dim)):
-                        N *= W0[c, a] if k[a] == 0 else 1.0 - W0[c, a]
-                        I[a] = base[c, a] + k[a]
-                    vc += N * read_v(p, I)
-                for a in ti.static(range(dim)):
-                    X[c, a] += dt * vc[a]
+            if ti.static(unrolled):
+                for c in ti.static(range(nc)):
+                    move_corner(p, c, base, W0, dt, X)
+            else:
+                for c in range(nc):
+                    move_corner(p, c, base, W0, dt, X)
             corners[p] = X
             out, det_min = centroid(X)
             if not det_min > 0.0:   # NaN included: the flag keeps the smallest code, non-finite values (2) first
                 ti.atomic_min(fail[None], p * n_codes + FOLD_CODE)
             return out
         return move
-
-    span = [2] * (2 * dim)
-    outer, inner = loops(span, ctx.unroll)
-    return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), 4 ** dim,
-                   advance=advance if tracked else None)
+    return advance
 
 
 def make_domain_check(ctx: KernelContext):
