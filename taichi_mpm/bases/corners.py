@@ -204,7 +204,8 @@ def cpdi_stencil(ctx: KernelContext) -> Stencil:
         return s
 
     @ti.func
-    def corner_stencil(c, X, xp, shares, base: ti.template(), W0: ti.template(), spread: ti.template()):
+    def corner_stencil(c, X: ti.template(), xp, shares: ti.template(), base: ti.template(), W0: ti.template(),
+                       spread: ti.template()):
         """Corner c's first node and weights into row c of base and W0; cpdi2: its share of the spread."""
         xc = ti.Vector([X[c, a] for a in ti.static(range(dim))])
         b, w0 = corner_weights(xc)
@@ -306,7 +307,7 @@ def _corner_advance(ctx: KernelContext, corners, unrolled: bool):
 
     def advance(read_v):
         @ti.func
-        def move_corner(p, c, base, W0, dt, X: ti.template()):
+        def move_corner(p, c, base: ti.template(), W0: ti.template(), dt, X: ti.template()):
             vc = ti.Vector.zero(float, dim)
             for k in ti.static(node_bits):
                 N = 1.0
