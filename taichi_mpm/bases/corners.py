@@ -134,8 +134,8 @@ def make_domain_geometry(dim: int):
 
 def make_centroid(dim: int):
     """@ti.func (X: corners as rows) -> (the domain's centroid sum_c share_c x_c, the smallest det J at a Gauss
-    point: <= 0 where the domain folded). The shares only (no corner gradients): with them G2P's cpdi2 compile
-    took 6 s more in 3D."""
+    point: <= 0 where the domain folded). The shares only: with the corner gradients too (make_domain_geometry)
+    3D cpdi2's G2P compiled ~3 s longer."""
     nc = 2 ** dim
     tables, jacobian, M = _gauss_jacobian(dim)
 
@@ -191,9 +191,9 @@ def cpdi_stencil(ctx: KernelContext) -> Stencil:
     signs = ti.Matrix(corner_signs(dim))
     corner_weights = _corner_weights(basis, n_cells, lower, inv_dx, dim)
     geometry = make_domain_geometry(dim)
-    # The loops over corners: unrolled in long runs (solver.unroll), a run-time loop in short ones, where 3D cpdi2's
-    # G2P compiled for 18 s unrolled (its 2^d x 2^d sparse reads) and 6-7 s with these loops at run time; the steps
-    # were ~10-20 % slower (64 000 particles).
+    # The loops over corners: unrolled in long runs (solver.unroll), a run-time loop in short ones. 3D cpdi2's G2P
+    # compiled for 18-22 s with them unrolled (the corners' 2^d x 2^d sparse reads) and 5-6 s at run time, where its
+    # steps were 10-20 % slower (64 000 particles; docs/performance.md, "cpdi2's compile").
     unrolled = ctx.unroll is not False
 
     @ti.func
