@@ -1,7 +1,7 @@
 """Every file in configs/: each run config validates, builds its scene and runs a few steps (in the default run:
 a config that no longer steps is a broken demo); each study file (configs/studies) validates with every case's
 config. The steps are mostly compiles: 1.5-11 s per config cold on the shared 2-core machine, ~120 s of test time
-for all 26 (docs/performance.md, "The default test run")."""
+for all 26 (docs/performance.md, "Every config stepped in the default run")."""
 from pathlib import Path
 
 import numpy as np
