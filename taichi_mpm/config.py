@@ -862,7 +862,7 @@ class Config(Strict):
     def contact_fields(self) -> list[int]:
         """Per body (config order): its velocity field under contact.bodies (a body in no group: one of its own)."""
         groups = (self.contact.bodies or []) if self.contact is not None else []
-        names = {b.name: i for i, b in enumerate(self.bodies) if b.name}
+        names = self._body_names()
         out: list = [None] * len(self.bodies)
         for k, group in enumerate(groups):
             for entry in group:
@@ -873,10 +873,25 @@ class Config(Strict):
                 out[i], extra = extra, extra + 1
         return out
 
+    def _body_names(self) -> dict:
+        return {b.name: i for i, b in enumerate(self.bodies) if b.name}
+
+    def _body_index(self, key: str, entry) -> int:
+        """The index of a body named by its name or index (contact.bodies, friction_pairs), or a config error at
+        `key`."""
+        names = self._body_names()
+        if isinstance(entry, bool):
+            raise _Located(key, "a body name or index, not a boolean")
+        if isinstance(entry, int) and not 0 <= entry < len(self.bodies):
+            raise _Located(key, f"no body {entry} (the scene has {len(self.bodies)}, numbered from 0)")
+        if isinstance(entry, str) and entry not in names:
+            raise _Located(key, f"unknown body '{entry}' (named bodies: {', '.join(names) or 'none'})")
+        return entry if isinstance(entry, int) else names[entry]
+
     def friction_table(self, section) -> np.ndarray:
         """(bodies, bodies) Coulomb coefficients of a crack or contact section: its `friction`, and each of its
         friction_pairs' own (symmetric)."""
-        names = {b.name: i for i, b in enumerate(self.bodies) if b.name}
+        names = self._body_names()
         table = np.full((len(self.bodies), len(self.bodies)), float(section.friction))
         for pair in section.friction_pairs:
             a, b = (e if isinstance(e, int) else names[e] for e in pair.bodies)
@@ -886,17 +901,10 @@ class Config(Strict):
     def _check_friction_pairs(self, name: str, section, together):
         """Each pair names two bodies (names or indices) that can touch under the section's method (`together`:
         (i, j) -> why not, or None), and no pair twice."""
-        names = {b.name: i for i, b in enumerate(self.bodies) if b.name}
         seen = set()
         for k, pair in enumerate(section.friction_pairs):
-            found = []
-            for j, entry in enumerate(pair.bodies):
-                key = f"{name}.friction_pairs.{k}.bodies.{j}"
-                if isinstance(entry, bool) or (isinstance(entry, int) and not 0 <= entry < len(self.bodies)):
-                    raise _Located(key, f"a body name or index from 0 to {len(self.bodies) - 1}, got {entry!r}")
-                if isinstance(entry, str) and entry not in names:
-                    raise _Located(key, f"no body is named {entry!r} (bodies: {', '.join(names) or 'none named'})")
-                found.append(entry if isinstance(entry, int) else names[entry])
+            found = [self._body_index(f"{name}.friction_pairs.{k}.bodies.{j}", entry)
+                     for j, entry in enumerate(pair.bodies)]
             key = f"{name}.friction_pairs.{k}.bodies"
             if found[0] == found[1]:
                 raise _Located(key, "names one body twice: a pair is two bodies")
@@ -922,18 +930,11 @@ class Config(Strict):
             raise _Located("contact", "a contact section cannot be combined with a crack section: both separate "
                                       "bodies (the crack finder inside one velocity field, multi_field with one "
                                       "field per body); keep one (docs/contact.md)")
-        names = {b.name: i for i, b in enumerate(self.bodies) if b.name}
         seen = {}
         for k, group in enumerate(c.bodies or []):
             for j, entry in enumerate(group):
                 key = f"contact.bodies.{k}.{j}"
-                if isinstance(entry, bool):
-                    raise _Located(key, "a body name or index, not a boolean")
-                if isinstance(entry, int) and not 0 <= entry < len(self.bodies):
-                    raise _Located(key, f"no body {entry} (the scene has {len(self.bodies)}, numbered from 0)")
-                if isinstance(entry, str) and entry not in names:
-                    raise _Located(key, f"unknown body '{entry}' (named bodies: {', '.join(names) or 'none'})")
-                i = entry if isinstance(entry, int) else names[entry]
+                i = self._body_index(key, entry)
                 if i in seen:
                     raise _Located(key, f"body {i} is in group {seen[i]} already: a body has one velocity field")
                 seen[i] = k
