@@ -63,7 +63,7 @@ def surface_offset(degree: int, half_width: float = 0.0, size: int = 513):
     c = np.linspace(-h, 0.0, size)
     table = ti.field(float, size)
     values = np.interp(c, C, s)
-    table.from_numpy(values.astype(table.to_numpy().dtype))
+    table.from_numpy(values)   # (Taichi casts to the field's precision)
     scale = (size - 1) / h
 
     @ti.func

@@ -159,7 +159,7 @@ def _pair_friction(ctx):
     if table is None or not ctx.fields.needs.friction:
         return None
     grid, mu = ctx.view.grid, ti.field(float, table.shape)
-    mu.from_numpy(table.astype(mu.to_numpy().dtype))
+    mu.from_numpy(table)   # (Taichi casts to the field's precision)
     owner, far = grid.scalar["crack_owner"], grid.scalar["crack_sf"]
     default = float(ctx.cc.friction)
 
