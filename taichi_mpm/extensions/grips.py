@@ -13,7 +13,6 @@ from ..loads import Loads
 from ..step.moments import Extension, GridSolve
 
 
-
 def grip_setter(dim: int, given, grip_v, indices):
     """@ti.func (flag, vel) -> (vel, held) for other extensions' own velocity fields (multi-field contact's body
     fields, the crack finder's second fields): vel with the prescribed components of grip `flag` (numbered from 1,
@@ -30,6 +29,7 @@ def grip_setter(dim: int, given, grip_v, indices):
                         held[c] = 1.0
         return vel, held
     return setter
+
 
 class Grips(Extension):
     name = "grips"
