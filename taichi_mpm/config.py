@@ -424,9 +424,19 @@ class Solver(Strict):
     deterministic: bool = False
 
 
+def _body_ref(v):
+    if v is None or isinstance(v, str) or (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+        return v
+    raise ValueError(f"must be a body's name or its index (an integer from 0), got {v!r}")
+
+
+# a body named by its name or its index (YAML's true would otherwise pass as body 1)
+BodyRef = Annotated[Union[int, str], BeforeValidator(_body_ref)]
+
+
 class FrictionPair(Strict):
     """One pair of bodies with a friction coefficient of its own (crack.friction_pairs, contact.friction_pairs)."""
-    bodies: Annotated[list[Union[int, str]], Field(min_length=2, max_length=2)]   # names or indices
+    bodies: Annotated[list[BodyRef], Field(min_length=2, max_length=2)]   # names or indices
     mu: Annotated[float, BeforeValidator(_no_bool), Field(ge=0)]
 
 
@@ -463,7 +473,7 @@ class Contact(Strict):
     friction_pairs: list[FrictionPair] = []
     # groups of bodies (names or indices) sharing one velocity field; a body in no group gets a field of its own;
     # null: every body its own field
-    bodies: Optional[list[Annotated[list[Union[int, str]], Field(min_length=1)]]] = None
+    bodies: Optional[list[Annotated[list[BodyRef], Field(min_length=1)]]] = None
 
 
 # one material: the schema of its model, picked by `model` (the registry in taichi_mpm/materials/)
@@ -633,12 +643,6 @@ PROBE_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]*$"  # becomes probes/NAME.csv: no path 
 # the keys each probe type needs (besides name and type); any other key is an error for that type
 PROBE_KEYS = {"point": ("point",), "body": ("body",), "region": ("region",), "wall": ("face",), "contact": ("body",),
               "grip": ("grip",)}
-
-
-def _body_ref(v):
-    if v is None or isinstance(v, str) or (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
-        return v
-    raise ValueError(f"must be a body's name or its index (an integer from 0), got {v!r}")
 
 
 def _probe_every(v):
@@ -880,8 +884,6 @@ class Config(Strict):
         """The index of a body named by its name or index (contact.bodies, friction_pairs), or a config error at
         `key`."""
         names = self._body_names()
-        if isinstance(entry, bool):
-            raise _Located(key, "a body name or index, not a boolean")
         if isinstance(entry, int) and not 0 <= entry < len(self.bodies):
             raise _Located(key, f"no body {entry} (the scene has {len(self.bodies)}, numbered from 0)")
         if isinstance(entry, str) and entry not in names:

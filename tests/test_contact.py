@@ -199,6 +199,7 @@ def test_contact_section_errors_name_the_key():
         (dict(contact={"bodies": [["lower_disk"], ["lower_disk"]]}), "contact.bodies.1.0"),
         (dict(contact={"bodies": [["nobody"]]}), "contact.bodies.0.0"),
         (dict(contact={"bodies": [[5]]}), "contact.bodies.0.0"),
+        (dict(contact={"bodies": [[True], [0]]}), "contact.bodies.0.0"),   # YAML's true is no body 1
     ]
     for change, key in cases:
         d = copy.deepcopy(base)

@@ -205,6 +205,7 @@ def test_friction_pairs_errors_name_the_key():
     cases = [
         ([dict(bodies=["base", "nobody"], mu=0.1)], "crack.friction_pairs.0.bodies.1"),
         ([dict(bodies=[0, 5], mu=0.1)], "crack.friction_pairs.0.bodies.1"),
+        ([dict(bodies=[True, "block"], mu=0.1)], "crack.friction_pairs.0.bodies.0"),   # YAML's true is no body 1
         ([dict(bodies=["base", "base"], mu=0.1)], "crack.friction_pairs.0.bodies"),
         ([dict(bodies=["base", "block"], mu=0.1), dict(bodies=["block", "base"], mu=0.2)],
          "crack.friction_pairs.1.bodies"),
