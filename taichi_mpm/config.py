@@ -887,7 +887,8 @@ class Config(Strict):
         if isinstance(entry, int) and not 0 <= entry < len(self.bodies):
             raise _Located(key, f"no body {entry} (the scene has {len(self.bodies)}, numbered from 0)")
         if isinstance(entry, str) and entry not in names:
-            raise _Located(key, f"unknown body '{entry}' (named bodies: {', '.join(names) or 'none'})")
+            known = ", ".join(names) or "none (give bodies a name, or use an index)"
+            raise _Located(key, f"unknown body '{entry}' (named bodies: {known})")
         return entry if isinstance(entry, int) else names[entry]
 
     def friction_table(self, section) -> np.ndarray:
@@ -1294,7 +1295,6 @@ class Config(Strict):
 
     def _check_probes(self):
         d, names = self.dim, set()
-        body_names = [b.name for b in self.bodies]
         for i, p in enumerate(self.output.probes):
             key = f"output.probes.{i}"
             if p.name in names:
@@ -1306,11 +1306,8 @@ class Config(Strict):
                 if not isinstance(p.region, (Box, Sphere)):
                     raise _Located(f"{key}.region.type", f"a probe region is a box or a sphere, not a {p.region.type}")
                 _check_shape(f"{key}.region", p.region, d)
-            if isinstance(p.body, int) and p.body >= len(self.bodies):
-                raise _Located(f"{key}.body", f"no body {p.body} (the scene has {len(self.bodies)}, numbered from 0)")
-            if isinstance(p.body, str) and p.body not in body_names:
-                known = ", ".join(n for n in body_names if n) or "none (give bodies a name, or use an index)"
-                raise _Located(f"{key}.body", f"unknown body '{p.body}' (named bodies: {known})")
+            if p.body is not None:
+                self._body_index(f"{key}.body", p.body)
             n_grips = sum(len(b.prescribed_velocity) for b in self.bodies)
             if p.grip is not None and p.grip >= n_grips:
                 raise _Located(f"{key}.grip", f"no grip {p.grip}: the bodies have {n_grips} prescribed_velocity "
