@@ -30,6 +30,9 @@ from . import geometry
 from . import materials as material_models
 from . import schemes as transfer_schemes
 
+# the crack finder's node owners hold an interface body's side in 8 bits (extensions/crack/nodes.py MAX_SIDES)
+MAX_INTERFACE_BODIES = 255
+
 
 class ConfigWarning(UserWarning):
     """A setting that does nothing in this config but is legitimately there (docs/reliability.md)."""
@@ -1016,7 +1019,12 @@ class Config(Strict):
             if getattr(s, key) != default and s.basis not in readers:
                 raise _Located(f"solver.{key}", f"is read by solver.basis {bases.listed(readers)} only (the basis is "
                                                 f"{s.basis}): remove it or use basis {bases.listed(readers)}")
-        if self.crack is not None and self.crack.contact_gap is not None and sum(b.interface for b in self.bodies) < 2:
+        interfaces = [i for i, b in enumerate(self.bodies) if b.interface]
+        if self.crack is not None and len(interfaces) > MAX_INTERFACE_BODIES:
+            raise _Located(f"bodies.{interfaces[MAX_INTERFACE_BODIES]}.interface",
+                           f"the crack finder tells at most {MAX_INTERFACE_BODIES} interface bodies apart (this config "
+                           f"marks {len(interfaces)}): merge bodies of one material that never touch into one")
+        if self.crack is not None and self.crack.contact_gap is not None and len(interfaces) < 2:
             raise _Located("crack.contact_gap", "is read between interface bodies only (two or more bodies with "
                                                 "interface: true; a crack's faces keep the SPH reach): remove it or "
                                                 "mark the bodies in contact as interface bodies")

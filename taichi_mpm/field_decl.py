@@ -36,6 +36,16 @@ class FieldDecl:
         return ti.Matrix.field(*self.shape, dtype, n)
 
 
+def scalar_name(entry) -> str:
+    """A grid scalar's name: its entry is the name (a field of the scene's precision) or a FieldDecl (its own type)."""
+    return entry if isinstance(entry, str) else entry.name
+
+
+def scalar_dtype(entry):
+    """The Taichi element type of a grid scalar's entry (see scalar_name)."""
+    return float if isinstance(entry, str) or entry.dtype == "real" else _TI_TYPES[entry.dtype]
+
+
 def allocate(decls, n: int) -> dict:
     """name -> field of n elements, in declaration order."""
     return {f.name: f.allocate(n) for f in decls}
@@ -49,7 +59,8 @@ def nbytes(decls, precision: str) -> int:
 class GridDecl:
     """One grid (grid.Grid): its node fields besides the mass `m` (dim-vectors interleaved with it, dim-vectors
     and scalars in arrays of their own), its node extent (`nodes`: the velocity grid's; `linear`: the cell
-    corners), whether it is sparse whatever domain.sparse says, and the i32 fields of each leaf block."""
+    corners), whether it is sparse whatever domain.sparse says, and the i32 fields of each leaf block. A scalar is
+    its name (of the scene's precision) or a FieldDecl of its own type."""
     name: str
     vectors: tuple = ()
     apart: tuple = ()
@@ -60,4 +71,5 @@ class GridDecl:
 
     def node_bytes(self, dim: int, precision: str) -> int:
         size = TYPE_BYTES[precision]
-        return size * (1 + dim * (len(self.vectors) + len(self.apart)) + len(self.scalars))
+        scalars = sum(size if isinstance(s, str) else s.nbytes(precision) for s in self.scalars)
+        return size * (1 + dim * (len(self.vectors) + len(self.apart))) + scalars

@@ -9,6 +9,7 @@ import math
 
 import taichi as ti
 
+from .field_decl import scalar_dtype, scalar_name
 from .friction import friction_loss
 
 LEAF = {1: 64, 2: 8, 3: 4}          # nodes per axis of a dense leaf block
@@ -22,11 +23,12 @@ class Grid:
         takes twice that, so that a block spans the same cells). Allocates `m` (mass) and one dim-vector field per
         name. The fields of `vector_fields` lie interleaved node by node (P2G touches them together: one cache
         line); those of `apart` (dim-vectors) and `apart_scalars` (`scalar`), read by few particles, in arrays of
-        their own in the same blocks, so they do not dilute the others."""
+        their own in the same blocks, so they do not dilute the others; a scalar's entry is its name (of the scene's
+        precision) or a field_decl.FieldDecl of its own type."""
         self.dim, self.shape, self.sparse = dim, list(shape), sparse
         self.m = ti.field(float)
         self.vec = {name: ti.Vector.field(dim, float) for name in [*vector_fields, *apart]}
-        self.scalar = {name: ti.field(float) for name in apart_scalars}
+        self.scalar = {scalar_name(s): ti.field(scalar_dtype(s)) for s in apart_scalars}
         axes = ti.axes(*range(dim))
         places = [self.m, *(self.vec[name] for name in vector_fields)]
         groups = [places] + [[self.vec[name]] for name in apart] + [[f] for f in self.scalar.values()]

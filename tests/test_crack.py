@@ -488,6 +488,22 @@ def test_contact_gap_without_interface_bodies_is_refused():
     assert e.value.key == "crack.contact_gap"
 
 
+def test_too_many_interface_bodies_are_refused():
+    """The node owners hold an interface body's side in 8 bits: a 256th interface body is refused by name, before
+    any field is allocated; 255 load."""
+    from taichi_mpm.config import MAX_INTERFACE_BODIES
+    from taichi_mpm.extensions.crack.nodes import MAX_SIDES
+    assert MAX_INTERFACE_BODIES == MAX_SIDES
+    cfg = blocks_cfg()
+    small = dict(cfg["bodies"][0], shape=dict(type="box", lower=[0.2, 0.1], upper=[0.22, 0.12]))
+    cfg["bodies"] = [dict(small, name=f"b{i}") for i in range(MAX_SIDES)]
+    tm.load_config(cfg)
+    cfg["bodies"].append(dict(small, name="one_more"))
+    with pytest.raises(tm.ConfigError, match="at most 255 interface bodies") as e:
+        tm.load_config(cfg)
+    assert e.value.key == f"bodies.{MAX_SIDES}.interface"
+
+
 @pytest.mark.slow
 def test_contact_gap_keeps_contact_to_surfaces_that_touch():
     """crack.contact_gap 0.3: two interface blocks a cell (two spacings) apart close at 1 m/s. A particle counts as

@@ -17,16 +17,16 @@ from .constants import ALL, CELL_SPLIT, MAX_CELLS
 
 
 def grid_fields(dim: int, sides: int = 0, friction: bool = False, flip: bool = False,
-                pairs: bool = False) -> tuple[list[str], list[str]]:
+                pairs: bool = False) -> tuple[list[str], list]:
     """The crack finder's fields in the solver's grid (cleared with it each step): vectors (the rows of the
     anisotropic node mass A_i, the node normal; with friction, the second velocity field of each node, the particles
     in contact across it: their momentum with its force impulse (then their velocity), their normals, FLIP's old
     momentum (then velocity), the node's velocity before walls and grips, and both fields' mass moments about the
     node, for the gap between their surfaces) and scalars (the node's mark: 1 in a
     near particle's stencil, 2 on the discontinuity; with two or more interface bodies, the largest weight an
-    interface body's particle has at the node and that body, its owner; with friction, the across field's mass, and
-    with friction_pairs its body)."""
-    owners = ["crack_wmax", "crack_owner"] if sides else []
+    interface body's particle has at the node and that body, its owner, as one i64 key (nodes.owner_key_funcs);
+    with friction, the across field's mass, and with friction_pairs its body)."""
+    owners = [FieldDecl("crack_owner", "i64")] if sides else []
     far = (["crack_pf", "crack_nf", "crack_vc", "crack_xm", "crack_xf"] + (["crack_of"] if flip else [])
            if friction else [])
     vectors = [f"A{a}" for a in range(dim)] + ["crack_n"] + far
@@ -89,7 +89,7 @@ class CrackNeeds:
         return grid_fields(self.dim, self.sides, self.friction, self.flip, self.pairs)[0]
 
     @property
-    def grid_scalars(self) -> list[str]:
+    def grid_scalars(self) -> list:
         return grid_fields(self.dim, self.sides, self.friction, self.flip, self.pairs)[1]
 
     def mask_type(self) -> str:

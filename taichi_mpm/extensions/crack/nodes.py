@@ -69,20 +69,50 @@ def node_normals_func(ctx, sph):
     return node_normals
 
 
+SIDE_BITS = 8   # the owner key's low bits: the side + 1 of its particle (at most MAX_SIDES interface bodies)
+MAX_SIDES = (1 << SIDE_BITS) - 1
+
+
+def owner_key_funcs(precision: str):
+    """(key(w, side), side_of(key)): a node's claim by an interface particle as one i64, so that one atomic max
+    keeps the largest weight and, among equal weights, the larger side (the same result in every thread order).
+    A weight w >= 0 orders as its bits do; f32: all 32 of them above the side; f64: its bits with the lowest
+    SIDE_BITS mantissa bits replaced by the side (weights within 2^-44 of each other count as equal)."""
+    f32 = precision == "f32"
+
+    @ti.func
+    def key(w, side):
+        k = ti.cast(0, ti.i64)
+        if ti.static(f32):
+            k = (ti.cast(ti.bit_cast(w, ti.i32), ti.i64) << SIDE_BITS) | ti.cast(side + 1, ti.i64)
+        else:
+            k = (ti.bit_cast(w, ti.i64) & ~ti.cast(MAX_SIDES, ti.i64)) | ti.cast(side + 1, ti.i64)
+        return k
+
+    @ti.func
+    def side_of(k):
+        """The owner's side + 1 (0: no interface particle claimed the node)."""
+        return ti.cast(k & MAX_SIDES, ti.i32)
+
+    return key, side_of
+
+
 def node_owner_funcs(ctx):
     """(claim_nodes, owned_by_another(p, I)): with two or more interface bodies, each marked node's owner, and
     whether a node belongs to another interface body than particle p's (no-ops otherwise)."""
     f, sten, node_mark = ctx.fields, ctx.solver.stencil, ctx.view.grid.scalar["crack_mark"]
     x, sides, side = ctx.view.x, f.sides, f.side
-    wmax, owner = (ctx.view.grid.scalar["crack_wmax"], ctx.view.grid.scalar["crack_owner"]) if sides else (None,) * 2
+    owner = ctx.view.grid.scalar["crack_owner"] if sides else None
+    key, side_of = owner_key_funcs(ctx.view.precision)
 
     @ti.func
     def claim_nodes():
         """With two or more interface bodies, each marked node's owner: the side (+1) of the interface particle
         with the largest weight there (ties: the larger side, so that the result is the same in every thread
-        order). A node between two bodies' surfaces then belongs to one of them; the other's particles count it
-        across whatever the normals say, which the edges of a contact face need: there the nodes outside both
-        bodies have normals out of the free surface, which neither body's particles face away from."""
+        order), in one pass: both are one key (owner_key_funcs). A node between two bodies' surfaces then
+        belongs to one of them; the other's particles count it across whatever the normals say, which the edges
+        of a contact face need: there the nodes outside both bodies have normals out of the free surface, which
+        neither body's particles face away from."""
         if ti.static(sides):
             for p in x:
                 if side[p] >= 0:
@@ -90,24 +120,19 @@ def node_owner_funcs(ctx):
                     for o in ti.grouped(ti.ndrange(*sten.outer)):
                       for k in ti.static(range(len(sten.inner))):  # noqa: E111 (the solver's split)
                         I, w, gw, r = sten.node(sd, o + sten.inner[k])
-                        # read first: wmax only grows, so a smaller w changes nothing, and the atomic (a
-                        # compare-and-swap loop on floats) is what made this pass cost as much as G2P
-                        if node_mark[I] > 0 and w > wmax[I]:
-                            ti.atomic_max(wmax[I], w)
-            for p in x:
-                if side[p] >= 0:
-                    sd = sten.at(p)
-                    for o in ti.grouped(ti.ndrange(*sten.outer)):
-                      for k in ti.static(range(len(sten.inner))):  # noqa: E111
-                        I, w, gw, r = sten.node(sd, o + sten.inner[k])
-                        if node_mark[I] > 0 and w == wmax[I]:
-                            ti.atomic_max(owner[I], ti.cast(side[p] + 1, float))
+                        if node_mark[I] > 0:
+                            kp = key(w, side[p])
+                            # read first: a key only grows, so a smaller one changes nothing, and the atomic (a
+                            # compare-and-swap loop) is what made this pass cost as much as G2P
+                            if kp > owner[I]:
+                                ti.atomic_max(owner[I], kp)
 
     @ti.func
     def owned_by_another(p, I):
         res = False
         if ti.static(sides):
-            res = side[p] >= 0 and owner[I] > 0 and owner[I] != side[p] + 1
+            o = side_of(owner[I])
+            res = side[p] >= 0 and o > 0 and o != side[p] + 1
         return res
 
     return claim_nodes, owned_by_another

@@ -12,6 +12,7 @@ from ...materials import sym_eig
 from ...step.moments import GridSolve
 from ..contact.surface import TOUCH, particle_half_width, surface_gap, surface_offset
 from ..grips import grip_setter
+from .nodes import owner_key_funcs
 
 
 def tensor_grid_solve(ctx) -> GridSolve:
@@ -161,11 +162,12 @@ def _pair_friction(ctx):
     grid, mu = ctx.view.grid, ti.field(float, table.shape)
     mu.from_numpy(table)   # (Taichi casts to the field's precision)
     owner, far = grid.scalar["crack_owner"], grid.scalar["crack_sf"]
+    _, side_of = owner_key_funcs(ctx.view.precision)
     default = float(ctx.cc.friction)
 
     @ti.func
     def pair_mu(I):
-        a, b = ti.cast(owner[I], ti.i32) - 1, ti.cast(far[I], ti.i32) - 1
+        a, b = side_of(owner[I]) - 1, ti.cast(far[I], ti.i32) - 1
         res = ti.cast(default, float)   # a Taichi variable (a Python float would be rebound at compile time)
         if a >= 0 and b >= 0:
             res = mu[a, b]
