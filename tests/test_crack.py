@@ -488,6 +488,36 @@ def test_contact_gap_without_interface_bodies_is_refused():
     assert e.value.key == "crack.contact_gap"
 
 
+@pytest.mark.parametrize("fp", ["f32", "f64"])
+def test_node_owner_key_keeps_the_largest_weight_and_on_ties_the_larger_side(fp):
+    """nodes.owner_key_funcs: the max over the keys of (weight, side) claims is the claim of the largest weight, and
+    among equal weights the larger side, whatever order the claims come in (what the two passes over the interface
+    particles gave before). Weights in [0, 1] with deliberate ties, 40 nodes of 12 claims each, shuffled."""
+    from taichi_mpm.extensions.crack.nodes import MAX_SIDES, owner_key_funcs
+
+    ti.init(arch=ti.cpu, default_fp=getattr(ti, fp))
+    key, side_of = owner_key_funcs(fp)
+    rng = np.random.default_rng(7)
+    nodes, claims = 40, 12
+    w = rng.choice([0.0, 0.125, 0.5, 1.0, *rng.random(6)], size=(nodes, claims)).astype(np.float64 if fp == "f64"
+                                                                                    else np.float32)
+    side = rng.integers(0, MAX_SIDES, size=(nodes, claims)).astype(np.int32)
+    owner = ti.field(ti.i64, nodes)
+
+    @ti.kernel
+    def claim(w: ti.types.ndarray(), side: ti.types.ndarray(), out: ti.types.ndarray()):
+        for i, j in ti.ndrange(nodes, claims):
+            ti.atomic_max(owner[i], key(w[i, j], side[i, j]))
+        for i in range(nodes):
+            out[i] = side_of(owner[i])
+
+    out = np.zeros(nodes, np.int32)
+    claim(w, side, out)
+    for i in range(nodes):
+        best = max(zip(w[i], side[i]))   # the largest weight, ties to the larger side
+        assert out[i] == best[1] + 1, (i, w[i], side[i])
+
+
 def test_too_many_interface_bodies_are_refused():
     """The node owners hold an interface body's side in 8 bits: a 256th interface body is refused by name, before
     any field is allocated; 255 load."""
