@@ -84,7 +84,8 @@ def mpm3d_reference(n_grid: int, arch):
     src_path = Path(ti.__file__).parent / "examples" / "simulation" / "mpm3d.py"
     src = src_path.read_text()
     dt = {32: 4e-4, 64: 2e-4, 128: 8e-5}.get(n_grid, 2e-4 * 64 / n_grid)
-    src, n = re.subn(r"^dim, n_grid, steps, dt = .*$", f"dim, n_grid, steps, dt = 3, {n_grid}, 25, {dt}", src, flags=re.M)
+    src, n = re.subn(r"^dim, n_grid, steps, dt = .*$", f"dim, n_grid, steps, dt = 3, {n_grid}, 25, {dt}", src,
+                     flags=re.M)
     assert n == 1, "mpm3d.py changed: size line not found"
     src = src.replace("ti.init(arch=ti.gpu)", f"ti.init(arch=ti.{arch}, random_seed=0)")
     ns = {"__name__": "mpm3d_reference"}
