@@ -36,14 +36,10 @@ class FieldDecl:
         return ti.Matrix.field(*self.shape, dtype, n)
 
 
-def scalar_name(entry) -> str:
-    """A grid scalar's name: its entry is the name (a field of the scene's precision) or a FieldDecl (its own type)."""
-    return entry if isinstance(entry, str) else entry.name
-
-
-def scalar_dtype(entry):
-    """The Taichi element type of a grid scalar's entry (see scalar_name)."""
-    return float if isinstance(entry, str) or entry.dtype == "real" else _TI_TYPES[entry.dtype]
+def scalar_decl(entry) -> FieldDecl:
+    """A grid scalar's declaration: its entry is its name (a field of the scene's precision) or a FieldDecl (its own
+    type)."""
+    return FieldDecl(entry, "real") if isinstance(entry, str) else entry
 
 
 def allocate(decls, n: int) -> dict:
@@ -71,5 +67,5 @@ class GridDecl:
 
     def node_bytes(self, dim: int, precision: str) -> int:
         size = TYPE_BYTES[precision]
-        scalars = sum(size if isinstance(s, str) else s.nbytes(precision) for s in self.scalars)
+        scalars = sum(scalar_decl(s).nbytes(precision) for s in self.scalars)
         return size * (1 + dim * (len(self.vectors) + len(self.apart))) + scalars

@@ -9,7 +9,7 @@ import math
 
 import taichi as ti
 
-from .field_decl import scalar_dtype, scalar_name
+from .field_decl import scalar_decl
 from .friction import friction_loss
 
 LEAF = {1: 64, 2: 8, 3: 4}          # nodes per axis of a dense leaf block
@@ -28,7 +28,7 @@ class Grid:
         self.dim, self.shape, self.sparse = dim, list(shape), sparse
         self.m = ti.field(float)
         self.vec = {name: ti.Vector.field(dim, float) for name in [*vector_fields, *apart]}
-        self.scalar = {scalar_name(s): ti.field(scalar_dtype(s)) for s in apart_scalars}
+        self.scalar = {d.name: d.allocate(None) for d in map(scalar_decl, apart_scalars)}   # placed below
         axes = ti.axes(*range(dim))
         places = [self.m, *(self.vec[name] for name in vector_fields)]
         groups = [places] + [[self.vec[name]] for name in apart] + [[f] for f in self.scalar.values()]

@@ -100,11 +100,12 @@ def _gauss_jacobian(dim: int):
     return tables, jacobian, M
 
 
-def make_domain_geometry(dim: int):
+def make_domain_geometry(dim: int, gradients: bool = True):
     """@ti.func (X: the corners as rows, 2^d x d) -> (V_p, share_c, g_c as rows, the smallest det J at a Gauss
     point): the multilinear domain's volume and the corner functions' averages, exact (module docstring). The
     Gauss points are a run-time loop over constant tables: unrolled, 3D's eight made every kernel that reads the
-    stencil compile for minutes."""
+    stencil compile for minutes. gradients False: g_c stays zero (not computed; the centroid needs the shares only,
+    and with the gradients 3D cpdi2's G2P compiled ~3 s longer)."""
     nc = 2 ** dim
     tables, jacobian, M = _gauss_jacobian(dim)
     cof = _cofactor(dim)
@@ -120,42 +121,31 @@ def make_domain_geometry(dim: int):
         for g in range(nc):
             J = jacobian(dM_tables, X, g)
             det = J.determinant()
-            C = cof(J)
             V += det
             det_min = ti.min(det_min, det)
             for c in ti.static(range(nc)):
                 shares[c] += M_table[g, c] * det
-                for a in ti.static(range(dim)):
-                    for b in ti.static(range(dim)):
-                        grads[c, a] += C[a, b] * dM_tables[b][g, c]
+            if ti.static(gradients):
+                C = cof(J)
+                for c in ti.static(range(nc)):
+                    for a in ti.static(range(dim)):
+                        for b in ti.static(range(dim)):
+                            grads[c, a] += C[a, b] * dM_tables[b][g, c]
         return V, shares / V, grads / V, det_min
     return geometry
 
 
 def make_centroid(dim: int):
     """@ti.func (X: corners as rows) -> (the domain's centroid sum_c share_c x_c, the smallest det J at a Gauss
-    point: <= 0 where the domain folded). The shares only: with the corner gradients too (make_domain_geometry)
-    3D cpdi2's G2P compiled ~3 s longer."""
-    nc = 2 ** dim
-    tables, jacobian, M = _gauss_jacobian(dim)
+    point: <= 0 where the domain folded)."""
+    geometry = make_domain_geometry(dim, gradients=False)
 
     @ti.func
     def centroid(X):
-        M_table = ti.Matrix(M)
-        dM_tables = tables()
-        V = 0.0
-        det_min = 1e30
-        shares = ti.Vector.zero(float, nc)
-        for g in range(nc):
-            J = jacobian(dM_tables, X, g)
-            det = J.determinant()
-            V += det
-            det_min = ti.min(det_min, det)
-            for c in ti.static(range(nc)):
-                shares[c] += M_table[g, c] * det
+        V, shares, g, det_min = geometry(X)
         out = ti.Vector.zero(float, dim)
-        for c in ti.static(range(nc)):
-            out += shares[c] / V * ti.Vector([X[c, a] for a in range(dim)])
+        for c in ti.static(range(2 ** dim)):
+            out += shares[c] * ti.Vector([X[c, a] for a in range(dim)])
         return out, det_min
     return centroid
 
