@@ -16,14 +16,15 @@ DEMOS = {"sphere_impact": 3, "colliding_disks": 2, "vibrating_bar": 1, "cantilev
          "granular_collapse_3d": 3, "round_tank": 2, "clay_slope": 2, "silo": 2, "friction_incline": 2}
 
 
-def load_demo(name):
-    sys.path.insert(0, str(ROOT / "demos"))
+def load_demo(name, folder="demos"):
+    """The script demos/NAME.py (or FOLDER/NAME.py, e.g. a tool) as a module, its folder importable meanwhile."""
+    sys.path.insert(0, str(ROOT / folder))
     try:
-        spec = importlib.util.spec_from_file_location(f"demo_{name}", ROOT / "demos" / f"{name}.py")
+        spec = importlib.util.spec_from_file_location(f"{folder}_{name}", ROOT / folder / f"{name}.py")
         mod = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(mod)
     finally:
-        sys.path.remove(str(ROOT / "demos"))
+        sys.path.remove(str(ROOT / folder))
     return mod
 
 

@@ -1,16 +1,12 @@
 """The plastic-material demos (issue 11): sand_pile, snowball, necking, granular_collapse_3d. Each has a quick
 smoke test with a physical check of what it shows at that early time (default run), and a slow test of the physics
 of the full demo (-m slow; measured values in docs/materials.md)."""
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from test_demos import load_demo, quick
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 # ---------------------------------------------------------------- snowball
@@ -175,10 +171,7 @@ def test_tall_cylinder_collapse_within_15_percent_of_lube_2004(tmp_path):
     1.6 a^(1/2) = 3.92, the issue's 15 %; 3.70 (-5.6 %) at R0/12 (docs/materials.md "3D columns"). A column that
     stopped as it fell (no spreading) or a sheet with nothing to stop it (mu(I) lost) fails the band; at rest by
     1.47 s (fastest particle 2.4 mm/s)."""
-    spec = importlib.util.spec_from_file_location("quarter_collapse_3d", ROOT / "tools" / "quarter_collapse_3d.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
-    r = tool.main(["8", "--aspect", "6", "--out", str(tmp_path)])
+    r = load_demo("quarter_collapse_3d", "tools").main(["8", "--aspect", "6", "--out", str(tmp_path)])
     assert abs(r["runout"] / r["expected"] - 1) < 0.15, r
     assert r["speed"] < 0.05, r
 
