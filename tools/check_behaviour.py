@@ -120,8 +120,12 @@ def compare(a_path: str, b_path: str) -> int:
             if x.shape != y.shape or x.dtype != y.dtype:
                 diffs.append(f"{k}: shape/dtype {x.shape} {x.dtype} vs {y.shape} {y.dtype}")
             elif not np.array_equal(x, y, equal_nan=x.dtype.kind == "f"):
-                d = np.max(np.abs(x.astype(float) - y.astype(float))) if x.dtype.kind in "fiu" else "differs"
-                diffs.append(f"{k}: max |diff| {d}")
+                if x.dtype.kind in "fiu":   # the difference, and against the array's largest entry (round-off?)
+                    d = np.max(np.abs(x.astype(float) - y.astype(float)))
+                    scale = np.max(np.abs(x.astype(float)))
+                    diffs.append(f"{k}: max |diff| {d:.3g} (relative {d / scale if scale > 0 else float('inf'):.2g})")
+                else:
+                    diffs.append(f"{k}: differs")
         print(f"{name}: {'identical' if not diffs else 'DIFFERENT'}")
         for d in diffs:
             print(f"    {d}")

@@ -82,6 +82,9 @@ class Stencil:
     # cpdi2: (read_v) -> @ti.func (p, st, dt) -> new x_p, moving the particle's own corners with the node velocities
     advance: Optional[Callable] = None
     dual: Optional[Any] = None   # ddmp: its dual domains (stencils.DualDomains: node volumes and their geometry)
+    # tensor stencils whose node functions are per-axis products: (st, axis, row, i) -> that axis's row at node i
+    # (separable.py sums by factorisation); None where they are not (ddmp's blended gradient, cpdi, mapped)
+    factor: Optional[Callable] = None
 
 
 AUTO_FULL = 16   # solver.unroll auto: stencils of at most this many contributions are unrolled whole

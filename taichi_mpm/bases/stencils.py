@@ -34,6 +34,7 @@ import taichi as ti
 from taichi.lang.matrix import make_matrix
 
 from .. import traced
+from . import separable
 from .compact_kernel import staggered_stencil
 from .corners import cpdi_stencil
 from .nurbs import UNROLL_TERMS
@@ -232,8 +233,19 @@ def _tensor_stencil(ctx: KernelContext) -> Stencil:
     def origin(p):
         return axes_of(p, with_fill=False)[0]   # the weights are dead code here, removed by the compiler
 
+    @traced.traced
+    def factor(st, a, row, i):
+        """Axis a's row at its node i (separable.py): the weight, the weight times the node offset, or the
+        derivative."""
+        W, DW, R = st[1], st[2], st[3]
+        if row == separable.WEIGHT:
+            return pick(W, a, i)
+        if row == separable.MOMENT:
+            return pick(W, a, i) * pick(R, a, i)
+        return pick(DW, a, i)
+
     return Stencil(span, outer, inner, at, node, inertia, inertia_inverse, flat_index(span), S ** dim, prepare,
-                   origin, dual=dual)
+                   origin, dual=dual, factor=None if smooth else factor)
 
 
 @dataclass

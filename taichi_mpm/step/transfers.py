@@ -11,7 +11,10 @@ Physics code only: no CLI, rendering or file I/O here.
 """
 
 import taichi as ti
+from taichi.lang.matrix import make_matrix
 
+from .. import traced
+from ..bases import separable
 from ..bases.corners import make_domain_check
 from ..bases.stencils import make_wall_hold
 from ..schemes.gradient import make_gradient
@@ -271,6 +274,53 @@ def make_node_reads(ctx):
     return velocity, velocity_old, gradient_velocity
 
 
+def make_factorised_sums(ctx, sten, grad, read_v, read_old, read_grad, apic_gradient):
+    """(p, st, o, velocity, deform) -> one run-time iteration's (v_pic, dv, B, G) terms of g2p_sums, by sum
+    factorisation on a tensor stencil (bases/separable.py), for the same sums as the node-by-node loop."""
+    dim, f = ctx.dim, ctx.feat
+    xpic, flip, apic, v_star, gv_old = f.xpic, f.flip, f.apic, ctx.grid.vec.get("xpic_sum"), ctx.gv_old
+    W, MOMENT, SLOPE = separable.WEIGHT, separable.MOMENT, separable.SLOPE
+    every = tuple([W] * dim)
+    # read_grad(p, I, v_i) is v_i itself (make_node_reads): USL and USF, and an extension's body fields
+    nf = ctx.node_fields
+    same_gradient_velocity = not f.musl or (nf is not None and nf.velocity is not None)
+
+    @traced.traced
+    def sums(p, st, o, velocity, deform):
+        base = st[0]
+        values, requests = [lambda off: read_v(p, base + off)], [(0, every)]
+        with_dv = velocity and (xpic or flip)
+        if velocity and xpic:
+            values.append(lambda off: v_star[base + off] - gv_old[base + off])
+        elif velocity and flip:
+            values.append(lambda off: read_v(p, base + off) - read_old(p, base + off))
+        if with_dv:
+            requests.append((1, every))
+        b_at = len(requests)
+        with_b = velocity and apic and not apic_gradient
+        if with_b:
+            requests += [(0, separable.unit_rows(dim, a, MOMENT)) for a in range(dim)]
+        g_at = len(requests)
+        with_g = _moves_F(deform) or (apic and apic_gradient)
+        if _moves_F(deform):
+            k = 0
+            if not same_gradient_velocity:   # MUSL: grad v of the remapped velocities
+                values.append(lambda off: read_grad(p, base + off, read_v(p, base + off)))
+                k = len(values) - 1
+            g_row = MOMENT if grad.moment_matrix else SLOPE   # MLS: sum w v r^T, times D^-1 in grad.finish
+            requests += [(k, separable.unit_rows(dim, a, g_row)) for a in range(dim)]
+        elif with_g:   # MUSL velocity pass of TPIC / multilinear APIC: v2 is not mapped yet
+            requests += [(0, separable.unit_rows(dim, a, SLOPE)) for a in range(dim)]
+        out = separable.contract(sten.factor, st, o, sten.outer, sten.inner, values, requests)
+        zero_v = make_matrix([0.0] * dim, float)
+        zero_m = make_matrix([[0.0] * dim for _ in range(dim)], float)
+        return (out[0], out[1] if with_dv else zero_v,
+                separable.columns(out[b_at:b_at + dim]) if with_b else zero_m,
+                separable.columns(out[g_at:g_at + dim]) if with_g else zero_m)
+
+    return sums
+
+
 def make_g2p(ctx, mf, af, external_force):
     """Kernel g2p(dt, kick, velocity, deform)."""
     dim = ctx.dim
@@ -292,6 +342,12 @@ def make_g2p(ctx, mf, af, external_force):
     grad = make_gradient(sten, f.mls)   # grad v from grad w, or MLS-MPM's w D_p^-1 r
     is_fluid, project = mf.is_fluid, mf.project
 
+    # with the whole stencil at run time (solver.unroll false) the node-by-node loop is faster (3D quadratic G2P:
+    # 7.6 against 9.4 ms at 65 536 particles); factorised from one unrolled axis on (docs/performance.md)
+    factorised = sten.factor is not None and len(inner) > 1
+    sums_by_axis = (make_factorised_sums(ctx, sten, grad, read_v, read_old, read_grad, apic_gradient)
+                    if factorised else None)
+
     @ti.func
     def g2p_sums(p, st, velocity: ti.template(), deform: ti.template()):
         """A particle's G2P sums over its stencil: (v_pic, FLIP or XPIC increment, APIC B, velocity gradient G)."""
@@ -301,20 +357,27 @@ def make_g2p(ctx, mf, af, external_force):
         G = ti.Matrix.zero(float, dim, dim)
         M = grad.prepare(st)
         for o in ti.grouped(ti.ndrange(*outer)):
-          for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
-            I, w, gw, r = sten.node(st, o + inner[k])
-            vi = read_v(p, I)
-            v_pic += w * vi
-            if ti.static(velocity and xpic):
-                dv += w * (v_star[I] - gv_old[I])
-            elif ti.static(velocity and flip):
-                dv += w * (vi - read_old(p, I))
-            if ti.static(velocity and apic and not apic_gradient):
-                B += w * vi.outer_product(r)
-            if ti.static(_moves_F(deform)):
-                G += grad.term(M, read_grad(p, I, vi), w, gw, r)
-            elif ti.static(apic and apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
-                G += vi.outer_product(gw)
+            if ti.static(factorised):   # the same sums, one axis at a time (bases/separable.py)
+                v_o, dv_o, B_o, G_o = sums_by_axis(p, st, o, velocity, deform)
+                v_pic += v_o
+                dv += dv_o
+                B += B_o
+                G += G_o
+            else:
+                for k in ti.static(range(len(inner))):
+                    I, w, gw, r = sten.node(st, o + inner[k])
+                    vi = read_v(p, I)
+                    v_pic += w * vi
+                    if ti.static(velocity and xpic):
+                        dv += w * (v_star[I] - gv_old[I])
+                    elif ti.static(velocity and flip):
+                        dv += w * (vi - read_old(p, I))
+                    if ti.static(velocity and apic and not apic_gradient):
+                        B += w * vi.outer_product(r)
+                    if ti.static(_moves_F(deform)):
+                        G += grad.term(M, read_grad(p, I, vi), w, gw, r)
+                    elif ti.static(apic and apic_gradient):  # MUSL velocity pass: v2 is not mapped yet
+                        G += vi.outer_product(gw)
         return v_pic, dv, B, grad.finish(M, G)
 
     @ti.func
