@@ -87,13 +87,17 @@ class Basis:
         return self.spec.nodes_per_particle(dim)
 
 
-def cox_de_boor(p: int, knot: Callable):
+def cox_de_boor(p: int, knot: Callable, whole_knots: bool = False):
     """The Cox-de Boor recursion (The NURBS Book A2.2) for values and first derivatives of the p + 1 B-splines
     that are nonzero on knot span c, [knot(c), knot(c + 1)), with 0/0 = 0 where repeated knots make a
     denominator vanish. `knot(k, n)` is the k-th knot; n the cell count, for clamped knots. Built at trace time
-    (traced.py): the recursion is a few dozen expressions, which a func would walk once per axis and kernel."""
+    (traced.py): the recursion is a few dozen expressions, which a func would walk once per axis and kernel.
+    whole_knots: the knots are whole numbers (the clamped uniform vector), so every denominator is 0, 1 or 2 up to
+    quadratic: the ratios multiply by 1 or 0.5 (the same bits as dividing) instead of dividing."""
 
     def ratio(num, den):
+        if whole_knots and p <= 2:
+            return num * traced.select(den > 1.5, 0.5, traced.select(den > 0.5, 1.0, 0.0))
         return traced.select(den > 0, num / den, 0.0)   # 0/0 = 0
 
     @traced.traced
@@ -177,7 +181,7 @@ def make_bspline(p: int, name: str) -> Basis:
         """Knot k of the open uniform vector, indexed so that span c is cell c: {0 (p+1 times), 1, .., n (p+1)}."""
         return ti.cast(ti.min(ti.max(k, 0), n), float)
 
-    recursion = cox_de_boor(p, clamped_knot)
+    recursion = cox_de_boor(p, clamped_knot, whole_knots=True)
 
     @traced.traced
     def weights_1d(u, n, lp):
