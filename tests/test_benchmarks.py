@@ -117,9 +117,10 @@ def test_crack_cost_benchmark_reports_ratio_and_kernels():
 @pytest.mark.slow  # five CLI runs of the main demo cut to 0.01 s
 def test_outputs_benchmark_reports_every_mode():
     rows = load("outputs").main(["--tiny"])
-    assert [r["mode"] for r in rows] == ["thread", "inline", "off", "vtu", "vtu_inline"]
+    assert [r["mode"] for r in rows] == ["live", "end", "off", "vtu"]   # the default --modes
     assert all(r["total_over_solver"] >= 1.0 and r["particle_steps_per_s"] > 0 and r["folder_mb"] > 0 for r in rows)
     assert rows[0]["folder_mb"] > rows[2]["folder_mb"]     # snapshots and frames cost room; off writes none
+    assert rows[3]["folder_mb"] < rows[0]["folder_mb"]     # vtu: the same snapshots without the frames
 
 
 @pytest.mark.slow
