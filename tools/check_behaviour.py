@@ -60,6 +60,21 @@ def scenes() -> dict:
     two["bodies"].append(dict(name="second", shape=dict(type="box", lower=[0.1, 0.1], upper=[0.25, 0.25]),
                               material="soft", velocity=[0.2, 0.1]))
     out["block2d_two_materials"] = two
+    # the stencil unrolled (these small blocks' short runs keep it at run time under solver.unroll auto): every
+    # transfer and tensor basis on the factorised G2P sums, and auto's split of a long 3D run (3 x 9 nodes)
+    for basis in ("linear", "gimp", "quadratic", "cubic"):
+        out[f"block2d_{basis}_unrolled"] = _block(2, basis, unroll=True)
+    for transfer in ("pic", "flip", "mls", "xpic", "tpic", "asflip"):
+        out[f"block2d_{transfer}_unrolled"] = _block(2, "quadratic", transfer, unroll=True)
+    out["block2d_musl_unrolled"] = _block(2, "quadratic", "flip", update="musl", unroll=True)
+    out["block3d_quadratic_unrolled"] = _block(3, "quadratic", unroll=True)
+    out["block3d_gimp_pic_unrolled"] = _block(3, "gimp", "pic", unroll=True)
+    long_run = _block(3, "quadratic", "flip", unroll="auto")
+    long_run["solver"]["end_time"] = 1.0e3   # auto unrolls runs of 1e7 particle-steps or more (12 steps are run)
+    out["block3d_quadratic_long_run"] = long_run
+    knots = copy.deepcopy(kn)
+    knots["solver"]["unroll"] = True
+    out["block2d_knots_unrolled"] = knots
     for path in sorted((ROOT / "configs").glob("*.yaml")):
         out[f"config_{path.stem}"] = path
     return out

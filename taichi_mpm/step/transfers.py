@@ -291,7 +291,7 @@ def make_factorised_sums(ctx, sten, grad, read_v, read_old, read_grad, apic_grad
         values, requests = [lambda off: read_v(p, base + off)], [(0, every)]
         with_dv = velocity and (xpic or flip)
         if velocity and xpic:
-            values.append(lambda off: v_star[base + off] - gv_old[base + off])
+            values.append(lambda off: traced.at(v_star, base + off) - traced.at(gv_old, base + off))
         elif velocity and flip:
             values.append(lambda off: read_v(p, base + off) - read_old(p, base + off))
         if with_dv:
