@@ -342,9 +342,10 @@ def make_g2p(ctx, mf, af, external_force):
     grad = make_gradient(sten, f.mls)   # grad v from grad w, or MLS-MPM's w D_p^-1 r
     is_fluid, project = mf.is_fluid, mf.project
 
-    # with the whole stencil at run time (solver.unroll false) the node-by-node loop is faster (3D quadratic G2P:
-    # 7.6 against 9.4 ms at 65 536 particles); factorised from one unrolled axis on (docs/performance.md)
-    factorised = sten.factor is not None and len(inner) > 1
+    # 3D with two or three axes unrolled (3D quadratic G2P 20 % faster); node by node with fewer unrolled axes
+    # (the whole stencil at run time: 9.4 against 7.6 ms; 3D cubic's one unrolled axis: the same) and in 2D
+    # (quadratic 2D: 1.9-2.5 against 1.8-1.9 ms): docs/performance.md, "G2P by sum factorisation"
+    factorised = sten.factor is not None and dim == 3 and sum(n == 1 for n in outer) >= 2
     sums_by_axis = (make_factorised_sums(ctx, sten, grad, read_v, read_old, read_grad, apic_gradient)
                     if factorised else None)
 
