@@ -10,6 +10,8 @@ off = o + inner[k]; solver.unroll chooses the split (stencils._loops; costs in d
 Physics code only: no CLI, rendering or file I/O here.
 """
 
+from typing import Callable, NamedTuple
+
 import taichi as ti
 from taichi.lang.matrix import make_matrix
 
@@ -244,16 +246,22 @@ def make_position_update(ctx, read_v):
     return position
 
 
-def make_node_reads(ctx):
-    """The node values G2P reads for particle p: (v_i, FLIP's v_old_i, the velocity of grad v given v_i): the
-    grid's (MUSL's grad v from the remapped v2), or an extension's NodeFields (multi-field contact: the
-    particle's own body field; usl only, so grad v takes v_i)."""
+class NodeReads(NamedTuple):
+    velocity: Callable            # @ti.func (p, I) -> v_i
+    velocity_old: Callable        # @ti.func (p, I) -> FLIP's v_old_i
+    gradient_velocity: Callable   # @ti.func (p, I, v_i) -> the velocity grad v is taken of
+    gradient_is_velocity: bool    # that is v_i itself (no second load)
+
+
+def make_node_reads(ctx) -> NodeReads:
+    """The node values G2P reads for particle p: the grid's (MUSL's grad v from the remapped v2), or an
+    extension's NodeFields (multi-field contact: the particle's own body field; usl only, so grad v takes v_i)."""
     gv, gv_old, vgrad, nf = ctx.gv, ctx.gv_old, ctx.vgrad, ctx.node_fields
     if nf is not None and nf.velocity is not None:
         @ti.func
         def own_grad(p, I, vi):
             return vi
-        return nf.velocity, nf.velocity_old, own_grad
+        return NodeReads(nf.velocity, nf.velocity_old, own_grad, True)
 
     @ti.func
     def velocity(p, I):
@@ -271,19 +279,17 @@ def make_node_reads(ctx):
         if ti.static(not same):
             res = vgrad[I]
         return res
-    return velocity, velocity_old, gradient_velocity
+    return NodeReads(velocity, velocity_old, gradient_velocity, same)
 
 
-def make_factorised_sums(ctx, sten, grad, read_v, read_old, read_grad, apic_gradient):
+def make_factorised_sums(ctx, sten, grad, reads: NodeReads, apic_gradient):
     """(p, st, o, velocity, deform) -> one run-time iteration's (v_pic, dv, B, G) terms of g2p_sums, by sum
     factorisation on a tensor stencil (bases/separable.py), for the same sums as the node-by-node loop."""
     dim, f = ctx.dim, ctx.feat
     xpic, flip, apic, v_star, gv_old = f.xpic, f.flip, f.apic, ctx.grid.vec.get("xpic_sum"), ctx.gv_old
     W, MOMENT, SLOPE = separable.WEIGHT, separable.MOMENT, separable.SLOPE
     every = tuple([W] * dim)
-    # read_grad(p, I, v_i) is v_i itself (make_node_reads): USL and USF, and an extension's body fields
-    nf = ctx.node_fields
-    same_gradient_velocity = not f.musl or (nf is not None and nf.velocity is not None)
+    read_v, read_old, read_grad = reads.velocity, reads.velocity_old, reads.gradient_velocity
 
     @traced.traced
     def sums(p, st, o, velocity, deform):
@@ -304,7 +310,7 @@ def make_factorised_sums(ctx, sten, grad, read_v, read_old, read_grad, apic_grad
         with_g = _moves_F(deform) or (apic and apic_gradient)
         if _moves_F(deform):
             k = 0
-            if not same_gradient_velocity:   # MUSL: grad v of the remapped velocities
+            if not reads.gradient_is_velocity:   # MUSL: grad v of the remapped velocities
                 values.append(lambda off: read_grad(p, base + off, read_v(p, base + off)))
                 k = len(values) - 1
             g_row = MOMENT if grad.moment_matrix else SLOPE   # MLS: sum w v r^T, times D^-1 in grad.finish
@@ -327,7 +333,8 @@ def make_g2p(ctx, mf, af, external_force):
     x, v, F, C, grad_v = ctx.x, ctx.v, ctx.F, ctx.C, ctx.grad_v
     sten, pt = ctx.stencil, ctx.particle_transfer
     outer, inner = sten.outer, sten.inner
-    read_v, read_old, read_grad = make_node_reads(ctx)
+    reads = make_node_reads(ctx)
+    read_v, read_old, read_grad = reads.velocity, reads.velocity_old, reads.gradient_velocity
     gv_old = ctx.gv_old
     f = ctx.feat
     flip, apic, taken, has_C = f.flip, f.apic, pt is not None, C is not None
@@ -346,8 +353,7 @@ def make_g2p(ctx, mf, af, external_force):
     # (the whole stencil at run time: 9.4 against 7.6 ms; 3D cubic's one unrolled axis: the same) and in 2D
     # (quadratic 2D: 1.9-2.5 against 1.8-1.9 ms): docs/performance.md, "G2P by sum factorisation"
     factorised = sten.factor is not None and dim == 3 and sum(n == 1 for n in outer) >= 2
-    sums_by_axis = (make_factorised_sums(ctx, sten, grad, read_v, read_old, read_grad, apic_gradient)
-                    if factorised else None)
+    sums_by_axis = make_factorised_sums(ctx, sten, grad, reads, apic_gradient) if factorised else None
 
     @ti.func
     def g2p_sums(p, st, velocity: ti.template(), deform: ti.template()):
