@@ -13,6 +13,7 @@ and spreading scale with sqrt(H / g)) in a box that leaves twice the expected ru
 figures (R0/12 reproduces the full cylinder's).
 """
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -22,14 +23,12 @@ import numpy as np
 import taichi_mpm as tm
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "demos"))
+from granular_collapse_3d import lube_2004  # noqa: E402 (the full cylinder's demo holds Lube et al. 2004's fits)
+
 R0 = 0.06
 MU_I = {"model": "mu_i", "E": 3.0e5, "nu": 0.3, "density": 1500, "mu_s": 0.577, "mu_2": 0.84,
         "grain_diameter": 0.001, "max_pressure": 2000}
-
-
-def lube_2004(a: float) -> float:
-    """Lube et al. 2004's run-out (R_inf - R0) / R0 of a column of aspect ratio a = H / R0."""
-    return 1.24 * a if a < 1.7 else 1.6 * np.sqrt(a)
 
 
 def quarter_cylinder(path: Path, H: float, segments: int = 256):
