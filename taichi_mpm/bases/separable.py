@@ -44,8 +44,9 @@ def contract(factor, st, o, outer, inner, values, requests):
         return loaded[(k, t)]
 
     def row(a, r, i):
+        """Axis a's row r at node i (None: a leading axis, at the run-time index o[a]), formed once per call."""
         if (a, r, i) not in rows_at:
-            rows_at[(a, r, i)] = traced.local(factor(st, a, r, i))
+            rows_at[(a, r, i)] = traced.local(factor(st, a, r, traced.at(o, a) if i is None else i))
         return rows_at[(a, r, i)]
 
     def partial(k, fixed, rows):
@@ -64,7 +65,7 @@ def contract(factor, st, o, outer, inner, values, requests):
     for k, rows in requests:
         s = partial(k, (), tuple(rows[a] for a in trail))
         for a in lead:
-            s = factor(st, a, rows[a], traced.at(o, a)) * s
+            s = row(a, rows[a], None) * s
         out.append(s)
     return out
 

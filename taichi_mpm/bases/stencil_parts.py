@@ -83,7 +83,7 @@ class Stencil:
     advance: Optional[Callable] = None
     dual: Optional[Any] = None   # ddmp: its dual domains (stencils.DualDomains: node volumes and their geometry)
     # tensor stencils whose node functions are per-axis products: (st, axis, row, i) -> that axis's row at node i
-    # (separable.py sums by factorisation); None where they are not (ddmp's blended gradient, cpdi, mapped)
+    # (separable.py sums by factorisation); None where they are not (ddmp's blended gradient, cpdi, ck, mapped)
     factor: Optional[Callable] = None
 
 
