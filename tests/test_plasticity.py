@@ -25,7 +25,7 @@ PLASTIC = list(PARAMS)
 
 
 def material(model, **over):
-    return Material(model=model, density=1000.0, E=E, nu=NU, **{**PARAMS[model], **over})
+    return Material(model=model, density=1000.0, E=E, nu=NU, **{**PARAMS.get(model, {}), **over})
 
 
 def _init(fp=ti.f64):
@@ -218,12 +218,13 @@ def loose_sand_trials():
     return R, np.array([R * 0.95, R * 0.95, R * 0.95]), q0
 
 
-def test_drucker_prager_volume_correction():
+@pytest.mark.parametrize("model", ["drucker_prager", "mohr_coulomb"])
+def test_volume_correction(model):
     """volume_correction: sand loosened by the tension cut-off (J_p > 1) compacts at no stress until it is back at its packed volume
     (Tampubolon et al. 2017), then bears load as packed sand does; det F_e J_p (the particle's volume) is kept.
     Rotated plane-strain trials, c = 0, psi = 0 (the correction's domain); f64, so 1e-12."""
     R, Fs, q0 = loose_sand_trials()
-    Fn, qn, diss, t_tr, t_new = run_projection("drucker_prager", 2, Fs, q0, cohesion=0.0, dilatancy=0.0,
+    Fn, qn, diss, t_tr, t_new = run_projection(model, 2, Fs, q0, friction_angle=30.0, cohesion=0.0, dilatancy=0.0,
                                                volume_correction=True)
     J = np.linalg.det(Fs) * q0[:, 2] * q0[:, 1]                                     # plane strain: held F_zz
     assert np.allclose(np.linalg.det(Fn) * qn[:, 2] * qn[:, 1], J, rtol=1e-12)      # volume kept
@@ -231,18 +232,23 @@ def test_drucker_prager_volume_correction():
     assert qn[0, 1] == pytest.approx(1.3 * 0.95**2, rel=1e-12)
     assert qn[1, 1] == pytest.approx(1.0, abs=1e-12)                                # packed again
     third = 1.05 ** (1 / 3)                                                         # the loose volume, per axis
-    assert np.allclose(Fn[1], R * 0.95 * third, rtol=1e-12) and qn[1, 2] == pytest.approx(third, rel=1e-12)
+    if model == "drucker_prager":   # inside the plane-strain cone: elastic from the packed state
+        assert np.allclose(Fn[1], R * 0.95 * third, rtol=1e-12) and qn[1, 2] == pytest.approx(third, rel=1e-12)
+    else:   # the same packed trial lies just outside the pyramid (the held axis is its s1): returned onto a face
+        s = np.linalg.eigvalsh(t_new[1])[::-1]
+        assert (s[0] - s[2]) + (s[0] + s[2]) * 0.5 == pytest.approx(0.0, abs=1e-9 * E) and s.sum() < -0.05 * E
     assert (Fn[2] == Fs[2]).all() and (qn[2] == q0[2]).all()                        # packed: unchanged
     assert (diss >= 0).all()
 
 
 @pytest.mark.slow   # two more return maps to compile (~3 s cold)
-def test_loose_sand_bears_load_at_once_without_the_volume_correction():
+@pytest.mark.parametrize("model", ["drucker_prager", "mohr_coulomb"])
+def test_loose_sand_bears_load_at_once_without_the_volume_correction(model):
     """Switched off (the default), or with dilatancy (whose added volume must stay), the loose sand of
-    test_drucker_prager_volume_correction bears load at once."""
+    test_volume_correction bears load at once."""
     _, Fs, q0 = loose_sand_trials()
     for over in (dict(dilatancy=0.0), dict(dilatancy=5.0, volume_correction=True)):
-        Fo, qo, _, _, to = run_projection("drucker_prager", 2, Fs[:1], q0[:1], cohesion=0.0, **over)
+        Fo, qo, _, _, to = run_projection(model, 2, Fs[:1], q0[:1], friction_angle=30.0, cohesion=0.0, **over)
         assert qo[0, 1] == pytest.approx(1.3, rel=1e-12) and np.trace(to[0]) < -0.05 * E
 
 

@@ -303,9 +303,9 @@ def config_error(data, tmp_path, key):
     return e.value
 
 
-def sand(**keys):
+def sand(model="drucker_prager", **keys):
     data = make_cfg(2)
-    data["materials"] = dict(sand=dict(model="drucker_prager", density=1600.0, E=1e6, friction_angle=30.0, **keys))
+    data["materials"] = dict(sand=dict(model=model, density=1600.0, E=1e6, friction_angle=30.0, **keys))
     data["bodies"][0]["material"] = "sand"
     return data
 
@@ -314,6 +314,7 @@ def sand(**keys):
     ("tensile_strength", "materials.m.tensile_strength"), ("fracture_energy", "materials.m.fracture_energy"),
     ("cpdi", "solver.cpdi"), ("gimp_domain", "solver.gimp_domain"),
     ("volume_correction", "materials.sand.volume_correction"),
+    ("volume_correction_mohr_coulomb", "materials.sand.volume_correction"),
     ("dilatancy", "materials.sand.dilatancy")])
 def test_settings_nothing_reads_are_config_errors_with_key_and_line(tmp_path, case, key):
     """Before: each validated and the run ignored it (tensile_strength without a crack section, solver.cpdi with
@@ -329,8 +330,9 @@ def test_settings_nothing_reads_are_config_errors_with_key_and_line(tmp_path, ca
         data["solver"]["cpdi"] = dict(variant="cpdi2")
     elif case == "gimp_domain":
         data["solver"]["gimp_domain"] = "deforming"
-    elif case == "volume_correction":
-        data = sand(dilatancy=5.0, volume_correction=True)
+    elif case.startswith("volume_correction"):
+        data = sand("mohr_coulomb" if case.endswith("coulomb") else "drucker_prager", dilatancy=5.0,
+                    volume_correction=True)
     else:
         data = sand(dilatancy=40.0)
     e = config_error(data, tmp_path, key)

@@ -75,6 +75,12 @@ def scenes() -> dict:
     knots = copy.deepcopy(kn)
     knots["solver"]["unroll"] = True
     out["block2d_knots_unrolled"] = knots
+    for dim in (2, 3):   # a sand block thrown at the floor: returns to faces, edges and the apex
+        mc = _block(dim, "quadratic")
+        mc["materials"]["m"] = dict(model="mohr_coulomb", E=1.0e4, nu=0.3, density=1000.0, friction_angle=30.0)
+        mc["bodies"][0].update(velocity=[1.0, -3.0, 0.5][:dim],
+                               shape=dict(type="box", lower=[0.1] * dim, upper=[0.4] * dim))
+        out[f"block{dim}d_mohr_coulomb"] = mc
     for path in sorted((ROOT / "configs").glob("*.yaml")):
         out[f"config_{path.stem}"] = path
     return out

@@ -57,6 +57,13 @@ ti = embed3 = embed_held = top_left = rotation = eigh = principal_matrix = henck
 hencky_energy = hencky_elasticity = None
 
 
+# shared with mohr_coulomb: the granular gas of sand loosened by the tension cut-off
+VOLUME_CORRECTION = param(
+    False, "", "true: sand loosened by the tension cut-off (J_p > 1) compacts back to its packed volume at no stress "
+               "before it bears load again (Tampubolon et al. 2017; with dilatancy 0 only); false: Klar et al.'s "
+               "return, where the loosened volume stays")
+
+
 @register
 class DruckerPrager(Model):
     name = "drucker_prager"
@@ -79,10 +86,7 @@ class DruckerPrager(Model):
                                "tan(friction_angle) x normal stress on the plane of a steady simple shear: a slope "
                                "flows above and stands below friction_angle, the angle of repose; mu(I)'s mu_s)")
 
-        volume_correction: bool = param(
-            False, "", "true: sand loosened by the tension cut-off (J_p > 1) compacts back to its packed volume at "
-                       "no stress before it bears load again (Tampubolon et al. 2017; with dilatancy 0 only); "
-                       "false: Klar et al.'s return, where the loosened volume stays")
+        volume_correction: bool = VOLUME_CORRECTION
 
         @model_validator(mode="after")
         def _dilatancy_below_friction(self):

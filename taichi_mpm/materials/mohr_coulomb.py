@@ -22,7 +22,9 @@ The three candidates are the KKT points of the sector s1 >= s2 >= s3 (for associ
 point in the energy norm, which tests/test_mohr_coulomb.py checks by enumerating every active set), then
 F_e = Q diag(exp(eps - eps_tr)) Q^T F_e^trial. In 2D (plane strain) and 1D (uniaxial strain) the held axes take part
 in the return: their elastic stretch is state (`held_stretch`, as von_mises and drucker_prager), so the out-of-plane
-stress is one of the three principal stresses. J_p (`Jp`) takes the volume the return adds (dilatancy, apex),
+stress is one of the three principal stresses. J_p (`Jp`) takes the volume the return adds (dilatancy, apex);
+with `volume_correction` (psi = 0) sand loosened at the apex compacts back at no stress before it bears load, as in
+drucker_prager (the trial strain measured from the packed state, eps_tr + ln(J_p) / 3 (1, 1, 1)),
 `plastic_strain` accumulates sqrt(2/3) |d eps_p|, and the dissipation is the plastic work of the returned stress,
 tau : d eps_p (>= 0 for psi <= phi). No tensile strength beyond the apex: the crack finder's damage does not apply.
 """
@@ -36,7 +38,7 @@ from pydantic import model_validator
 
 from ..schema import Located
 from .base import use_taichi, ElasticModuli, Funcs, Model, NonNegative, finish, param, register
-from .drucker_prager import JP, Angle
+from .drucker_prager import JP, VOLUME_CORRECTION, Angle
 from .von_mises import HELD_STRETCH, PLASTIC_STRAIN
 
 # `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
@@ -73,6 +75,7 @@ class MohrCoulomb(Model):
                                                  "tension cut-off returns, is at the mean stress c cot(phi))")
         dilatancy: Angle = param(0.0, "deg", "dilatancy angle psi <= friction_angle of the plastic flow "
                                              "(friction_angle: associated; 0: volume-preserving flow)", ge=0, lt=90)
+        volume_correction: bool = VOLUME_CORRECTION
 
         @model_validator(mode="after")
         def _dilatancy_below_friction(self):
@@ -107,6 +110,8 @@ class MohrCoulomb(Model):
         P, JPS, Z = 0, 1, 2  # state slots: plastic strain, J_p, held stretch
 
         full, kirchhoff3, kirchhoff, energy = hencky_elasticity(mu, lam, dim, Z)
+        # as drucker_prager's: with dilatancy, J_p > 1 is also volume added under load, which must stay
+        correct = bool(m.volume_correction) and m.dilatancy == 0.0
 
         @ti.func
         def sort3(eps):
@@ -153,12 +158,17 @@ class MohrCoulomb(Model):
         def project(F, q):
             F3 = full(F, q)
             eps, Q = hencky(F3)
-            e, S = sort3(eps)
+            loose = 0.0
+            if ti.static(correct):
+                loose = ti.max(ti.log(q[JPS]), 0.0)   # volume the tension cut-off added: it closes before load
+            e, S = sort3(eps + loose / 3.0)           # the trial strain measured from the packed state
             s = 2.0 * mu * e + lam * e.sum()
             f = ti.Vector(am).dot(s) - k                              # the main plane: the largest f
             Fn, qn, diss = F, q, 0.0
-            if f > 0:
-                eps_n = S.transpose() @ principal_return(e)
+            if f > 0 or loose > 0:
+                eps_n = eps + loose / 3.0                             # loose sand compacted into load: elastic
+                if f > 0:
+                    eps_n = S.transpose() @ principal_return(e)
                 F3n = rescale_principal(F3, Q, eps, eps_n)
                 qn[P] = q[P] + r23 * (eps - eps_n).norm()
                 qn[JPS] = q[JPS] * ti.exp(eps.sum() - eps_n.sum())    # det F_e J_p is kept
