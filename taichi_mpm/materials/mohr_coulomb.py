@@ -38,7 +38,7 @@ from pydantic import model_validator
 
 from ..schema import Located
 from .base import use_taichi, ElasticModuli, Funcs, Model, NonNegative, finish, param, register
-from .drucker_prager import JP, VOLUME_CORRECTION, Angle
+from .drucker_prager import JP, JP_MAX, VOLUME_CORRECTION, Angle
 from .von_mises import HELD_STRETCH, PLASTIC_STRAIN
 
 # `ti` and the tensor helpers (materials/tensor.py): bound as globals by build() (base.use_taichi)
@@ -171,7 +171,7 @@ class MohrCoulomb(Model):
                     eps_n = S.transpose() @ principal_return(e)
                 F3n = rescale_principal(F3, Q, eps, eps_n)
                 qn[P] = q[P] + r23 * (eps - eps_n).norm()
-                qn[JPS] = q[JPS] * ti.exp(eps.sum() - eps_n.sum())    # det F_e J_p is kept
+                qn[JPS] = ti.min(q[JPS] * ti.exp(eps.sum() - eps_n.sum()), JP_MAX)   # det F_e J_p is kept
                 if ti.static(dim < 3):
                     qn[Z] = F3n[2, 2]
                 Fn = top_left(F3n, dim)

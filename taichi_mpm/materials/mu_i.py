@@ -109,15 +109,18 @@ class MuI(Model):
         mu_s, dmu, i0 = float(m.mu_s), float(m.mu_2 - m.mu_s), float(m.I0)
         d, rho_s, eta_max = float(m.grain_diameter), float(m.grain_density), float(m.viscosity)
         tol = 1e-4 if ti.lang.impl.get_runtime().default_fp == ti.f32 else 1e-9
+        JPS = 1   # state slot of J_p (state() above)
         elastic3, volume_ratio = base.kirchhoff3, base.volume_ratio
 
         @ti.func
         def excess(t, F, L, q):
             """The Kirchhoff excess stress J 2 eta dev D (3x3) of a flowing particle (t: its elastic stress, the
-            3x3 Kirchhoff stress of F_e); zero off the yield surface."""
+            3x3 Kirchhoff stress of F_e); zero off the yield surface and in the granular gas. The gas (J_p > 1, sand
+            loosened at the apex) is stress-free: its p is round-off there and J (with J_p) can be huge, so J eta
+            would turn that round-off into a stress."""
             p = -t.trace() / 3.0
             out = ti.Matrix.zero(float, 3, 3)
-            if p > 0:
+            if p > 0 and q[JPS] <= 1.0 + tol:
                 s = t + p * ti.Matrix.identity(float, 3)
                 if ti.sqrt(0.5 * s.norm_sqr()) >= (1.0 - tol) * mu_s * p:
                     L3 = embed3(L, 0.0)
