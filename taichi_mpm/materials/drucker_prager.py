@@ -43,8 +43,9 @@ from ..schema import Located, _no_bool
 from .base import use_taichi, ElasticModuli, Funcs, Model, NonNegative, State, finish, param, register
 from .von_mises import HELD_STRETCH, PLASTIC_STRAIN
 
-JP = State("Jp", 1.0, "1", "plastic volume ratio J_p = det F_p (drucker_prager: dilation and tension cut-off; snow: "
-                           "compaction below 1); the particle volume is V0 det(F_e) J_p")
+JP = State("Jp", 1.0, "1", "plastic volume ratio J_p = det F_p (drucker_prager, mohr_coulomb, mu_i: dilation and "
+                           "tension cut-off, at most 1e6; snow: compaction below 1); the particle volume is V0 det(F_e) "
+                           "J_p")
 Angle = Annotated[float, BeforeValidator(_no_bool)]
 
 def cone(angle_deg: float) -> float:
