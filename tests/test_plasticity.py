@@ -508,7 +508,7 @@ def test_column_collapse_deposit_converges_but_for_a_toe_one_cell_thick():
     assert fronts[0] < fronts[1] < fronts[2] and fronts[2] - fronts[1] < 0.7 * (fronts[1] - fronts[0]), fronts
 
 
-# Mohr-Coulomb at the experiments' friction: phi = 30 deg flowing (the angle of repose, mu(I)'s mu_s above) is, with
+# Mohr-Coulomb at the experiments' friction: phi = 30 deg flowing (the angle of repose, MU_I_SAND's mu_s below) is, with
 # volume-preserving flow (psi = 0), sin(phi_MC) = tan(30 deg) (Davis 1968; tests/test_mohr_coulomb.py checks that
 # relation): phi_MC = 35.26 deg; the volume correction keeps sand loosened at the apex from bearing load
 MC_SAND = ("materials.sand={model: mohr_coulomb, E: 1.0e6, nu: 0.3, density: 1500, friction_angle: 35.26, "
