@@ -161,12 +161,13 @@ class MohrCoulomb(Model):
             loose = 0.0
             if ti.static(correct):
                 loose = ti.max(ti.log(q[JPS]), 0.0)   # volume the tension cut-off added: it closes before load
-            e, S = sort3(eps + loose / 3.0)           # the trial strain measured from the packed state
+            eps_s = eps + loose / 3.0                 # the trial strain measured from the packed state
+            e, S = sort3(eps_s)
             s = 2.0 * mu * e + lam * e.sum()
             f = ti.Vector(am).dot(s) - k                              # the main plane: the largest f
             Fn, qn, diss = F, q, 0.0
             if f > 0 or loose > 0:
-                eps_n = eps + loose / 3.0                             # loose sand compacted into load: elastic
+                eps_n = eps_s                                         # loose sand compacted into load: elastic
                 if f > 0:
                     eps_n = S.transpose() @ principal_return(e)
                 F3n = rescale_principal(F3, Q, eps, eps_n)
