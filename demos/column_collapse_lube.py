@@ -12,7 +12,9 @@ is at rest (kinetic energy below 1e-4 of the released potential energy, or `--en
 (the 99.5th percentile of x, so a few lone grains do not count), the height at the wall (the 99.5th percentile of y
 over x < dx) and the slope of the deposit's flank. Several `--cells` run each column at each resolution; `--profiles`
 plots the deposits' thickness along the floor (`thickness_profile`), one panel per aspect ratio: where the deposits
-of two resolutions agree, and where only the toe moves. Measured figures and the plots: docs/materials.md.
+of two resolutions agree, and where only the toe moves; with two or more, each column's run-out is also extrapolated
+to dx -> 0 at first order from the two finest (`first_order_limit`). Measured figures and the plots:
+docs/materials.md.
 """
 import argparse
 import sys
@@ -40,6 +42,14 @@ def resolution(cells=20):
     converges": at a = 1 it grows 1.16, 1.51, 1.71, 1.76 at L0/20, 40, 60, 80; the deposits agree but for a toe one
     or two cells thick that each finer grid carries further), so every column of a table is run at the same dx."""
     return L0 / cells
+
+
+def first_order_limit(fine: float, coarse: float, dx_fine: float, dx_coarse: float) -> float:
+    """Richardson's extrapolation for an error proportional to dx: f0 = f(dx) + (f(dx) - f(dx')) dx / (dx' - dx).
+    The front of a layer sheared over sand at rest converges at first order (tests/test_sliding_layer.py), so two
+    grids fine enough to be in that regime give an estimate of the converged run-out (docs/materials.md, "Why the
+    low columns' run-out moves with dx")."""
+    return fine + (fine - coarse) * dx_fine / (dx_coarse - dx_fine)
 
 
 def thickness_profile(x, volume, bin_width=PROFILE_BIN):
@@ -171,6 +181,14 @@ def main(argv=None):
         print(f"a={aspect:g}: run-out {r['runout']:.3f} ({lube}), "
               f"height {r['height']:.3f} L0 (dx = L0/{L0 / r['dx']:.0f}), slope {r['slope']:.1f} deg, t={r['time']:.2f} s, {r['steps']} steps, {r['particles']} particles"
               + (f", {r['at_end']} AT THE FAR END WALL: the domain is too short" if r["at_end"] else ""))
+    if len(set(a.cells)) >= 2:
+        for aspect in a.aspects:
+            coarse, fine = sorted((r for r in rows if r["aspect"] == aspect), key=lambda r: -r["dx"])[-2:]
+            f0 = first_order_limit(fine["runout"], coarse["runout"], fine["dx"], coarse["dx"])
+            ref = float(lube_runout(aspect))
+            lube = f" (Lube {ref:.3f}, {f0 / ref - 1:+.0%})" if np.isfinite(ref) else ""
+            print(f"a={aspect:g}: first-order extrapolation from L0/{L0 / coarse['dx']:.0f} and "
+                  f"L0/{L0 / fine['dx']:.0f}: {f0:.3f}{lube}")
     if a.plot:
         plot([r for r in rows if r["dx"] == resolution(a.cells[-1])], a.plot)
     if a.profiles:

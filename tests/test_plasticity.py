@@ -461,6 +461,16 @@ def test_collapse_thickness_profile_is_the_depth_average_of_the_particles():
     assert np.allclose(h[xc < 0.2], 0.03, rtol=1e-12) and not h[xc > 0.2].any()
 
 
+def test_collapse_first_order_limit_is_exact_for_an_error_linear_in_dx():
+    """demos/column_collapse_lube.first_order_limit: f = f0 - C dx at two grids gives f0 to round-off, whichever
+    pair; and mu(I)'s a = 1 column at L0/60 and L0/80 (1.127, 1.167, docs/materials.md) extrapolates to 1.287."""
+    lube = _lube()
+    for dx1, dx2 in ((1 / 80, 1 / 60), (1 / 40, 1 / 20), (0.001, 0.0037)):
+        f = lambda dx: 1.52 - 14.4 * dx      # noqa: E731 (the MC column's fit at a = 1)
+        assert lube.first_order_limit(f(dx1), f(dx2), dx1, dx2) == pytest.approx(1.52, abs=1e-12)
+    assert lube.first_order_limit(1.167, 1.127, 1 / 80, 1 / 60) == pytest.approx(1.287, abs=1e-12)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("aspect", [
     pytest.param(0.5, marks=pytest.mark.xfail(reason="measured run-out 0.38 against 0.60 at dx = L0/20 "
