@@ -4,7 +4,7 @@ symmetry planes of the heap), so a grid four times finer per cell count costs a 
 particles. The body is a mesh of the quarter cylinder written into the output folder; the material mu(I) with the
 2D columns' parameters (E 0.3 MPa).
 
-    python tools/quarter_collapse_3d.py CELLS_PER_R0 [--aspect A] [--out DIR]      # e.g. 12, 18, 24
+    python tools/quarter_collapse_3d.py CELLS_PER_R0 [--aspect A] [--out DIR] [--set KEY=VALUE]   # e.g. 12, 18, 24
 
 Prints the run-out (R_inf - R0) / R0 (the 99.5th percentile of the distance from the axis) against Lube et al.'s
 1.24 a (a < 1.7) or 1.6 a^(1/2) (a > 1.7; the two meet at a = 1.7), the height at the axis and the fastest
@@ -21,6 +21,7 @@ import meshio
 import numpy as np
 
 import taichi_mpm as tm
+from taichi_mpm.config import parse_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "demos"))
@@ -49,6 +50,8 @@ def main(argv=None):
     ap.add_argument("cells", type=int, help="cells per radius R0")
     ap.add_argument("--aspect", type=float, default=1.0, help="aspect ratio a = H / R0 of the column")
     ap.add_argument("--out", type=Path, default=Path("runs/quarter_collapse_3d"))
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="config overrides after the tool's own, e.g. materials.sand={model: mohr_coulomb, ...}")
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     mesh = a.out / "quarter_cylinder.stl"
@@ -61,7 +64,8 @@ def main(argv=None):
     cfg = tm.load_config(ROOT / "configs" / "granular_collapse_3d.yaml", overrides={
         "arch": "cpu", "output.formats": [], "domain.lower": [0.0, 0.0, 0.0], "domain.upper": [side, top, side],
         "domain.dx": dx, "bodies.0.shape": {"type": "mesh", "file": str(mesh.resolve())},
-        "materials.sand": MU_I, "solver.end_time": 0.6 * float(np.sqrt(max(a.aspect, 1.0)))})
+        "materials.sand": MU_I, "solver.end_time": 0.6 * float(np.sqrt(max(a.aspect, 1.0))),
+        **parse_overrides(a.overrides)})
     t0 = time.time()
     sim = tm.Simulation(cfg)
     sim.advance_to(cfg.solver.end_time)
