@@ -153,7 +153,10 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
                                      "2 particles per cell; linear momentum is then kept only approximately "
                                      "(docs/accuracy.md, \"The local stress difference\")"),
     "solver.cfl": ("1", "adaptive time step: the smallest of cfl dx / (wave speed + max speed), cfl sqrt(dx / max "
-                        "acceleration) for gravity and body forces, cfl rho dx^2 / (2 d mu) for viscosity"),
+                        "acceleration) for gravity and body forces, cfl rho dx^2 / (2 d mu) for viscosity. Smaller "
+                        "is not always closer: each step's transfers smooth the velocity across shear bands, so "
+                        "granular flows run shorter at a smaller cfl (docs/materials.md, \"Why the low columns' "
+                        "run-out moves with dx\"); refine dx at one cfl"),
     "solver.dt": ("s", "fixed time step instead of the CFL rule; null: adaptive"),
     "solver.end_time": ("s", "simulated time to run to"),
     "solver.gravity": ("m/s^2", "gravitational acceleration, one number per axis; null: none"),
