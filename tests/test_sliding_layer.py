@@ -2,7 +2,9 @@
 v0^2 / (2 mu g), where mu is the friction on the floor plane: the wall's Coulomb coefficient when the layer slips
 on the wall, and on a rough (sticky) floor the sand's own steady friction on horizontal planes, sin(phi) for
 Mohr-Coulomb with psi = 0 (Davis 1968; test_mohr_coulomb's simple shear). Depth-averaged momentum: whatever the
-velocity profile, the basal stress mu rho g H decelerates the layer's mean velocity at mu g.
+velocity profile, a basal stress mu rho g H decelerates the layer's mean velocity at mu g. Launched uniformly, the
+floor shears the base into that steady flow at once (a layer launched with a linear profile starts with an
+unstressed base and has no such closed form: docs/materials.md).
 
 These are the granular collapses' toes in their simplest form (docs/materials.md, "Why the low columns' run-out
 moves with dx"): on a Coulomb floor the stopping distance does not depend on how many cells the layer spans; on a
