@@ -29,6 +29,7 @@ from . import fields as field_registry
 from . import geometry
 from . import materials as material_models
 from . import schemes as transfer_schemes
+from .schemes import polypic
 
 # the crack finder's node owners hold an interface body's side in 8 bits (extensions/crack/nodes.py MAX_SIDES)
 MAX_INTERFACE_BODIES = 255
@@ -390,6 +391,8 @@ class Solver(Strict):
     # XPIC's order m (transfer xpic only): 1 is PIC; each order one more particle pass (docs/transfers.md)
     xpic_order: Annotated[int, BeforeValidator(_no_bool), Field(ge=1, le=8)] = 2
     asflip: Asflip = Asflip()
+    # PolyPIC's modes (transfer polypic only): total (degree <= p in all) or full (degree <= p per axis, interpolating)
+    polypic_modes: Literal[polypic.MODE_SETS] = "total"  # type: ignore[valid-type]
     gimp_domain: Literal["uniform", "deforming"] = "uniform"
     # the B-splines' particle quadrature: point (weights and gradients at the particle) or domain (the particle's
     # knot span averaged over its domain of the initial spacing: cubic keeps second order at sticky walls;
@@ -997,7 +1000,7 @@ class Config(Strict):
                                             "node's two velocity fields, which MUSL's remap does not keep; use usl")
         # the newer schemes' own keys (declared in their `parameters`): a value other than the default with another
         # transfer is refused (solver.flip_blend stays unchecked, as before the registry)
-        for key, default in (("xpic_order", 2), ("asflip", Asflip())):
+        for key, default in (("xpic_order", 2), ("asflip", Asflip()), ("polypic_modes", "total")):
             readers = [n for n in transfer_schemes.names() if f"solver.{key}" in transfer_schemes.get(n).parameters]
             if getattr(s, key) != default and s.transfer not in readers:
                 raise _Located(f"solver.{key}", f"is read by solver.transfer {bases.listed(readers)} only (the "
@@ -1006,9 +1009,24 @@ class Config(Strict):
         if scheme.separating and s.update != "usl":
             raise _Located("solver.update", f"transfer {s.transfer} moves particles with its velocity update: usl "
                                             f"only (the update is {s.update})")
-        if (scheme.moment_gradient or scheme.extended or scheme.separating or scheme.taylor) and self.crack is not None:
+        if (scheme.moment_gradient or scheme.extended or scheme.separating or scheme.taylor or scheme.polynomial) \
+                and self.crack is not None:
             raise _Located("solver.transfer", f"{s.transfer} cannot be combined with the crack finder (section "
                                               "'crack'): its modified transfers are PIC, FLIP or APIC's")
+        if scheme.polynomial:
+            self._check_polynomial()
+
+    def _check_polynomial(self):
+        """polypic's limits: one velocity polynomial per particle in the box grid's coordinates, at most 27 modes."""
+        s = self.solver
+        if self.domain.map is not None:
+            raise _Located("solver.transfer", "polypic cannot be combined with domain.map: its modes are polynomials "
+                                              "of the box grid's coordinates, not the map's")
+        n = len(polypic.modes(self.dim, bases.get(s.basis).degree, s.polypic_modes))
+        if n > polypic.MAX_MODES:
+            raise _Located("solver.polypic_modes", f"{s.polypic_modes} with the {s.basis} basis in {self.dim}D has {n} "
+                                                   f"modes per particle ({n * self.dim} floats; at most "
+                                                   f"{polypic.MAX_MODES} are built): use total, or the quadratic basis")
 
     def _check_unused_settings(self):
         """Settings given that nothing would read: an error at validation rather than a run that ignores them."""

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from . import materials as material_models
 from . import schemes as transfer_schemes
+from .schemes.polypic import lower_terms, modes
 from .bases import registry as bases
 from .extensions.contact.fields import ContactNeeds
 from .extensions.crack.fields import NODE_CACHE as CRACK_NODE_CACHE, CrackNeeds
@@ -48,6 +49,7 @@ class Needs:
     contact: ContactNeeds | None = None   # multi-field contact's node fields (its velocity fields)
     cpdi2: bool = False         # cpdi2's corners, each particle's own (extensions/domain_corners.py)
     stress_difference: bool = False   # the nodal stress sums (extensions/stress_difference.py)
+    polynomial: tuple = ()      # polypic: (nodes per axis of the stencil, solver.polypic_modes)
 
     @classmethod
     def of_simulation(cls, sim, feat, coloured: bool) -> "Needs":
@@ -89,7 +91,10 @@ class Needs:
 
 def _common(cfg, coloured: bool) -> dict:
     spec = bases.get(cfg.solver.basis)   # the basis' declaration (bases/registry.py)
-    return dict(fbar=cfg.solver.volumetric == "fbar" and cfg.dim > 1, fbar_linear=spec.fbar_linear_grid,
+    polynomial = ((spec.stencil, cfg.solver.polypic_modes) if transfer_schemes.get(cfg.solver.transfer).polynomial
+                  else ())
+    return dict(polynomial=polynomial, fbar=cfg.solver.volumetric == "fbar" and cfg.dim > 1,
+                fbar_linear=spec.fbar_linear_grid,
                 ddmp=spec.prepass_grid, ddmp_fold=small_node_fold(cfg) > 0, coloured=coloured,
                 cpdi2=spec.stencil_kind == "corners" and cfg.solver.cpdi.variant == "cpdi2",
                 stress_difference=cfg.solver.stress_difference)
@@ -143,6 +148,14 @@ def MAPPED_XI(dim: int) -> FieldDecl:
 FBAR_J = FieldDecl("J_start", "real", (), "fbar")            # det F at the start of the step
 
 
+def polynomial_fields(dim: int, stencil: int, which: str) -> list[FieldDecl]:
+    """polypic: each particle's modes' coefficients (a row per mode) and each axis' orthogonal polynomials below
+    their leading term (step/polynomial.py)."""
+    degree = stencil - 1
+    return [FieldDecl("poly_c", "real", (len(modes(dim, degree, which)), dim), "polypic"),
+            FieldDecl("poly_g", "real", (dim, len(lower_terms(degree))), "polypic")]
+
+
 def cpdi2_corners(dim: int) -> FieldDecl:
     """cpdi2: each particle's 2^d domain corners, as the rows of a matrix."""
     return FieldDecl("corners", "real", (2 ** dim, dim), "cpdi2")
@@ -156,6 +169,7 @@ def particle_fields(n: Needs) -> list[FieldDecl]:
     out += [MAPPED_XI(n.dim)] if n.mapped else []
     out += [FBAR_J] if n.fbar else []
     out += [cpdi2_corners(n.dim)] if n.cpdi2 else []
+    out += polynomial_fields(n.dim, *n.polynomial) if n.polynomial else []
     out += n.crack.particle_fields(n.dim) if n.crack is not None else []
     return out
 

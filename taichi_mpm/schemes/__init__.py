@@ -8,6 +8,6 @@ kernel builders call with their context. Physics and config both import this mod
 the bases' declarations, bases/registry.py, which a scheme's basis_need reads).
 """
 from .base import SCHEMES, Scheme, bases_for, get, names, register, works_with
-from . import pic, flip, apic, mls, xpic, asflip, tpic  # noqa: E402,F401  (each module registers its scheme, in this order)
+from . import pic, flip, apic, mls, xpic, asflip, tpic, polypic  # noqa: E402,F401  (each module registers its scheme, in this order)
 
 __all__ = ["SCHEMES", "Scheme", "bases_for", "get", "names", "register", "works_with"]

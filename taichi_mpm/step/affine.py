@@ -7,17 +7,33 @@ Physics code only: no CLI, rendering or file I/O here.
 """
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Optional
 
 import taichi as ti
+
+from .polynomial import PolynomialFuncs, make_polynomial
 
 
 @dataclass
 class AffineFuncs:
     store_B: bool                 # the C field holds APIC's B_p (C_p = B_p D_p^-1 at the current position)
     affine: Callable              # @ti.func (p, st) -> C_p (zero without APIC)
-    node_momentum: Callable       # @ti.func (vp, Ap, r) -> the particle velocity a node at offset r sees
+    node_momentum: Callable       # @ti.func (p, vp, Ap, r) -> the particle velocity a node at offset r sees
     velocity_gradient: Callable   # @ti.func (p) -> grad v of the last step
+    spin: Callable                # @ti.func (p) -> B with eps : B the carried field's angular momentum per unit mass
+    speed2: Callable              # @ti.func (p) -> twice the kinetic energy per unit mass P2G maps
+    polynomial: Optional[PolynomialFuncs] = None   # polypic's velocity polynomial (step/polynomial.py), or None
+
+    def make_fit(self, read_v) -> Callable:
+        """@ti.func (p, st): what G2P keeps of the node velocities read_v(p, I) besides APIC's B_p: polypic's fit
+        of the stencil, nothing for the other transfers."""
+        if self.polynomial is not None:
+            return self.polynomial.make_record(read_v)
+
+        @ti.func
+        def nothing(p, st):
+            pass
+        return nothing
 
 
 def gradient_affine(ctx) -> bool:
@@ -28,28 +44,38 @@ def gradient_affine(ctx) -> bool:
 
 def make_affine(ctx) -> AffineFuncs:
     """ctx: step.StepContext with its stencil."""
-    dim, C, sten, own = ctx.dim, ctx.C, ctx.stencil, ctx.grad_v
+    dim, C, v, sten, own = ctx.dim, ctx.C, ctx.v, ctx.stencil, ctx.grad_v
     has_own = own is not None
     apic = ctx.feat.apic
     store_B = apic and not gradient_affine(ctx)
+    poly = make_polynomial(ctx, *ctx.extra["polynomial"]) if ctx.feat.polynomial else None   # (poly_c, poly_g, modes)
+    has_poly = poly is not None
+    velocity_at = poly.velocity_at if has_poly else None
 
     @ti.func
     def affine(p, st):
         """APIC's C_p at the particle's current position. Where D_p varies with position (GIMP, B-splines
         next to walls) the field stores B_p and C_p = B_p D_p^-1 uses the current D_p: the affine part's
-        angular momentum, eps : B_p, is then carried exactly when the particle moves (Jiang et al. 2015)."""
+        angular momentum, eps : B_p, is then carried exactly when the particle moves (Jiang et al. 2015).
+        polypic: its polynomial's constant shift at this position (polynomial.py), in column 0."""
         A = ti.Matrix.zero(float, dim, dim)
-        if ti.static(store_B):
+        if ti.static(has_poly):
+            offset = poly.shift(p, st)
+            for a in ti.static(range(dim)):
+                A[a, 0] = offset[a]
+        elif ti.static(store_B):
             A = C[p] @ sten.inertia_inverse(st)
         elif ti.static(apic):
             A = C[p]
         return A
 
     @ti.func
-    def node_momentum(vp, Ap, r):
-        """Particle velocity seen by a node at r = x_i - x_p: v_p, plus C_p r with APIC."""
+    def node_momentum(p, vp, Ap, r):
+        """Particle velocity seen by a node at r = x_i - x_p: v_p, plus C_p r with APIC; polypic's polynomial."""
         mom = vp
-        if ti.static(apic):
+        if ti.static(has_poly):
+            mom = velocity_at(p, r, Ap[:, 0])
+        elif ti.static(apic):
             mom += Ap @ r
         return mom
 
@@ -65,4 +91,28 @@ def make_affine(ctx) -> AffineFuncs:
             L = C[p]
         return L
 
-    return AffineFuncs(store_B, affine, node_momentum, velocity_gradient)
+    @ti.func
+    def spin(p):
+        """APIC's B_p (sum w v_i r^T, stored or as C_p D_p), or polypic's sum w f(r) r^T: the angular momentum
+        about x_p the affine part or the modes carry is m eps : B."""
+        B = ti.Matrix.zero(float, dim, dim)
+        if ti.static(has_poly):
+            B = poly.moment(p, sten.at(p))
+        elif ti.static(store_B):
+            B = C[p]
+        elif ti.static(apic):   # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
+            B = C[p] @ sten.inertia(sten.at(p))
+        return B
+
+    @ti.func
+    def speed2(p):
+        """|v_p|^2, or with polypic sum w |f(r)|^2: the kinetic energy its higher modes carry counts too (APIC's
+        affine part's is left out, as before)."""
+        out = 0.0
+        if ti.static(has_poly):
+            out = poly.speed2(p, sten.at(p))
+        else:
+            out = v[p].norm_sqr()
+        return out
+
+    return AffineFuncs(store_B, affine, node_momentum, velocity_gradient, spin, speed2, poly)

@@ -12,11 +12,12 @@ from ..materials.tensor import rotation
 
 def make_diagnostics(ctx, mf, af):
     """Kernels energies(), momenta(), body_moments(), cauchy_stress(out), volume_ratios(out)."""
-    dim, x, v, F, C, vol0 = ctx.dim, ctx.x, ctx.v, ctx.F, ctx.C, ctx.vol0
-    gravity, dg, sten = ctx.gravity, ctx.degradation, ctx.stencil
+    dim, x, v, F, vol0 = ctx.dim, ctx.x, ctx.v, ctx.F, ctx.vol0
+    gravity, dg = ctx.gravity, ctx.degradation
     acc, moments, body_id = ctx.diag, ctx.moments, ctx.body_id
     n_moments = moments.shape[1]
-    degraded, apic, store_B = dg is not None, ctx.feat.apic, af.store_B
+    degraded, carried = dg is not None, ctx.feat.apic or af.polynomial is not None
+    speed2, spin = af.speed2, af.spin
     has_stress0, has_body_id = ctx.stress0 is not None, body_id is not None
     density, kirchhoff, kirchhoff3 = mf.density, mf.kirchhoff, mf.kirchhoff3
     strain_energy, initial_energy, volume_ratio = mf.strain_energy, mf.initial_energy, mf.volume_ratio
@@ -34,7 +35,7 @@ def make_diagnostics(ctx, mf, af):
                     acc.add(c, 4, vol0[p] * initial_energy(p, F[p]))  # apart: it can be negative
                 if ti.static(degraded):
                     psi = dg.energy(p, F[p], psi, kirchhoff(p, F[p]))
-                acc.add(c, 0, 0.5 * mp * v[p].norm_sqr())
+                acc.add(c, 0, 0.5 * mp * speed2(p))
                 acc.add(c, 1, vol0[p] * psi)
                 acc.add(c, 2, -mp * gravity[None].dot(x[p]))
                 acc.add(c, 3, mp * gravity[None].norm() * x[p].norm())
@@ -62,18 +63,16 @@ def make_diagnostics(ctx, mf, af):
 
     @ti.func
     def angular_momentum(p, mp):
-        """m x_p x v_p about the origin, plus APIC's affine part (3 components)."""
+        """m x_p x v_p about the origin, plus APIC's affine part or polypic's modes (3 components): the angular
+        momentum P2G maps, m sum w x_i x v(x_i)."""
         x3 = ti.Vector.zero(float, 3)
         v3 = ti.Vector.zero(float, 3)
         for a in ti.static(range(dim)):
             x3[a] = x[p][a]
             v3[a] = v[p][a]
         Lp = mp * x3.cross(v3)
-        if ti.static(apic):
-            B = C[p]  # store_B: the affine part's angular momentum is eps : B
-            if ti.static(not store_B):
-                # sum_i w (x_i - x_p) x C (x_i - x_p) = eps : (C D)^T
-                B = C[p] @ sten.inertia(sten.at(p))
+        if ti.static(carried):
+            B = spin(p)
             B3 = ti.Matrix.zero(float, 3, 3)
             for a, b in ti.static(ti.ndrange(dim, dim)):
                 B3[a, b] = B[a, b]
@@ -82,7 +81,8 @@ def make_diagnostics(ctx, mf, af):
 
     @ti.kernel
     def momenta():
-        """Linear momentum (dim) and angular momentum about the origin (3), APIC's affine part included."""
+        """Linear momentum (dim) and angular momentum about the origin (3), APIC's affine part (polypic's modes)
+        included."""
         for c in range(acc.chunks):
             acc.clear(c)
             for p in range(acc.begin(c), acc.end(c)):

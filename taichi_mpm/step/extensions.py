@@ -3,7 +3,8 @@ ordered list of what plugs in. The solver creates the extensions of a scene from
 their moments in that order; it knows none of them by name.
 
 The list: the ddmp pre-pass (nodal volumes), the coloured scatter's binning, the mapped grid's parametric
-coordinates (before F-bar: its average reads the mapped stencil), cpdi2's domain corners, the crack finder (before
+coordinates (before F-bar: its average reads the mapped stencil), cpdi2's domain corners, polypic's particle
+polynomials, the crack finder (before
 F-bar: the average leaves out the particles the finder takes), F-bar's volume average, multi-field contact, the
 local stress difference (its force correction is a node acceleration), the tractions (on particles, then on
 nodes: a node acceleration), the walls and the grips
@@ -22,6 +23,7 @@ from ..extensions.fbar_average import VolumeAverage
 from ..extensions.grips import Grips
 from ..extensions.mapped_coordinates import MappedCoordinates
 from ..extensions.node_loads import NodeLoads
+from ..extensions.polynomial_velocity import PolynomialVelocity
 from ..extensions.stress_difference import StressDifference
 from ..extensions.tractions import Tractions
 from ..extensions.walls import Walls
@@ -29,12 +31,12 @@ from .moments import Degradation, Extension, ForceSums, GridSolve, NodeFields, P
 
 __all__ = ["ColouredScatter", "CrackFinder", "Degradation", "DomainCorners", "DualDomainFill", "Extension",
            "ForceSums", "GridSolve", "Grips", "MappedCoordinates", "MultiField", "NodeFields", "NodeLoads", "ORDER",
-           "ParticleTransfer", "Setup", "StressDifference", "Tractions", "VolumeAverage", "Walls", "create",
-           "register", "unregister"]
+           "ParticleTransfer", "PolynomialVelocity", "Setup", "StressDifference", "Tractions", "VolumeAverage", "Walls",
+           "create", "register", "unregister"]
 
 # Extension classes, in the order their moments run
-ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, DomainCorners, CrackFinder, VolumeAverage,
-                     MultiField, StressDifference, Tractions, NodeLoads, Walls, Grips]
+ORDER: list[type] = [DualDomainFill, ColouredScatter, MappedCoordinates, DomainCorners, PolynomialVelocity, CrackFinder,
+                     VolumeAverage, MultiField, StressDifference, Tractions, NodeLoads, Walls, Grips]
 
 
 def register(cls: type, before: type = None) -> type:

@@ -21,6 +21,7 @@ class Features:
     xpic: bool                  # solver.transfer xpic: v_p = S (v_L - v + v*), v* on three grid vectors more
     asflip: bool                # solver.transfer asflip: APIC plus a FLIP part and the position correction
     mls: bool                   # the force and grad v through w D_p^-1 r (schemes/gradient.py)
+    polynomial: bool            # solver.transfer polypic: each particle's velocity polynomial (step/polynomial.py)
     musl: bool                  # solver.update musl: a second P2G of the new momentum (grid v2)
     usf: bool                   # solver.update usf: F and the stress from the velocities before forces
     store_grad_v: bool          # a C field: APIC's B_p or C_p, or grad v (viscosity)
@@ -52,6 +53,7 @@ class Features:
             taylor=transfer.taylor,
             flip=transfer.keeps_old_grid,
             mls=transfer.moment_gradient,
+            polynomial=transfer.polynomial,
             xpic=transfer.extended,
             asflip=transfer.separating,
             musl=cfg.solver.update == "musl",

@@ -114,7 +114,7 @@ def make_p2g(ctx, mf, af, external_force):
               for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
                 I, w, gw, r = sten.node(st, o + inner[k])
                 add(gm, I, w * mp)
-                mom = node_momentum(vp, Ap, r)
+                mom = node_momentum(p, vp, Ap, r)
                 gf = grad.force(M, w, gw, r)
                 value = w * mp * mom + kick * (stress @ gf + w * force_density)
                 add(gv, I, value)
@@ -143,7 +143,7 @@ def make_p2g(ctx, mf, af, external_force):
             for o in ti.grouped(ti.ndrange(*outer)):
               for k in ti.static(range(len(inner))):  # noqa: E111 (one loop over the stencil, see `unroll`)
                 I, w, gw, r = sten.node(st, o + inner[k])
-                add(gv2, I, w * mp * node_momentum(vp, Ap, r))
+                add(gv2, I, w * mp * node_momentum(p, vp, Ap, r))
 
     p2g_loop = colour_loop(ctx, p2g_particle)
     momentum_loop = colour_loop(ctx, p2g_momentum_particle)
@@ -348,6 +348,7 @@ def make_g2p(ctx, mf, af, external_force):
     failure = make_failure_code(ctx, mf)
     grad = make_gradient(sten, f.mls)   # grad v from grad w, or MLS-MPM's w D_p^-1 r
     is_fluid, project = mf.is_fluid, mf.project
+    fit = af.make_fit(read_v)   # polypic's fit of the stencil's velocities
 
     # 3D with two or three axes unrolled (3D quadratic G2P 20 % faster); node by node with fewer unrolled axes
     # (the whole stencil at run time: 9.4 against 7.6 ms; 3D cubic's one unrolled axis: the same) and in 2D
@@ -388,8 +389,9 @@ def make_g2p(ctx, mf, af, external_force):
         return v_pic, dv, B, grad.finish(M, G)
 
     @ti.func
-    def new_velocity(p, kick, v_pic, dv, B, G):
-        """v_p by PIC, FLIP, APIC or XPIC, APIC's C_p, and the work of body forces and tractions over the kick."""
+    def new_velocity(p, st, kick, v_pic, dv, B, G):
+        """v_p by PIC, FLIP, APIC or XPIC, APIC's C_p or polypic's node velocities, and the work of body forces and
+        tractions over the kick."""
         v_old = v[p]
         v[p] = transfer_velocity(v_old, v_pic, dv)
         if ti.static(works):
@@ -399,6 +401,7 @@ def make_g2p(ctx, mf, af, external_force):
                 C[p] = G
             else:
                 C[p] = B  # store_B
+        fit(p, st)
 
     @ti.func
     def deform_particle(p, st, dt, v_pic, G, deform: ti.template()):
@@ -449,7 +452,7 @@ def make_g2p(ctx, mf, af, external_force):
             if not modified:
                 v_pic, dv, B, G = g2p_sums(p, st, velocity, deform)
             if ti.static(velocity):
-                new_velocity(p, kick, v_pic, dv, B, G)
+                new_velocity(p, st, kick, v_pic, dv, B, G)
             if ti.static(deform):
                 deform_particle(p, st, dt, v_pic, G, deform)
 
