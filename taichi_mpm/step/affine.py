@@ -24,11 +24,11 @@ class AffineFuncs:
     speed2: Callable              # @ti.func (p) -> twice the kinetic energy per unit mass P2G maps
     polynomial: Optional[PolynomialFuncs] = None   # polypic's velocity polynomial (step/polynomial.py), or None
 
-    def make_fit(self, read_v) -> Callable:
+    def make_fit(self, read_v, density) -> Callable:
         """@ti.func (p, st): what G2P keeps of the node velocities read_v(p, I) besides APIC's B_p: polypic's fit
-        of the stencil, nothing for the other transfers."""
+        of the stencil (density(p): the material's, for its light nodes), nothing for the other transfers."""
         if self.polynomial is not None:
-            return self.polynomial.make_record(read_v)
+            return self.polynomial.make_record(read_v, density)
 
         @ti.func
         def nothing(p, st):

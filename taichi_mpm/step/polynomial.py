@@ -19,13 +19,23 @@ import taichi as ti
 from ..schemes.polypic import lower_terms, modes
 
 
+# A node with less than this fraction of a full node's mass (the particle's density times dx^d) gives the fit the
+# particle's own last polynomial there, moved to its new v_p, instead of the node's velocity: a light node's
+# velocity, momentum and the force's impulse over a small mass, is the least reliable value on the grid, and the top
+# modes, which the fit weights toward the stencil's low-weight nodes, would carry it at full size into the next P2G.
+# Measured (docs/transfers.md, "PolyPIC"): without it the stability map's impact blew up at step 68 and the
+# compression from J = 0.5 at step 22; at 0.01 both finish and the a = 1 collapse keeps its run-out (1.371 L0 at
+# L0/20 against 1.374 without); at 0.1 it lost a third of the gain over APIC (1.284; APIC 0.914).
+FIT_MASS_FRACTION = 0.01
+
+
 @dataclass
 class PolynomialFuncs:
     shift: Callable         # @ti.func (p, st) -> the constant that makes sum w f(r) = v_p at the particle's position
     velocity_at: Callable   # @ti.func (p, r, shift) -> the particle's velocity polynomial at offset r from it
     moment: Callable        # @ti.func (p, st) -> sum w f(r) r^T over its stencil (its modes' angular momentum / m)
     speed2: Callable        # @ti.func (p, st) -> sum w |f(r)|^2 over its stencil (twice its kinetic energy / m)
-    make_record: Callable   # (read_v) -> @ti.func (p, st): fit the node velocities read_v(p, I) of the stencil
+    make_record: Callable   # (read_v, density) -> @ti.func (p, st): fit the node velocities read_v(p, I) of the stencil
 
 
 def make_axis_values(S: int):
@@ -91,7 +101,8 @@ def make_orthogonalise(dim: int, S: int, tiny: float):
 
 def make_polynomial(ctx, poly_c, poly_g, which: str) -> PolynomialFuncs:
     """poly_c: per particle (modes, d) coefficients; poly_g: per particle (d, len(lower_terms)) axis polynomials."""
-    dim, S, sten, inv_dx, v = ctx.dim, ctx.basis.stencil, ctx.stencil, 1.0 / ctx.dx, ctx.v
+    dim, S, sten, inv_dx, v, gm = ctx.dim, ctx.basis.stencil, ctx.stencil, 1.0 / ctx.dx, ctx.v, ctx.gm
+    cell = ctx.dx ** dim
     mode_list = modes(dim, S - 1, which)
     nodes = list(product(range(S), repeat=dim))
     n_modes = len(mode_list)
@@ -144,14 +155,19 @@ def make_polynomial(ctx, poly_c, poly_g, which: str) -> PolynomialFuncs:
     def velocity_at(p, r, offset):
         return evaluate(poly_c[p], poly_g[p], r) + offset
 
-    def make_record(read_v):
+    def make_record(read_v, density):
         @ti.func
         def record(p, st):
             G, N = orthogonalise(st[1], st[3] * inv_dx)   # the tensor stencil's 1D weights and offsets per axis
             C = ti.Matrix.zero(float, n_modes, dim)
+            light = FIT_MASS_FRACTION * density(p) * cell   # a node lighter than this: the particle's own field
+            C_old, G_old, offset = poly_c[p], poly_g[p], shift(p, st)   # (v_p is the new one already)
             for n in ti.static(range(len(nodes))):
                 I, w, _, r = sten.node(st, ti.Vector(nodes[n]))
-                C += (w * mode_values(axis_table(G, r))).outer_product(read_v(p, I))
+                vi = read_v(p, I)
+                if gm[I] < light:
+                    vi = evaluate(C_old, G_old, r) + offset
+                C += (w * mode_values(axis_table(G, r))).outer_product(vi)
             norms = mode_values(N)
             for m in ti.static(range(n_modes)):
                 scale = 0.0

@@ -348,7 +348,7 @@ def make_g2p(ctx, mf, af, external_force):
     failure = make_failure_code(ctx, mf)
     grad = make_gradient(sten, f.mls)   # grad v from grad w, or MLS-MPM's w D_p^-1 r
     is_fluid, project = mf.is_fluid, mf.project
-    fit = af.make_fit(read_v)   # polypic's fit of the stencil's velocities
+    fit = af.make_fit(read_v, mf.density)   # polypic's fit of the stencil's velocities
 
     # 3D with two or three axes unrolled (3D quadratic G2P 20 % faster); node by node with fewer unrolled axes
     # (the whole stencil at run time: 9.4 against 7.6 ms; 3D cubic's one unrolled axis: the same) and in 2D
