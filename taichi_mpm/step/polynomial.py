@@ -11,7 +11,6 @@ monomial coefficients below the leading one (poly_g: phi_j = rho^j + sum_{l<j} g
 Physics code only: no CLI, rendering or file I/O here.
 """
 from dataclasses import dataclass
-from itertools import product
 from typing import Callable
 
 import taichi as ti
@@ -104,11 +103,20 @@ def make_polynomial(ctx, poly_c, poly_g, which: str) -> PolynomialFuncs:
     dim, S, sten, inv_dx, v, gm = ctx.dim, ctx.basis.stencil, ctx.stencil, 1.0 / ctx.dx, ctx.v, ctx.gm
     cell = ctx.dx ** dim
     mode_list = modes(dim, S - 1, which)
-    nodes = list(product(range(S), repeat=dim))
-    n_modes = len(mode_list)
+    n_nodes, n_modes = S ** dim, len(mode_list)
     tiny = 1e-12 if ctx.precision == "f64" else 1e-6   # a norm below this (in cells) is a mode the weights lack
     axis_values = make_axis_values(S)
     orthogonalise = make_orthogonalise(dim, S, tiny)
+
+    @ti.func
+    def node_offset(n):
+        """Stencil node n's offset, the first axis fastest."""
+        off = ti.Vector.zero(int, dim)
+        q = n
+        for a in ti.static(range(dim)):
+            off[a] = q % S
+            q //= S
+        return off
 
     @ti.func
     def mode_values(T):
@@ -162,8 +170,8 @@ def make_polynomial(ctx, poly_c, poly_g, which: str) -> PolynomialFuncs:
             C = ti.Matrix.zero(float, n_modes, dim)
             light = FIT_MASS_FRACTION * density(p) * cell   # a node lighter than this: the particle's own field
             C_old, G_old, offset = poly_c[p], poly_g[p], shift(p, st)   # (v_p is the new one already)
-            for n in ti.static(range(len(nodes))):
-                I, w, _, r = sten.node(st, ti.Vector(nodes[n]))
+            for n in range(n_nodes):   # at run time: unrolled, 3D quadratic compiled for 319 s against 6 s
+                I, w, _, r = sten.node(st, node_offset(n))
                 vi = read_v(p, I)
                 if gm[I] < light:
                     vi = evaluate(C_old, G_old, r) + offset
@@ -179,11 +187,11 @@ def make_polynomial(ctx, poly_c, poly_g, which: str) -> PolynomialFuncs:
             poly_g[p] = G
         return record
 
-    moment, speed2 = make_stencil_sums(dim, sten, nodes, poly_c, poly_g, evaluate, shift)
+    moment, speed2 = make_stencil_sums(dim, sten, n_nodes, node_offset, poly_c, poly_g, evaluate, shift)
     return PolynomialFuncs(shift, velocity_at, moment, speed2, make_record)
 
 
-def make_stencil_sums(dim, sten, nodes, poly_c, poly_g, evaluate, shift):
+def make_stencil_sums(dim, sten, n_nodes, node_offset, poly_c, poly_g, evaluate, shift):
     """The diagnostics' sums over a particle's stencil of what P2G maps: moment(p, st) = sum w f(r) r^T and
     speed2(p, st) = sum w |f(r)|^2."""
     @ti.func
@@ -191,8 +199,8 @@ def make_stencil_sums(dim, sten, nodes, poly_c, poly_g, evaluate, shift):
         """Its modes' angular momentum per unit mass, eps : this (step/diagnostics.py)."""
         B = ti.Matrix.zero(float, dim, dim)
         C, G, offset = poly_c[p], poly_g[p], shift(p, st)
-        for n in ti.static(range(len(nodes))):
-            _, w, _, r = sten.node(st, ti.Vector(nodes[n]))
+        for n in range(n_nodes):
+            _, w, _, r = sten.node(st, node_offset(n))
             B += w * (evaluate(C, G, r) + offset).outer_product(r)
         return B
 
@@ -202,8 +210,8 @@ def make_stencil_sums(dim, sten, nodes, poly_c, poly_g, evaluate, shift):
         G2P fit, a weighted least-squares projection, never raises it above the grid's."""
         out = 0.0
         C, G, offset = poly_c[p], poly_g[p], shift(p, st)
-        for n in ti.static(range(len(nodes))):
-            _, w, _, r = sten.node(st, ti.Vector(nodes[n]))
+        for n in range(n_nodes):
+            _, w, _, r = sten.node(st, node_offset(n))
             out += w * (evaluate(C, G, r) + offset).norm_sqr()
         return out
     return moment, speed2
