@@ -30,8 +30,8 @@ class Scheme:
     # TPIC: the affine part is the particle's velocity gradient sum v_i grad w^T (a Taylor expansion about x_p)
     # for every basis, not B_p D_p^-1 (multilinear weights use the gradient anyway: Stencil.apic_gradient)
     taylor: bool = False
-    # PolyPIC: the particle carries the polynomial that interpolates its stencil's node velocities (every tensor mode
-    # of the basis' degree), mapped to the nodes it touches next step (step/polynomial.py)
+    # PolyPIC: the particle carries a polynomial velocity fitted to its stencil's node velocities (the modes of
+    # solver.polypic_modes), mapped to the nodes it touches next step (step/polynomial.py)
     polynomial: bool = False
 
 
