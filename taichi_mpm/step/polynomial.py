@@ -27,6 +27,16 @@ from ..schemes.polypic import lower_terms, modes
 # L0/20 against 1.374 without); at 0.1 it lost a third of the gain over APIC (1.284; APIC 0.914).
 FIT_MASS_FRACTION = 0.01
 
+# The top modes (a per-axis degree of p, the basis' degree; quadratic and cubic only) are fitted with a ridge,
+# c = sum w v s / (N + TOP_MODE_RIDGE / N) in place of / N (N = sum w s^2, in cells): a top mode lives on the
+# stencil's low-weight nodes, and where the particle sits so that its norm nears zero (a quadratic's x^2 mode, 0.01
+# cells from the position where the third node's weight vanishes), 1 / N carries one node's error into the next P2G
+# without bound; the ridge bounds the gain at 1 / (2 sqrt(TOP_MODE_RIDGE)). Measured (docs/transfers.md, "PolyPIC"):
+# without it the a = 10 collapse at L0/40 blew up at step 30 032 as it came to rest (1 360 m/s, twice at the same
+# step); with 1e-8, 1e-7 or 1e-6 it comes to rest; a wave the modes resolve loses 1e-4 of its amplitude in 100 round
+# trips at 1e-7 (1e-3 at 1e-6), and the sliding layer keeps 0.419 m/s at 0.1 s against 0.421 without (0.406 at 1e-6).
+TOP_MODE_RIDGE = 1e-7
+
 
 @dataclass
 class PolynomialFuncs:
@@ -105,6 +115,7 @@ def make_polynomial(ctx, poly_c, poly_g, which: str) -> PolynomialFuncs:
     mode_list = modes(dim, S - 1, which)
     n_nodes, n_modes = S ** dim, len(mode_list)
     tiny = 1e-12 if ctx.precision == "f64" else 1e-6   # a norm below this (in cells) is a mode the weights lack
+    top = [S > 2 and max(k) == S - 1 for k in mode_list]   # in Python: Taichi scope's max is another function
     axis_values = make_axis_values(S)
     orthogonalise = make_orthogonalise(dim, S, tiny)
 
@@ -179,7 +190,9 @@ def make_polynomial(ctx, poly_c, poly_g, which: str) -> PolynomialFuncs:
             norms = mode_values(N)
             for m in ti.static(range(n_modes)):
                 scale = 0.0
-                if norms[m] > tiny ** dim:
+                if ti.static(top[m]):
+                    scale = norms[m] / (norms[m] ** 2 + TOP_MODE_RIDGE)
+                elif norms[m] > tiny ** dim:
                     scale = 1.0 / norms[m]
                 for b in ti.static(range(dim)):
                     C[m, b] *= scale
