@@ -176,12 +176,16 @@ def test_tall_cylinder_collapse_within_15_percent_of_lube_2004(tmp_path):
     assert r["speed"] < 0.05, r
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(reason="measured 0.64 against 1.24 (-48 %) at dx = R0 / 6, 0.66 at R0 / 9, 0.69 at R0 / 12 "
-                          "(mu_i 0.77, and on a quarter cylinder 0.82 at R0/18, 0.86 at R0/24); 0.79 with the plane-strain "
-                          "cone (docs/materials.md): still growing with dx, "
-                          "and the 2D columns converge only from L0/40-60", strict=False)
-def test_granular_collapse_3d_run_out_against_lube_2004(collapse_3d):
-    """Lube et al. 2004 (axisymmetric columns): (R_inf - R0) / R0 = 1.24 a for a < 1.7, within 25 %."""
-    d = collapse_3d.deposit
-    assert abs(d["runout"] / 1.24 - 1) < 0.25, d
+@pytest.mark.slow   # about 3 minutes
+def test_low_cylinder_collapse_with_polypic_within_15_percent_of_lube_2004(tmp_path):
+    """Lube et al. 2004 (axisymmetric columns): (R_inf - R0) / R0 = 1.24 a for a < 1.7. The column of a = 1 on a
+    quarter of the cylinder at dx = R0/12 with Mohr-Coulomb at the 2D columns' angle (35.26 deg, volume correction)
+    and PolyPIC runs out 1.09 (-12 %; 0.95 at R0/8, 1.17 at R0/18: docs/materials.md "3D columns"). With APIC the same
+    column ran 0.70 (-43 %; mu(I) 0.77, the demo's drucker_prager at R0/6 0.64): the shear band under the toe loses
+    momentum at every transfer, as in 2D. A column that stopped as it fell fails the band; at rest by 0.6 s."""
+    mc = ("materials.sand={model: mohr_coulomb, E: 3.0e5, nu: 0.3, density: 1500, friction_angle: 35.26, "
+          "volume_correction: true}")
+    r = load_demo("quarter_collapse_3d", "tools").main(["12", "--aspect", "1", "--out", str(tmp_path),
+                                                         "--set", mc, "--set", "solver.transfer=polypic"])
+    assert abs(r["runout"] / r["expected"] - 1) < 0.15, r
+    assert r["speed"] < 0.05, r
