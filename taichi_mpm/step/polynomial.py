@@ -32,9 +32,10 @@ FIT_MASS_FRACTION = 0.01
 # stencil's low-weight nodes, and where the particle sits so that its norm nears zero (a quadratic's x^2 mode, 0.01
 # cells from the position where the third node's weight vanishes), 1 / N carries one node's error into the next P2G
 # without bound; the ridge bounds the gain at 1 / (2 sqrt(TOP_MODE_RIDGE)). Measured (docs/transfers.md, "PolyPIC"):
-# without it the a = 10 collapse at L0/40 blew up at step 30 032 as it came to rest (1 360 m/s, twice at the same
-# step); with 1e-8, 1e-7 or 1e-6 it comes to rest; a wave the modes resolve loses 1e-4 of its amplitude in 100 round
-# trips at 1e-7 (1e-3 at 1e-6), and the sliding layer keeps 0.419 m/s at 0.1 s against 0.421 without (0.406 at 1e-6).
+# without it the a = 10 collapse at L0/40 blew up as it came to rest (1 360 m/s; in two runs, at steps 30 031 and
+# 30 032); with 1e-8, 1e-7 or 1e-6 it comes to rest; a wave the modes resolve loses 1e-4 of its amplitude in 100
+# round trips at 1e-7 (1e-3 at 1e-6), and the sliding layer keeps 0.419 m/s at 0.1 s against 0.421 without (0.406
+# at 1e-6).
 TOP_MODE_RIDGE = 1e-7
 
 
