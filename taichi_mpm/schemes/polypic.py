@@ -7,7 +7,7 @@ positions and F as PIC. A grid field in the modes' span survives a round trip ex
 affine part; uniform B-splines of degree p reproduce polynomials of degree p, so the momentum P2G maps, m_p sum w f(r),
 is m_p v_p wherever the particle has moved: linear momentum is conserved, angular momentum nearly (its cubic moments
 move with the particle). Measured (docs/transfers.md, "PolyPIC"): the stability map's 29 scenarios, 22 stable with
-`total` and 21 with `full`, whose 3D step costs 1.5x total's."""
+`total` and with `full`, whose 3D step costs 1.5x total's."""
 from itertools import product
 
 from .base import Scheme, register

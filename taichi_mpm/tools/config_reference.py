@@ -137,7 +137,7 @@ DESCRIPTIONS: dict[str, tuple[str, str]] = {
     "solver.polypic_modes": ("", "PolyPIC's modes when transfer is polypic: total (the products of total degree <= "
                                  "the basis' degree: 6 in 2D, 10 in 3D for quadratic) or full (every product of "
                                  "per-axis degree <= it: 9 and 27; the fit interpolates the stencil; 1.5x total's step "
-                                 "in 3D, one stability scenario fewer: docs/transfers.md) (Fu et al. 2017)"),
+                                 "in 3D: docs/transfers.md) (Fu et al. 2017)"),
     "solver.asflip": ("", "ASFLIP's parameters when transfer is asflip (Fei et al. 2021; docs/transfers.md)"),
     "solver.asflip.flip": ("1", "ASFLIP's FLIP part: v = v_PIC + flip (v_p - sum w v_old)"),
     "solver.asflip.position": ("1", "ASFLIP's position correction for particles not compressed (J >= 1): x += dt "
