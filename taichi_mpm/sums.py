@@ -22,7 +22,7 @@ import numpy as np
 import taichi as ti
 
 MAX_ROW_VALUES = 1 << 21   # chunks x slots stays below 16 MB (scenes with thousands of bodies get fewer chunks)
-CPU_TASK = 512             # Taichi's CPU loop transform: a range-for runs as max(n / threads, 512)-iteration tasks
+CPU_TASK = 512             # Taichi's CPU range-for runs as tasks of min(1024, max(512, n / (32 threads))) iterations
 CPU_CHUNKS = 4 * CPU_TASK  # chunk rows on a CPU: tasks for up to 4 threads, whatever the pool (same sums)
 GPU_CHUNKS = 1 << 16
 

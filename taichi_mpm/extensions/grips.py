@@ -134,10 +134,9 @@ class Grips(Extension):
         @ti.kernel
         def set_values(values: ti.types.matrix(k_grips, d, float)):
             """This step's grip velocities (row k: grip k)."""
-            for _ in range(1):
-                for k in ti.static(range(k_grips)):
-                    for c in ti.static(range(d)):
-                        velocity[k][c] = values[k, c]
+            for k in ti.static(range(k_grips)):   # top-level statements: no parallel task of one iteration
+                for c in ti.static(range(d)):
+                    velocity[k][c] = values[k, c]
         return set_values
 
     def upload(self):

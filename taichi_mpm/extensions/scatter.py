@@ -107,23 +107,27 @@ class BlockBins:
 
         @ti.kernel
         def bin():
-            for _ in range(1):
-                n_blocks[None] = 0
-                used[None] = 0
-                for c in range(colours + 1):
-                    offset[c] = 0
-                for c in range(colours):
-                    filled[c] = 0
+            # top-level statements run on the calling thread; a `for _ in range(1)` is a parallel task of one
+            # iteration that wakes the thread pool (a kernel of such a loop alone: 0.2 ms a launch on 2 cores,
+            # 0.035 ms as statements; docs/performance.md, "Fixed costs of a step")
+            n_blocks[None] = 0
+            used[None] = 0
+            for c in ti.static(range(colours + 1)):
+                offset[c] = 0
+            for c in ti.static(range(colours)):
+                filled[c] = 0
             for p in range(n):   # count each block's particles; list the blocks
                 b = origin(p) // B
                 home[p] = b
                 if ti.atomic_add(count[b], 1) == 0:
                     block[ti.atomic_add(n_blocks[None], 1)] = b
                     ti.atomic_add(offset[colour(b) + 1], 1)
-            for _ in range(1):   # where each colour's blocks start in the list
-                for c in range(1, colours + 1):
-                    offset[c] += offset[c - 1]
-            for k in range(n_blocks[None]):   # each block's run of `order`, listed under its colour
+            for c in ti.static(range(1, colours + 1)):   # where each colour's blocks start in the list
+                offset[c] += offset[c - 1]
+            # each block's run of `order`, listed under its colour: a short serial pass over the occupied blocks
+            # (hundreds to a few thousand), one parallel task fewer
+            ti.loop_config(serialize=True)
+            for k in range(n_blocks[None]):
                 b = block[k]
                 c = colour(b)
                 j = offset[c] + ti.atomic_add(filled[c], 1)
@@ -157,8 +161,8 @@ class BlockBins:
 
 def across_threads(body):
     """@ti.func (first, last, arg) calling body(j, arg) for j in first .. last - 1, spread over the CPU threads.
-    Call it at a kernel's top level. Taichi runs a CPU range-for as tasks of max(n / threads, 512) iterations, so a
-    loop over tens or hundreds of blocks would be one task on one thread; this loop has 512 iterations per thread
+    Call it at a kernel's top level. Taichi runs a CPU range-for as tasks of at least 512 iterations, so a loop over
+    tens or hundreds of blocks would be one task on one thread; this loop has 512 iterations per thread
     instead, and the first of each 512 takes every threads-th j (neighbouring blocks, of similar fill, go to
     different threads)."""
     threads = max(1, cpu_threads())

@@ -83,12 +83,11 @@ class Walls(Extension):
         @ti.kernel
         def set_values(values: ti.types.matrix(2 * d, d, float), spins: ti.types.vector(2 * d, float)):
             """This step's velocities of the velocity faces (per face slot) and of the turning faces' spins."""
-            for _ in range(1):
-                for slot in ti.static(range(2 * d)):
-                    for c in ti.static(range(d)):
-                        wall_v[slot][c] = values[slot, c]
-                    if ti.static(turning):
-                        wall_w[slot] = spins[slot]
+            for slot in ti.static(range(2 * d)):   # top-level statements: no parallel task of one iteration
+                for c in ti.static(range(d)):
+                    wall_v[slot][c] = values[slot, c]
+                if ti.static(turning):
+                    wall_w[slot] = spins[slot]
         return set_values
 
     def upload(self):
