@@ -38,17 +38,24 @@ class RuntimeParams:
 
 class StepStatus:
     """A step's failure code (the smallest particle x codes + cause any kernel found, `none` if none) and the
-    largest squared particle speed G2P saw: reset before G2P, read after the step."""
+    largest squared particle speed G2P saw: reset before G2P (`clear` at the end of the kernel before it, or
+    `reset`), read after the step."""
 
     def __init__(self, none: int):
         self.fail = ti.field(ti.i32, ())
         self.vmax2 = ti.field(float, ())
         fail, vmax2 = self.fail, self.vmax2
 
-        @ti.kernel
-        def reset():
+        @ti.func
+        def clear():
             fail[None] = none
             vmax2[None] = 0.0
+
+        @ti.kernel
+        def reset():
+            clear()
+
+        self.clear = clear
 
         @ti.kernel
         def read() -> ti.types.vector(2, ti.f64):

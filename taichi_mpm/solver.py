@@ -119,6 +119,7 @@ class Simulation:
         self._half_dt = 0.0  # half the last step: the leapfrog velocities' lag behind the clock (0: in step)
         self.dt_limit = None  # which rate limited the last CFL-rule dt (one of DT_LIMITS)
         self._balance = None  # energy balance reference (see _check_energy_balance)
+        self._energy_rows = self._work_row = None   # host arrays the energies kernel fills (_energy_parts)
         self._potentials = {}  # step -> strain + gravity potential of that state (energy_balance's pairing)
         self._body_acc_time, self._body_acc_max = None, 0.0
         self._vmax = _max_speed(self.scene.v) if self.n else 0.0
@@ -295,7 +296,8 @@ class Simulation:
             materials=[MODELS[m.model].build(m, dim, nq) for m in self._materials], n_state=nq,
             state=self.state, stress0=self.stress0, body_acc=self.body_acc,
             gravity=self.gravity_field, gravity_before=self.gravity_before_field, stiffness=self.stiffness_field,
-            flip_blend=self.flip_blend_field, work=self.work, fail=self.fail, vmax2=self.vmax2, fail_codes=_CODES,
+            flip_blend=self.flip_blend_field, work=self.work, fail=self.fail, vmax2=self.vmax2,
+            clear_status=self.status.clear, fail_codes=_CODES,
             asflip=(asf.flip, asf.position_min, asf.position), load=self.load,
             diag=self.diag, moments=self.moments, body_id=self.body_id, bins=self.bins)
 
@@ -425,8 +427,8 @@ class Simulation:
         k["grid_update"](kick_before, kick_after, special)
         if self.feat.xpic:
             self._extend_velocities()
-        if not self.feat.usf:   # USF's first pass reset them, and may have found a failed particle
-            self.status.reset()
+        # grid_update reset the failure flag and speed maximum (USF's first pass did, and may have found a failed
+        # particle)
         if self.feat.musl:
             k["g2p"](dt, kick, velocity=True, deform=False)
             self._scatter("p2g_momentum")  # the first g2p pass left the positions: the same bins
@@ -489,9 +491,11 @@ class Simulation:
         raise InstabilityError(cause, self.n_steps, self.time, particle=p, detail=detail)
 
     def _energy_parts(self):
-        self._k["energies"]()
-        e = self.diag.total()
-        w = self.work.to_numpy()
+        if self._energy_rows is None:
+            self._energy_rows, self._work_row = self.diag.rows(), np.zeros(self.work.shape[0], dtype=np.float64)
+        self._k["energies"](self._energy_rows, self._work_row)   # the sums and the work slots in one launch
+        e = self.diag.total_of(self._energy_rows)
+        w = self._work_row.copy()
         # slot 4: the stored initial stress's energy S0 : E, part of the strain energy; it falls below zero as a
         # pre-stressed body relaxes, so the balance's scale (slot 5) counts its size, not its sign
         e[5] = e[0] + e[1] + abs(e[4])

@@ -22,10 +22,13 @@ def make_diagnostics(ctx, mf, af):
     density, kirchhoff, kirchhoff3 = mf.density, mf.kirchhoff, mf.kirchhoff3
     strain_energy, initial_energy, volume_ratio = mf.strain_energy, mf.initial_energy, mf.volume_ratio
 
+    work = ctx.work
+
     @ti.kernel
-    def energies():
+    def energies(rows: ti.types.ndarray(), work_out: ti.types.ndarray()):
         """Kinetic, strain (degraded where damaged), gravity potential; slot 3: sum m |g| |x| (the
-        potential's round-off scale); slot 4: the initial stress's energy."""
+        potential's round-off scale); slot 4: the initial stress's energy. Hands the chunks' rows and the work
+        slots (sums.Slots) to the host in the same launch: rows (chunks, slots), work_out (work slots,)."""
         for c in range(acc.chunks):
             acc.clear(c)
             for p in range(acc.begin(c), acc.end(c)):
@@ -39,6 +42,9 @@ def make_diagnostics(ctx, mf, af):
                 acc.add(c, 1, vol0[p] * psi)
                 acc.add(c, 2, -mp * gravity[None].dot(x[p]))
                 acc.add(c, 3, mp * gravity[None].norm() * x[p].norm())
+        acc.copy_rows(rows)
+        for k in ti.static(range(work.shape[0])):
+            work_out[k] = work[k][None]
 
     @ti.kernel
     def body_moments():

@@ -89,6 +89,10 @@ def make_grid_update(ctx):
         raise ValueError("two extensions fold ghost nodes: only one may")
 
     own_solve = any(g.velocity is not None for g in ctx.grid_solve)
+    # the step's failure flag and speed maximum are reset for G2P at the end of the grid update (one launch fewer a
+    # step; docs/performance.md, "Fixed costs of a step"), except under USF, whose first pass resets them earlier
+    clear_status = None if ctx.feat.usf else ctx.clear_status
+    clears = clear_status is not None
     mirrors = bool(images) and images[0][1] is not None
 
     @ti.func
@@ -128,6 +132,8 @@ def make_grid_update(ctx):
                 for k in ti.static(range(len(own_fields))):   # the extensions' own node fields (multi-field contact)
                     own_fields[k](I, kick_before, kick_after)
         mirrored(gv, True)
+        if ti.static(clears):
+            clear_status()
 
     @ti.func
     def velocities(g: ti.template(), special: ti.template()):
