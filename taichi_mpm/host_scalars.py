@@ -39,7 +39,7 @@ class RuntimeParams:
 class StepStatus:
     """A step's failure code (the smallest particle x codes + cause any kernel found, `none` if none) and the
     largest squared particle speed G2P saw: reset before G2P (`clear` at the end of the kernel before it, or
-    `reset`), read after the step."""
+    `reset`), read after the step (`values` returned by the step's last kernel, or `read`)."""
 
     def __init__(self, none: int):
         self.fail = ti.field(ti.i32, ())
@@ -51,19 +51,27 @@ class StepStatus:
             fail[None] = none
             vmax2[None] = 0.0
 
+        @ti.func
+        def values():
+            return ti.Vector([ti.cast(fail[None], ti.f64), ti.cast(vmax2[None], ti.f64)])   # the code: < 2^31
+
         @ti.kernel
         def reset():
             clear()
 
-        self.clear = clear
-
         @ti.kernel
         def read() -> ti.types.vector(2, ti.f64):
-            return ti.Vector([ti.cast(fail[None], ti.f64), ti.cast(vmax2[None], ti.f64)])   # the code: < 2^31
+            return values()
 
+        self.clear, self.values = clear, values
         self.reset, self._read = reset, read
 
     def read(self) -> tuple[int, float]:
         """(failure code, largest squared speed)."""
-        code, vmax2 = self._read()
+        return self.decode(self._read())
+
+    @staticmethod
+    def decode(values) -> tuple[int, float]:
+        """(failure code, largest squared speed) from `values` as a kernel returned them."""
+        code, vmax2 = values
         return int(code), float(vmax2)

@@ -44,6 +44,7 @@ from .scene import Scene, build_scene
 from . import step as step_kernels
 from .step import Features, StepContext
 from .step import extensions as step_extensions
+from .step.moments import Extension
 from .step.transfers import DEFORM_F, DEFORM_X, FLUID_J_MIN
 
 FAIL_CAUSES = {1: "inverted or collapsed particle (J <= 0)",
@@ -165,6 +166,7 @@ class Simulation:
             self.mapped.allocate_particles(n)
         setup = self._setup(f, coloured=self.needs.coloured)
         self.extensions = step_extensions.create(setup)
+        self._acts_after_g2p = any(type(e).after_g2p is not Extension.after_g2p for e in self.extensions)
         # v (v_old: FLIP, XPIC, ASFLIP; XPIC's three; v2: MUSL; grip) by the mass, and apart, few touched, the crack
         # finder's node fields (tensor node mass rows, normals, marks): all declared in layout.main_grid; then the
         # node fields of an extension layout.py does not know (a plug-in's grid_fields)
@@ -297,7 +299,7 @@ class Simulation:
             state=self.state, stress0=self.stress0, body_acc=self.body_acc,
             gravity=self.gravity_field, gravity_before=self.gravity_before_field, stiffness=self.stiffness_field,
             flip_blend=self.flip_blend_field, work=self.work, fail=self.fail, vmax2=self.vmax2,
-            clear_status=self.status.clear, fail_codes=_CODES,
+            status=self.status, fail_codes=_CODES,
             asflip=(asf.flip, asf.position_min, asf.position), load=self.load,
             diag=self.diag, moments=self.moments, body_id=self.body_id, bins=self.bins)
 
@@ -433,9 +435,9 @@ class Simulation:
             k["g2p"](dt, kick, velocity=True, deform=False)
             self._scatter("p2g_momentum")  # the first g2p pass left the positions: the same bins
             k["grid_remap"](special)
-            k["g2p"](dt, kick, velocity=False, deform=True)
+            status = k["g2p"](dt, kick, velocity=False, deform=True)
         else:   # USF updated F in its first pass: the positions only
-            k["g2p"](dt, kick, velocity=True, deform=DEFORM_X if self.feat.usf else True)
+            status = k["g2p"](dt, kick, velocity=True, deform=DEFORM_X if self.feat.usf else True)
         for e in self.extensions:
             e.after_g2p()   # the mapped grid's xi_p, F-bar's volume average
         self.dt, self._half_dt = dt, 0.5 * dt
@@ -444,7 +446,8 @@ class Simulation:
             self._upload_runtime()
         self.n_steps += 1
         self.time += dt
-        code, vmax2 = self.status.read()
+        # the last G2P pass's status, or read after the extensions' passes (the mapped grid's may find a failure)
+        code, vmax2 = self.status.read() if self._acts_after_g2p else self.status.decode(status)
         self._vmax = math.sqrt(max(vmax2, 0.0))
         if code != _NO_FAIL:
             self._raise_particle_failure(code, dt)

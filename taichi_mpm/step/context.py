@@ -30,7 +30,7 @@ class StepContext(KernelContext):
     work: Any = None
     fail: Any = None                 # smallest solver slot * codes + cause of a failed particle
     vmax2: Any = None                # largest squared particle speed of the step
-    clear_status: Any = None         # @ti.func () resetting fail and vmax2 (host_scalars.StepStatus.clear)
+    status: Any = None               # host_scalars.StepStatus: fail and vmax2's clear() and values() @ti.funcs
     fail_codes: int = 8
     load: Any = None                 # the per-particle external force (extensions/tractions.py writes it)
     # diagnostics

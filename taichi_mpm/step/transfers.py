@@ -431,13 +431,17 @@ def make_g2p(ctx, mf, af, external_force):
         if code != 0:
             ti.atomic_min(fail[None], p * n_codes + code)
 
+    status_values = ctx.status.values
+
     @ti.kernel
-    def g2p(dt: float, kick: float, velocity: ti.template(), deform: ti.template()):
+    def g2p(dt: float, kick: float, velocity: ti.template(), deform: ti.template()) -> ti.types.vector(2, ti.f64):
         """Grid to particles. velocity: new v (PIC, FLIP or APIC) and APIC's C, and the work of body forces
         and tractions over the kick, by the trapezoid of the old and new velocities (exact for a uniform force:
         the kinetic energy's change). deform: positions x += dt v_grid, F = (I + dt grad v) F, and checks
         (True; DEFORM_F or DEFORM_X for one of them). USL does both in one pass; MUSL does them in two passes
-        around the momentum remap; USF updates F (DEFORM_F) before the forces and the rest (DEFORM_X) after them."""
+        around the momentum remap; USF updates F (DEFORM_F) before the forces and the rest (DEFORM_X) after them.
+        Returns the step's status as it stands after the pass (StepStatus.values: the step reads it from the last
+        pass where no extension acts after G2P, without a launch of its own)."""
         for p in x:
             st = sten.at(p)
             v_pic = ti.Vector.zero(float, dim)
@@ -455,5 +459,6 @@ def make_g2p(ctx, mf, af, external_force):
                 new_velocity(p, st, kick, v_pic, dv, B, G)
             if ti.static(deform):
                 deform_particle(p, st, dt, v_pic, G, deform)
+        return status_values()
 
     return dict(g2p=g2p)
