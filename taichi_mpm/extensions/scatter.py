@@ -130,8 +130,10 @@ class BlockBins:
             for k in range(n_blocks[None]):
                 b = block[k]
                 c = colour(b)
-                j = offset[c] + ti.atomic_add(filled[c], 1)
-                s = ti.atomic_add(used[None], count[b])
+                j = offset[c] + filled[c]   # serial: plain counters
+                filled[c] += 1
+                s = used[None]
+                used[None] += count[b]
                 start[b] = s
                 lo[j], hi[j] = s, s + count[b]
                 count[b] = 0

@@ -91,8 +91,7 @@ def make_grid_update(ctx):
     own_solve = any(g.velocity is not None for g in ctx.grid_solve)
     # the step's failure flag and speed maximum are reset for G2P at the end of the grid update (one launch fewer a
     # step; docs/performance.md, "Fixed costs of a step"), except under USF, whose first pass resets them earlier
-    clear_status = None if ctx.feat.usf else ctx.status.clear
-    clears = clear_status is not None
+    clears, clear_status = not ctx.feat.usf, ctx.status.clear
     mirrors = bool(images) and images[0][1] is not None
 
     @ti.func
